@@ -1,0 +1,36 @@
+// The one exception type of romunect: bad input from outside (files, JSON, CLI arguments,
+// devices). It is thrown only by code that reads such input and caught once, in the CLI.
+// Programmer errors use ROMUNECT_CHECK (check.h); per-frame numeric events never throw.
+#pragma once
+
+#include <stdexcept>
+#include <string>
+
+namespace romunect {
+
+class InputError : public std::runtime_error {
+ public:
+  // `source` names where the input came from (a file path, "--voxel", a device URI),
+  // `field` the part that is wrong (a JSON key path, a channel, a pixel), `problem` says
+  // what was found and what was expected. The message reads "source: field: problem".
+  InputError(const std::string& source, const std::string& field, const std::string& problem)
+      : std::runtime_error(Compose(source, field, problem)),
+        source_(source),
+        field_(field) {}
+
+  const std::string& source() const { return source_; }
+  const std::string& field() const { return field_; }
+
+ private:
+  static std::string Compose(const std::string& source, const std::string& field,
+                             const std::string& problem) {
+    std::string message = source;
+    if (!field.empty()) message += ": " + field;
+    return message + ": " + problem;
+  }
+
+  std::string source_;
+  std::string field_;
+};
+
+}  // namespace romunect

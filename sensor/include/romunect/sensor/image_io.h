@@ -1,0 +1,33 @@
+// Image files of romunect: metric depth as single-channel float32 OpenEXR (channel "Z",
+// metres), IR and device raw depth as 16-bit PNG. Every writer writes a temporary file in the
+// same folder and renames it, so no half-written file is ever left under the final name.
+// Readers throw InputError naming the file and what was expected.
+#pragma once
+
+#include <filesystem>
+#include <functional>
+
+#include <opencv2/core.hpp>
+
+namespace romunect {
+
+// Reads a single-channel float EXR with a channel named "Z" into a CV_32F Mat.
+cv::Mat ReadDepthExr(const std::filesystem::path& path);
+// Writes a CV_32F Mat as a float32 EXR with one channel "Z" (NaN and 0 are written as is).
+void WriteDepthExr(const std::filesystem::path& path, const cv::Mat& depth);
+
+// Reads a 16-bit single-channel PNG into a CV_16U Mat.
+cv::Mat ReadPng16(const std::filesystem::path& path);
+// Writes a CV_16U Mat as a 16-bit PNG.
+void WritePng16(const std::filesystem::path& path, const cv::Mat& image);
+// Writes an 8-bit picture (CV_8UC1 or CV_8UC3, BGR) as PNG, for people to look at.
+void WritePicture(const std::filesystem::path& path, const cv::Mat& image);
+
+// Calls write(tmp) with a temporary path beside `path`, then renames it to `path`. If write
+// throws, the temporary is removed and the exception propagates; `path` is untouched.
+void WriteAtomically(const std::filesystem::path& path,
+                     const std::function<void(const std::filesystem::path& tmp)>& write);
+// Writes text to a file atomically.
+void WriteTextAtomically(const std::filesystem::path& path, const std::string& text);
+
+}  // namespace romunect

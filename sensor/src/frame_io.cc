@@ -1,0 +1,302 @@
+#include "romunect/sensor/frame_io.h"
+
+#include <cmath>
+#include <cstdio>
+#include <set>
+#include <sstream>
+
+#include "json_fields.h"
+#include "romunect/sensor/check.h"
+#include "romunect/sensor/errors.h"
+#include "romunect/sensor/image_io.h"
+
+namespace romunect {
+namespace fs = std::filesystem;
+using json_fields::Field;
+using nlohmann::json;
+
+namespace {
+
+constexpr const char* kManifestName = "frames.json";
+
+std::optional<Pose> ReadPose(const Field& entry, const std::string& key) {
+  if (!entry.Has(key)) return std::nullopt;
+  const Field field = entry[key];
+  const std::array<double, 16> numbers = field.Numbers<16>();
+  Eigen::Matrix4d m;
+  for (int i = 0; i < 16; ++i) m(i / 4, i % 4) = numbers[i];
+  if (const std::string problem = RigidityProblem(m); !problem.empty()) {
+    field.Fail("not a rigid transform (row-major 4x4 expected): " + problem);
+  }
+  return PoseFromRowMajor(numbers);
+}
+
+std::string ReadImagePath(const Field& entry, const std::string& key) {
+  if (!entry.Has(key)) return "";
+  const Field field = entry[key];
+  const std::string path = field.String();
+  if (path.empty()) field.Fail("expected a relative file path, found an empty string");
+  const fs::path p(path);
+  if (p.is_absolute()) field.Fail("expected a path relative to the frame directory, found " + path);
+  for (const auto& part : p) {
+    if (part == "..") field.Fail("must stay inside the frame directory (no '..'): " + path);
+  }
+  return path;
+}
+
+// Unknown keys of a JSON object, as the text of an object.
+std::string ExtraKeys(const json& object, const std::set<std::string>& known) {
+  json extra = json::object();
+  for (const auto& [key, value] : object.items()) {
+    if (!known.count(key)) extra[key] = value;
+  }
+  return extra.dump();
+}
+
+json Row(const Pose& T) {
+  const auto numbers = PoseToRowMajor(T);
+  return json(std::vector<double>(numbers.begin(), numbers.end()));
+}
+
+std::string Describe(const cv::Mat& m) {
+  std::ostringstream s;
+  s << m.cols << " x " << m.rows << " " << cv::typeToString(m.type());
+  return s.str();
+}
+
+void CheckImage(const cv::Mat& image, const CameraModel& camera, int type, const fs::path& path) {
+  if (image.cols != camera.width || image.rows != camera.height) {
+    std::ostringstream s;
+    s << "expected " << camera.width << " x " << camera.height
+      << " (the camera in frames.json), found " << image.cols << " x " << image.rows;
+    throw InputError(path.string(), "image size", s.str());
+  }
+  if (image.type() != type) {
+    throw InputError(path.string(), "pixel type",
+                     "expected " + cv::typeToString(type) + ", found " + cv::typeToString(image.type()));
+  }
+}
+
+// Depth must be finite and non-negative (0 = no measurement).
+void CheckDepthValues(cv::Mat* depth, const fs::path& path, InvalidDepthPolicy policy,
+                      size_t* skipped) {
+  for (int v = 0; v < depth->rows; ++v) {
+    float* row = depth->ptr<float>(v);
+    for (int u = 0; u < depth->cols; ++u) {
+      const float d = row[u];
+      if (std::isfinite(d) && d >= 0.0f) continue;
+      if (policy == InvalidDepthPolicy::kReject) {
+        std::ostringstream s;
+        s << "pixel (u=" << u << ", v=" << v << ") is " << d
+          << "; expected a finite depth >= 0 in metres (0 = no measurement)";
+        throw InputError(path.string(), "channel Z", s.str());
+      }
+      row[u] = 0.0f;
+      if (skipped != nullptr) ++*skipped;
+    }
+  }
+}
+
+std::string FrameFile(const char* folder, int index, const char* extension) {
+  char name[64];
+  std::snprintf(name, sizeof(name), "%s/%06d.%s", folder, index, extension);
+  return name;
+}
+
+}  // namespace
+
+FrameDirectoryManifest ReadFrameDirectoryManifest(const fs::path& dir) {
+  const fs::path path = dir / kManifestName;
+  if (!fs::is_directory(dir)) throw InputError(dir.string(), "", "not a directory");
+  if (!fs::exists(path)) {
+    throw InputError(path.string(), "", "file not found (a frame directory holds frames.json)");
+  }
+  const json document = json_fields::ParseFile(path);
+  const Field root(document, path.string(), "");
+  if (!document.is_object()) root.Fail("expected a JSON object at the top level");
+
+  const std::string format = root["format"].String();
+  if (format != kFrameDirectoryFormat) {
+    root["format"].Fail("expected \"" + std::string(kFrameDirectoryFormat) + "\", found \"" + format + "\"");
+  }
+  const int version = root["version"].Int();
+  if (version != kFrameDirectoryVersion) {
+    root["version"].Fail("unknown format version " + std::to_string(version) + "; this build reads version " +
+                         std::to_string(kFrameDirectoryVersion));
+  }
+
+  FrameDirectoryManifest manifest;
+  const Field cam = root["camera"];
+  manifest.camera.width = cam["width"].Int();
+  manifest.camera.height = cam["height"].Int();
+  manifest.camera.fx = cam["fx"].Number();
+  manifest.camera.fy = cam["fy"].Number();
+  manifest.camera.cx = cam["cx"].Number();
+  manifest.camera.cy = cam["cy"].Number();
+  manifest.camera.distortion = cam["distortion"].Numbers<5>();
+  if (const std::string problem = manifest.camera.Problem(); !problem.empty()) cam.Fail(problem);
+  manifest.extra_json = ExtraKeys(document, {"format", "version", "camera", "frames"});
+
+  const Field frames = root["frames"];
+  std::set<int> indices;
+  for (size_t i = 0; i < frames.ArraySize(); ++i) {
+    const Field entry = frames[i];
+    if (!entry.value().is_object()) entry.Fail("expected an object per frame");
+    FrameRecord record;
+    record.index = entry["index"].Int();
+    if (record.index < 0) entry["index"].Fail("expected an index >= 0");
+    if (!indices.insert(record.index).second) {
+      entry["index"].Fail("index " + std::to_string(record.index) + " appears twice");
+    }
+    record.time_s = entry["time_s"].Number();
+    if (!manifest.frames.empty() && record.time_s < manifest.frames.back().time_s) {
+      entry["time_s"].Fail("times must not decrease from frame to frame");
+    }
+    record.depth = ReadImagePath(entry, "depth");
+    record.ir = ReadImagePath(entry, "ir");
+    record.raw = ReadImagePath(entry, "raw");
+    record.gt_depth = ReadImagePath(entry, "gt_depth");
+    if (record.depth.empty() && record.raw.empty()) {
+      entry["depth"];  // throws "missing (required)" naming the field
+    }
+    record.T_W_C = ReadPose(entry, "T_W_C");
+    record.T_B_H = ReadPose(entry, "T_B_H");
+    record.extra_json = ExtraKeys(entry.value(), {"index", "time_s", "depth", "ir", "raw",
+                                                  "gt_depth", "T_W_C", "T_B_H"});
+    manifest.frames.push_back(std::move(record));
+  }
+  return manifest;
+}
+
+Frame LoadFrame(const fs::path& dir, const FrameDirectoryManifest& manifest, size_t i,
+                InvalidDepthPolicy policy, size_t* skipped_pixels) {
+  ROMUNECT_CHECK(i < manifest.frames.size());
+  const FrameRecord& record = manifest.frames[i];
+  Frame frame;
+  frame.index = record.index;
+  frame.time_s = record.time_s;
+  frame.T_W_C = record.T_W_C;
+  frame.T_B_H = record.T_B_H;
+  if (!record.depth.empty()) {
+    frame.depth_m = ReadDepthExr(dir / record.depth);
+    CheckImage(frame.depth_m, manifest.camera, CV_32F, dir / record.depth);
+    CheckDepthValues(&frame.depth_m, dir / record.depth, policy, skipped_pixels);
+  }
+  if (!record.gt_depth.empty()) {
+    frame.gt_depth_m = ReadDepthExr(dir / record.gt_depth);
+    CheckImage(frame.gt_depth_m, manifest.camera, CV_32F, dir / record.gt_depth);
+    CheckDepthValues(&frame.gt_depth_m, dir / record.gt_depth, InvalidDepthPolicy::kReject, nullptr);
+  }
+  if (!record.ir.empty()) {
+    frame.ir = ReadPng16(dir / record.ir);
+    CheckImage(frame.ir, manifest.camera, CV_16U, dir / record.ir);
+  }
+  if (!record.raw.empty()) {
+    frame.raw = ReadPng16(dir / record.raw);
+    CheckImage(frame.raw, manifest.camera, CV_16U, dir / record.raw);
+  }
+  return frame;
+}
+
+void WriteFrameDirectoryManifest(const fs::path& dir, const FrameDirectoryManifest& manifest) {
+  json document = json::parse(manifest.extra_json);
+  document["format"] = kFrameDirectoryFormat;
+  document["version"] = kFrameDirectoryVersion;
+  const CameraModel& c = manifest.camera;
+  document["camera"] = {{"width", c.width}, {"height", c.height}, {"fx", c.fx}, {"fy", c.fy},
+                        {"cx", c.cx},       {"cy", c.cy},         {"distortion", c.distortion}};
+  json frames = json::array();
+  for (const FrameRecord& r : manifest.frames) {
+    json entry = json::parse(r.extra_json);
+    entry["index"] = r.index;
+    entry["time_s"] = r.time_s;
+    if (!r.depth.empty()) entry["depth"] = r.depth;
+    if (!r.ir.empty()) entry["ir"] = r.ir;
+    if (!r.raw.empty()) entry["raw"] = r.raw;
+    if (!r.gt_depth.empty()) entry["gt_depth"] = r.gt_depth;
+    if (r.T_W_C) entry["T_W_C"] = Row(*r.T_W_C);
+    if (r.T_B_H) entry["T_B_H"] = Row(*r.T_B_H);
+    frames.push_back(std::move(entry));
+  }
+  document["frames"] = std::move(frames);
+  WriteTextAtomically(dir / kManifestName, document.dump(1) + "\n");
+}
+
+FrameDirectoryWriter::FrameDirectoryWriter(const fs::path& dir, const CameraModel& camera) : dir_(dir) {
+  ROMUNECT_CHECK(camera.Problem().empty());
+  if (fs::exists(dir / kManifestName)) {
+    throw InputError((dir / kManifestName).string(), "",
+                     "already exists; refusing to overwrite an earlier frame directory");
+  }
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec) throw InputError(dir.string(), "", "cannot create directory: " + ec.message());
+  manifest_.camera = camera;
+}
+
+void FrameDirectoryWriter::SetExtraJson(const std::string& extra_json) {
+  manifest_.extra_json = extra_json;
+}
+
+void FrameDirectoryWriter::Add(const Frame& frame) {
+  ROMUNECT_CHECK(!finished_);
+  const CameraModel& c = manifest_.camera;
+  auto check = [&](const cv::Mat& m, int type) {
+    ROMUNECT_CHECK_MSG(m.empty() || (m.cols == c.width && m.rows == c.height && m.type() == type),
+                       Describe(m).c_str());
+  };
+  check(frame.ir, CV_16U);
+  check(frame.raw, CV_16U);
+  check(frame.depth_m, CV_32F);
+  check(frame.gt_depth_m, CV_32F);
+  ROMUNECT_CHECK(!frame.depth_m.empty() || !frame.raw.empty());
+
+  FrameRecord record;
+  record.index = frame.index;
+  record.time_s = frame.time_s;
+  record.T_W_C = frame.T_W_C;
+  record.T_B_H = frame.T_B_H;
+  auto write = [&](const cv::Mat& image, const char* folder, const char* extension, std::string* field) {
+    if (image.empty()) return;
+    *field = FrameFile(folder, frame.index, extension);
+    fs::create_directories(dir_ / folder);
+    if (image.type() == CV_32F) {
+      WriteDepthExr(dir_ / *field, image);
+    } else {
+      WritePng16(dir_ / *field, image);
+    }
+  };
+  write(frame.depth_m, "depth", "exr", &record.depth);
+  write(frame.ir, "ir", "png", &record.ir);
+  write(frame.raw, "raw", "png", &record.raw);
+  write(frame.gt_depth_m, "gt_depth", "exr", &record.gt_depth);
+  manifest_.frames.push_back(std::move(record));
+}
+
+void FrameDirectoryWriter::Finish() {
+  ROMUNECT_CHECK(!finished_);
+  WriteFrameDirectoryManifest(dir_, manifest_);
+  finished_ = true;
+}
+
+FrameDirectorySource::FrameDirectorySource(const fs::path& dir, InvalidDepthPolicy policy)
+    : dir_(dir), manifest_(ReadFrameDirectoryManifest(dir)), policy_(policy) {}
+
+std::string FrameDirectorySource::Describe() const {
+  return "frame directory " + dir_.string() + ", " + std::to_string(manifest_.frames.size()) + " frames";
+}
+
+FrameStatus FrameDirectorySource::Next(Frame* frame, std::string* error) {
+  ROMUNECT_CHECK(frame != nullptr && error != nullptr);
+  if (next_ >= manifest_.frames.size()) return FrameStatus::kEndOfStream;
+  const size_t i = next_++;
+  try {
+    *frame = LoadFrame(dir_, manifest_, i, policy_, &skipped_pixels_);
+  } catch (const InputError& e) {
+    *error = e.what();
+    return FrameStatus::kBadFrame;
+  }
+  return FrameStatus::kOk;
+}
+
+}  // namespace romunect

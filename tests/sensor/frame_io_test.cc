@@ -1,0 +1,258 @@
+#include "romunect/sensor/frame_io.h"
+
+#include <limits>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "romunect/sensor/errors.h"
+#include "romunect/sensor/image_io.h"
+#include "romunect/testing/test_support.h"
+
+namespace romunect {
+namespace {
+namespace fs = std::filesystem;
+using nlohmann::json;
+using testing::ScratchDir;
+
+// Expects `fn` to throw InputError whose message contains every fragment.
+template <typename Fn>
+void ExpectInputError(Fn fn, std::initializer_list<std::string> fragments) {
+  try {
+    fn();
+    ADD_FAILURE() << "expected InputError";
+  } catch (const InputError& e) {
+    for (const std::string& f : fragments) {
+      EXPECT_NE(std::string(e.what()).find(f), std::string::npos) << "'" << f << "' not in: " << e.what();
+    }
+  }
+}
+
+TEST(FrameDirectory, WrittenAndReadBackBitForBit) {
+  ScratchDir dir("frames");
+  const CameraModel camera = testing::SmallCamera();
+  const std::vector<Frame> frames = testing::SampleFrames(camera, 4, 11);
+  testing::WriteSampleFrameDirectory(dir.path(), camera, 4, 11);
+
+  FrameDirectorySource source(dir.path());
+  EXPECT_EQ(source.camera(), camera);
+  Frame frame;
+  std::string error;
+  for (const Frame& expected : frames) {
+    ASSERT_EQ(source.Next(&frame, &error), FrameStatus::kOk) << error;
+    EXPECT_EQ(frame.index, expected.index);
+    EXPECT_EQ(frame.time_s, expected.time_s);
+    EXPECT_TRUE(testing::ImagesBitEqual(frame.depth_m, expected.depth_m));
+    EXPECT_TRUE(testing::ImagesBitEqual(frame.gt_depth_m, expected.gt_depth_m));
+    EXPECT_TRUE(testing::ImagesBitEqual(frame.ir, expected.ir));
+    EXPECT_TRUE(testing::ImagesBitEqual(frame.raw, expected.raw));
+    ASSERT_TRUE(frame.T_W_C.has_value());
+    EXPECT_EQ(frame.T_W_C->matrix(), expected.T_W_C->matrix());
+    EXPECT_EQ(frame.T_B_H.has_value(), expected.T_B_H.has_value());
+    if (frame.T_B_H) {
+      EXPECT_EQ(frame.T_B_H->matrix(), expected.T_B_H->matrix());
+    }
+  }
+  EXPECT_EQ(source.Next(&frame, &error), FrameStatus::kEndOfStream);
+}
+
+TEST(FrameDirectory, SameSeedSameBytes) {
+  ScratchDir a("a"), b("b");
+  testing::WriteSampleFrameDirectory(a.path(), testing::SmallCamera(), 2, 5);
+  testing::WriteSampleFrameDirectory(b.path(), testing::SmallCamera(), 2, 5);
+  for (const char* f : {"frames.json", "depth/000001.exr", "ir/000001.png", "raw/000000.png"}) {
+    EXPECT_EQ(testing::ReadText(a / f), testing::ReadText(b / f)) << f;
+  }
+}
+
+TEST(FrameDirectory, UnknownKeysAreKeptAndIgnored) {
+  ScratchDir dir("frames");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 2, 3);
+  json doc = json::parse(testing::ReadText(dir / "frames.json"));
+  doc["producer"] = "some other tool";
+  doc["frames"][1]["exposure_s"] = 0.01;
+  testing::WriteText(dir / "frames.json", doc.dump());
+  const FrameDirectoryManifest manifest = ReadFrameDirectoryManifest(dir.path());
+  ASSERT_EQ(manifest.frames.size(), 2u);
+  // Rewriting keeps them.
+  ScratchDir copy("copy");
+  WriteFrameDirectoryManifest(copy.path(), manifest);
+  const json back = json::parse(testing::ReadText(copy / "frames.json"));
+  EXPECT_EQ(back["producer"], "some other tool");
+  EXPECT_EQ(back["frames"][1]["exposure_s"], 0.01);
+}
+
+TEST(FrameDirectory, WriterRefusesToOverwriteAFinishedDirectory) {
+  ScratchDir dir("frames");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 1, 3);
+  const std::string before = testing::ReadText(dir / "frames.json");
+  ExpectInputError([&] { FrameDirectoryWriter(dir.path(), testing::SmallCamera()); },
+                   {"frames.json", "refusing to overwrite"});
+  EXPECT_EQ(testing::ReadText(dir / "frames.json"), before);
+}
+
+TEST(FrameDirectory, UnfinishedDirectoryHasNoManifest) {
+  ScratchDir dir("frames");
+  {
+    FrameDirectoryWriter writer(dir.path(), testing::SmallCamera());
+    writer.Add(testing::SampleFrames(testing::SmallCamera(), 1, 1)[0]);
+  }
+  EXPECT_FALSE(fs::exists(dir / "frames.json"));
+  ExpectInputError([&] { ReadFrameDirectoryManifest(dir.path()); }, {"frames.json", "not found"});
+}
+
+// Each bad input: one message naming the file and the field.
+class BadFrameDirectory : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    testing::WriteSampleFrameDirectory(dir_.path(), testing::SmallCamera(), 2, 3);
+    doc_ = json::parse(testing::ReadText(dir_ / "frames.json"));
+  }
+  void Rewrite() { testing::WriteText(dir_ / "frames.json", doc_.dump()); }
+  void ExpectManifestError(std::initializer_list<std::string> fragments) {
+    ExpectInputError([&] { ReadFrameDirectoryManifest(dir_.path()); }, fragments);
+  }
+  void ExpectFrameError(size_t i, std::initializer_list<std::string> fragments) {
+    const FrameDirectoryManifest manifest = ReadFrameDirectoryManifest(dir_.path());
+    ExpectInputError([&] { LoadFrame(dir_.path(), manifest, i); }, fragments);
+  }
+  ScratchDir dir_{"frames"};
+  json doc_;
+};
+
+TEST_F(BadFrameDirectory, MissingManifest) {
+  fs::remove(dir_ / "frames.json");
+  ExpectManifestError({"frames.json", "not found"});
+}
+
+TEST_F(BadFrameDirectory, MalformedJson) {
+  testing::WriteText(dir_ / "frames.json", "{\"format\": \"romunect-frames\", \"version\": 1,, }");
+  ExpectManifestError({"frames.json", "malformed JSON"});
+}
+
+TEST_F(BadFrameDirectory, TruncatedJson) {
+  const std::string text = testing::ReadText(dir_ / "frames.json");
+  testing::WriteText(dir_ / "frames.json", text.substr(0, text.size() / 2));
+  ExpectManifestError({"frames.json", "malformed JSON"});
+}
+
+TEST_F(BadFrameDirectory, UnknownFormatVersion) {
+  doc_["version"] = 2;
+  Rewrite();
+  ExpectManifestError({"frames.json", "version", "unknown format version 2"});
+}
+
+TEST_F(BadFrameDirectory, WrongFormatName) {
+  doc_["format"] = "something-else";
+  Rewrite();
+  ExpectManifestError({"frames.json", "format", "romunect-frames"});
+}
+
+TEST_F(BadFrameDirectory, MissingCameraField) {
+  doc_["camera"].erase("fx");
+  Rewrite();
+  ExpectManifestError({"frames.json", "camera.fx", "missing"});
+}
+
+TEST_F(BadFrameDirectory, NegativeFocalLength) {
+  doc_["camera"]["fx"] = -300.0;
+  Rewrite();
+  ExpectManifestError({"frames.json", "camera", "focal"});
+}
+
+TEST_F(BadFrameDirectory, NonRigidPose) {
+  doc_["frames"][1]["T_W_C"][0] = 3.0;  // scales the rotation
+  Rewrite();
+  ExpectManifestError({"frames.json", "frames[1].T_W_C", "not a rigid transform"});
+}
+
+TEST_F(BadFrameDirectory, PoseOfWrongLength) {
+  doc_["frames"][0]["T_B_H"] = json::array({1, 0, 0});
+  Rewrite();
+  ExpectManifestError({"frames.json", "frames[0].T_B_H", "16 numbers"});
+}
+
+TEST_F(BadFrameDirectory, DepthPathEscapingTheDirectory) {
+  doc_["frames"][0]["depth"] = "../elsewhere.exr";
+  Rewrite();
+  ExpectManifestError({"frames.json", "frames[0].depth", "inside the frame directory"});
+}
+
+TEST_F(BadFrameDirectory, DecreasingTime) {
+  doc_["frames"][1]["time_s"] = -1.0;
+  Rewrite();
+  ExpectManifestError({"frames.json", "frames[1].time_s"});
+}
+
+TEST_F(BadFrameDirectory, MissingDepthFile) {
+  fs::remove(dir_ / "depth/000001.exr");
+  ExpectFrameError(1, {"depth/000001.exr", "not found"});
+}
+
+TEST_F(BadFrameDirectory, DepthOfWrongSize) {
+  WriteDepthExr(dir_ / "depth/000000.exr", cv::Mat(10, 12, CV_32F, cv::Scalar(0.2)));
+  ExpectFrameError(0, {"depth/000000.exr", "image size", "expected 80 x 60", "found 12 x 10"});
+}
+
+TEST_F(BadFrameDirectory, DepthOfWrongType) {
+  // A PNG where an EXR is expected.
+  cv::imwrite((dir_ / "depth/not_exr.png").string(), cv::Mat(60, 80, CV_16U, cv::Scalar(200)));
+  doc_["frames"][0]["depth"] = "depth/not_exr.png";
+  Rewrite();
+  ExpectFrameError(0, {"depth/not_exr.png", "OpenEXR"});
+}
+
+TEST_F(BadFrameDirectory, IrOfWrongType) {
+  cv::imwrite((dir_ / "ir/000000.png").string(), cv::Mat(60, 80, CV_8U, cv::Scalar(20)));
+  ExpectFrameError(0, {"ir/000000.png", "16-bit"});
+}
+
+TEST_F(BadFrameDirectory, EachNonFiniteOrNegativeDepth) {
+  for (float bad : {std::numeric_limits<float>::quiet_NaN(), std::numeric_limits<float>::infinity(), -0.2f}) {
+    cv::Mat depth(60, 80, CV_32F, cv::Scalar(0.2));
+    depth.at<float>(7, 5) = bad;
+    WriteDepthExr(dir_ / "depth/000000.exr", depth);
+    ExpectFrameError(0, {"depth/000000.exr", "channel Z", "u=5, v=7"});
+    // The skipping policy turns the pixel into "no measurement" and counts it.
+    const FrameDirectoryManifest manifest = ReadFrameDirectoryManifest(dir_.path());
+    size_t skipped = 0;
+    const Frame f = LoadFrame(dir_.path(), manifest, 0, InvalidDepthPolicy::kSkip, &skipped);
+    EXPECT_EQ(skipped, 1u);
+    EXPECT_EQ(f.depth_m.at<float>(7, 5), 0.0f);
+  }
+}
+
+TEST_F(BadFrameDirectory, SourceReportsBadFrameAndGoesOn) {
+  fs::remove(dir_ / "depth/000000.exr");
+  FrameDirectorySource source(dir_.path());
+  Frame frame;
+  std::string error;
+  EXPECT_EQ(source.Next(&frame, &error), FrameStatus::kBadFrame);
+  EXPECT_NE(error.find("depth/000000.exr"), std::string::npos) << error;
+  EXPECT_EQ(source.Next(&frame, &error), FrameStatus::kOk);
+  EXPECT_EQ(source.Next(&frame, &error), FrameStatus::kEndOfStream);
+}
+
+TEST(ImageIo, ExrWithoutZChannelIsRejected) {
+  ScratchDir dir("exr");
+  cv::Mat m(4, 4, CV_32F, cv::Scalar(1.0));
+  ASSERT_TRUE(cv::imwrite((dir / "y.exr").string(), m));  // OpenCV names its channel Y
+  ExpectInputError([&] { ReadDepthExr(dir / "y.exr"); }, {"y.exr", "channel Z", "missing"});
+}
+
+TEST(ImageIo, AtomicWriteLeavesNothingBehindOnFailure) {
+  ScratchDir dir("atomic");
+  testing::WriteText(dir / "keep.txt", "old");
+  EXPECT_THROW(WriteAtomically(dir / "keep.txt",
+                               [](const fs::path& tmp) {
+                                 testing::WriteText(tmp, "half");
+                                 throw InputError("x", "", "fail");
+                               }),
+               InputError);
+  EXPECT_EQ(testing::ReadText(dir / "keep.txt"), "old");
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir.path()), fs::directory_iterator()), 1);
+}
+
+}  // namespace
+}  // namespace romunect

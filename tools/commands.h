@@ -1,0 +1,11 @@
+// Subcommands of the romunect CLI. Each Add*Command registers one subcommand on the app; its
+// callback may throw InputError (bad input), which main() reports with a non-zero exit.
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+namespace romunect::tools {
+
+void AddInfoCommand(CLI::App& app);
+
+}  // namespace romunect::tools
