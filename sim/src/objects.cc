@@ -1,0 +1,232 @@
+#include "romunect/sim/objects.h"
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+
+#include <Eigen/Geometry>
+
+#include "romunect/sensor/check.h"
+#include "romunect/sensor/errors.h"
+
+namespace romunect::sim {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+// Scales every size of a generated object by a seeded factor in [0.95, 1.05], so two objects
+// of a kind are not identical (the seed is the object's own, not the pile's).
+double SizeFactor(uint32_t seed) {
+  std::mt19937 rng(seed);
+  return std::uniform_real_distribution<double>(0.95, 1.05)(rng);
+}
+
+std::vector<Eigen::Vector2d> Rectangle(double x0, double y0, double x1, double y1) {
+  return {{x0, y0}, {x1, y0}, {x1, y1}, {x0, y1}};
+}
+
+std::vector<Eigen::Vector2d> RegularPolygon(double cx, double cy, double r, int segments) {
+  std::vector<Eigen::Vector2d> outline;
+  for (int i = 0; i < segments; ++i) {
+    const double a = 2.0 * kPi * i / segments;
+    outline.emplace_back(cx + r * std::cos(a), cy + r * std::sin(a));
+  }
+  return outline;
+}
+
+// An annular sector (convex for spans below pi) between radii r0 < r1, angles a0 < a1.
+std::vector<Eigen::Vector2d> RingSegment(double cx, double cy, double r0, double r1, double a0,
+                                         double a1) {
+  return {{cx + r0 * std::cos(a0), cy + r0 * std::sin(a0)},
+          {cx + r1 * std::cos(a0), cy + r1 * std::sin(a0)},
+          {cx + r1 * std::cos(a1), cy + r1 * std::sin(a1)},
+          {cx + r0 * std::cos(a1), cy + r0 * std::sin(a1)}};
+}
+
+ObjectSpec MakeKey(uint32_t seed) {
+  const double s = SizeFactor(seed);
+  const double t = 0.003 * s;
+  ObjectSpec spec;
+  // Bow: a ring around the key hole, as convex sectors.
+  const double bow_x = -0.014 * s, r_in = 0.0035 * s, r_out = 0.011 * s;
+  const int kSegments = 10;
+  for (int i = 0; i < kSegments; ++i) {
+    const double a0 = 2.0 * kPi * i / kSegments, a1 = 2.0 * kPi * (i + 1) / kSegments;
+    spec.parts_O.push_back(ConvexPrism(RingSegment(bow_x, 0, r_in, r_out, a0, a1), 0, t));
+  }
+  spec.parts_O.push_back(ConvexPrism(Rectangle(-0.004 * s, -0.005 * s, 0.003 * s, 0.005 * s), 0, t));
+  spec.parts_O.push_back(ConvexPrism(Rectangle(0.003 * s, -0.0035 * s, 0.036 * s, 0.0035 * s), 0, t));
+  // Teeth: triangles below the blade.
+  for (int i = 0; i < 4; ++i) {
+    const double x = (0.010 + 0.0065 * i) * s;
+    spec.parts_O.push_back(ConvexPrism(
+        {{x - 0.0025 * s, -0.0035 * s}, {x, -0.0065 * s}, {x + 0.0025 * s, -0.0035 * s}}, 0, t));
+  }
+  spec.density_kg_m3 = 8500.0;  // brass
+  spec.material = ShinyMaterial();
+  return spec;
+}
+
+ObjectSpec MakePillBox(uint32_t seed) {
+  const double s = SizeFactor(seed);
+  ObjectSpec spec;
+  spec.parts_O.push_back(Box({0, 0, 0.006 * s}, {0.020 * s, 0.011 * s, 0.006 * s}));
+  spec.parts_O.push_back(Box({0, 0, 0.014 * s}, {0.0205 * s, 0.0115 * s, 0.002 * s}));  // lid
+  spec.density_kg_m3 = 300.0;  // a hollow plastic box with a few pills
+  spec.material = BrightMaterial();
+  return spec;
+}
+
+ObjectSpec MakePuzzlePiece(uint32_t seed) {
+  const double s = SizeFactor(seed);
+  const double t = 0.004 * s, h = 0.009 * s;
+  ObjectSpec spec;
+  spec.parts_O.push_back(ConvexPrism(Rectangle(-h, -h, h, h), 0, t));
+  // Two knobs (on +x and +y), each a neck and a round head.
+  spec.parts_O.push_back(ConvexPrism(Rectangle(h, -0.0018 * s, h + 0.002 * s, 0.0018 * s), 0, t));
+  spec.parts_O.push_back(Cylinder(h + 0.0045 * s, 0, 0.0035 * s, 0, t, 12));
+  spec.parts_O.push_back(ConvexPrism(Rectangle(-0.0018 * s, h, 0.0018 * s, h + 0.002 * s), 0, t));
+  spec.parts_O.push_back(Cylinder(0, h + 0.0045 * s, 0.0035 * s, 0, t, 12));
+  spec.density_kg_m3 = 700.0;  // pressed cardboard
+  spec.material = IrMaterial{0.55f, 0.05f, 10.0f};
+  return spec;
+}
+
+ObjectSpec MakeLegoBrick(uint32_t seed) {
+  const double s = SizeFactor(seed);
+  ObjectSpec spec;
+  const double hx = 0.0159 * s, hy = 0.0079 * s, hz = 0.0048 * s;
+  spec.parts_O.push_back(Box({0, 0, hz}, {hx, hy, hz}));
+  for (int i = 0; i < 4; ++i) {
+    for (int j = 0; j < 2; ++j) {
+      spec.parts_O.push_back(Cylinder((-0.012 + 0.008 * i) * s, (-0.004 + 0.008 * j) * s,
+                                      0.0024 * s, 2 * hz, 2 * hz + 0.0017 * s, 12));
+    }
+  }
+  spec.density_kg_m3 = 500.0;  // ABS, hollow underneath
+  spec.material = IrMaterial{0.7f, 0.15f, 30.0f};
+  return spec;
+}
+
+ObjectSpec MakeGear(uint32_t seed) {
+  const double s = SizeFactor(seed);
+  const double t = 0.007 * s, r = 0.013 * s, r_tip = 0.016 * s;
+  ObjectSpec spec;
+  spec.parts_O.push_back(ConvexPrism(RegularPolygon(0, 0, r, 24), 0, t));
+  const int kTeeth = 12;
+  for (int i = 0; i < kTeeth; ++i) {
+    const double a = 2.0 * kPi * i / kTeeth;
+    const Eigen::Vector2d radial(std::cos(a), std::sin(a)), tangent(-std::sin(a), std::cos(a));
+    const double base = 0.0022 * s, tip = 0.0012 * s, r0 = r - 0.0005 * s;
+    spec.parts_O.push_back(ConvexPrism({r0 * radial - base * tangent, r_tip * radial - tip * tangent,
+                                        r_tip * radial + tip * tangent, r0 * radial + base * tangent},
+                                       0, t));
+  }
+  spec.density_kg_m3 = 7800.0;  // steel
+  spec.material = DarkMaterial();
+  return spec;
+}
+
+}  // namespace
+
+const char* ToString(ObjectKind kind) {
+  switch (kind) {
+    case ObjectKind::kKey: return "key";
+    case ObjectKind::kPillBox: return "pill_box";
+    case ObjectKind::kPuzzlePiece: return "puzzle_piece";
+    case ObjectKind::kLegoBrick: return "lego_brick";
+    case ObjectKind::kGear: return "gear";
+    case ObjectKind::kUserMesh: return "user_mesh";
+  }
+  return "?";
+}
+
+ObjectKind ObjectKindFromString(const std::string& name, const std::string& source) {
+  for (ObjectKind kind : {ObjectKind::kKey, ObjectKind::kPillBox, ObjectKind::kPuzzlePiece,
+                          ObjectKind::kLegoBrick, ObjectKind::kGear, ObjectKind::kUserMesh}) {
+    if (name == ToString(kind)) return kind;
+  }
+  throw InputError(source, "object kind",
+                   "'" + name + "' is not one of key, pill_box, puzzle_piece, lego_brick, gear, user_mesh");
+}
+
+IrMaterial BrightMaterial() { return IrMaterial{0.8f, 0.05f, 10.0f}; }
+IrMaterial DarkMaterial() { return IrMaterial{0.05f, 0.1f, 20.0f}; }
+IrMaterial ShinyMaterial() { return IrMaterial{0.35f, 0.8f, 120.0f}; }
+
+Mesh ConvexPrism(const std::vector<Eigen::Vector2d>& outline_xy, double z0, double z1) {
+  ROMUNECT_CHECK(outline_xy.size() >= 3 && z1 > z0);
+  const int n = static_cast<int>(outline_xy.size());
+  Mesh mesh;
+  for (const auto& p : outline_xy) mesh.vertices.emplace_back(p.x(), p.y(), z0);
+  for (const auto& p : outline_xy) mesh.vertices.emplace_back(p.x(), p.y(), z1);
+  for (int i = 1; i + 1 < n; ++i) {
+    mesh.triangles.emplace_back(0, i + 1, i);          // bottom, facing -z
+    mesh.triangles.emplace_back(n, n + i, n + i + 1);  // top, facing +z
+  }
+  for (int i = 0; i < n; ++i) {
+    const int j = (i + 1) % n;
+    mesh.triangles.emplace_back(i, j, n + j);
+    mesh.triangles.emplace_back(i, n + j, n + i);
+  }
+  return mesh;
+}
+
+Mesh Cylinder(double cx, double cy, double r, double z0, double z1, int segments) {
+  return ConvexPrism(RegularPolygon(cx, cy, r, segments), z0, z1);
+}
+
+Mesh Box(const Eigen::Vector3d& centre, const Eigen::Vector3d& half_size) {
+  return ConvexPrism(Rectangle(centre.x() - half_size.x(), centre.y() - half_size.y(),
+                               centre.x() + half_size.x(), centre.y() + half_size.y()),
+                     centre.z() - half_size.z(), centre.z() + half_size.z());
+}
+
+double MeshVolume(const Mesh& mesh) {
+  double six_v = 0.0;
+  for (const auto& t : mesh.triangles) {
+    six_v += mesh.vertices[t[0]].dot(mesh.vertices[t[1]].cross(mesh.vertices[t[2]]));
+  }
+  return six_v / 6.0;
+}
+
+ObjectSpec MakeObject(ObjectKind kind, uint32_t seed) {
+  ObjectSpec spec;
+  switch (kind) {
+    case ObjectKind::kKey: spec = MakeKey(seed); break;
+    case ObjectKind::kPillBox: spec = MakePillBox(seed); break;
+    case ObjectKind::kPuzzlePiece: spec = MakePuzzlePiece(seed); break;
+    case ObjectKind::kLegoBrick: spec = MakeLegoBrick(seed); break;
+    case ObjectKind::kGear: spec = MakeGear(seed); break;
+    case ObjectKind::kUserMesh:
+      ROMUNECT_CHECK_MSG(false, "user meshes come from MakeUserMeshObject");
+  }
+  spec.kind = kind;
+  spec.seed = seed;
+  return spec;
+}
+
+ObjectSpec MakeUserMeshObject(const std::filesystem::path& mesh_file, double scale_to_m,
+                              const IrMaterial& material, double density_kg_m3) {
+  std::string ext = mesh_file.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  if (ext != ".stl" && ext != ".obj") {
+    throw InputError(mesh_file.string(), "extension", "expected a .stl or .obj mesh, got '" + ext + "'");
+  }
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(mesh_file, ec)) {
+    throw InputError(mesh_file.string(), "", "mesh file not found");
+  }
+  if (!(scale_to_m > 0.0) || !std::isfinite(scale_to_m)) {
+    throw InputError(mesh_file.string(), "scale", "must be a positive finite number");
+  }
+  ObjectSpec spec;
+  spec.kind = ObjectKind::kUserMesh;
+  spec.mesh_file = std::filesystem::absolute(mesh_file);
+  spec.mesh_scale = scale_to_m;
+  spec.material = material;
+  spec.density_kg_m3 = density_kg_m3;
+  return spec;
+}
+
+}  // namespace romunect::sim
