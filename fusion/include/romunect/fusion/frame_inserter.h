@@ -1,0 +1,72 @@
+// Inserts metric depth maps into a VotingGrid, frame by frame, with the exact traversal that
+// voting_grid.h defines. The inserter owns a workspace (ray table, per-ray setup, threads)
+// reused every frame, so the 30 Hz loop allocates nothing after the first frame.
+//
+// Speed: instead of one 3D Amanatides-Woo step per voxel, the walk steps in (x, y) from column
+// to column and, inside a column, jumps straight to the last z plane crossed before leaving it
+// (found from the crossing formula and then confirmed against the same comparisons the 3D walk
+// makes), then applies the misses to that contiguous run of votes. The voxels visited are the
+// same as the 3D walk's (tests/fusion compares against the plain reference, vote for vote).
+// Threads own disjoint slabs of rows (y), re-balanced per frame on the rays' positions; every
+// thread walks the rays in pixel order, so each voxel gets its votes in the same order as with
+// one thread, and the result does not depend on the thread count.
+#pragma once
+
+#include <cstddef>
+#include <memory>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+#include "romunect/fusion/voting_grid.h"
+#include "romunect/sensor/camera_model.h"
+#include "romunect/sensor/pose.h"
+
+namespace romunect::fusion {
+
+// Per-frame counters (also summed over frames with Add). Per-pixel junk is counted, never thrown.
+struct InsertStats {
+  size_t frames = 0;
+  size_t pixels = 0;              // pixels seen
+  size_t no_measurement = 0;      // depth exactly 0
+  size_t invalid_depth = 0;       // NaN, inf or negative depth: skipped
+  size_t rays = 0;                // valid measurements cast
+  size_t rays_missing_box = 0;    // the segment camera -> point never enters the box
+  size_t points_outside_box = 0;  // the point lies outside the box: misses only, no hit
+  size_t hits = 0;                // votes +1 (points inside the box)
+  size_t misses = 0;              // votes -1
+
+  void Add(const InsertStats& other);
+  std::string BriefReport() const;
+};
+
+struct InserterOptions {
+  int threads = 1;  // worker threads including the caller, 1..256
+  std::string Problem() const;
+};
+
+class FrameInserter {
+ public:
+  // The grid must outlive the inserter. Throws InputError (source "fusion inserter") on bad
+  // options.
+  FrameInserter(VotingGrid* grid, const InserterOptions& options);
+  ~FrameInserter();
+  FrameInserter(const FrameInserter&) = delete;
+  FrameInserter& operator=(const FrameInserter&) = delete;
+
+  // Casts every pixel of depth_m (CV_32FC1, camera-sized, metres along the optical axis,
+  // 0 = none) from the camera at T_W_C (rigid) into the grid. Adds to *stats when not null.
+  // The camera's per-pixel rays are computed on the first call and whenever the camera changes.
+  void Insert(const CameraModel& camera, const cv::Mat& depth_m, const Pose& T_W_C,
+              InsertStats* stats);
+
+  int threads() const { return options_.threads; }
+
+ private:
+  struct Workspace;
+  VotingGrid* grid_;
+  InserterOptions options_;
+  std::unique_ptr<Workspace> ws_;
+};
+
+}  // namespace romunect::fusion
