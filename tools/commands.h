@@ -7,5 +7,6 @@
 namespace romunect::tools {
 
 void AddInfoCommand(CLI::App& app);
+void AddRecordCommand(CLI::App& app);  // cmd_record.cc (sensor/openni2)
 
 }  // namespace romunect::tools

@@ -1,0 +1,41 @@
+// The virtual OpenNI2 device: an OpenNI2 driver plug-in (libRomunectVirtual.so.0, built by this
+// project into <build>/lib/OpenNI2/Drivers) that presents a frame directory as a PS1080-like
+// device, so the real OpenNI2 code path runs end to end without a Kinect (docs/openni2.md).
+//
+// A device is named by a URI:  romunect:<absolute frame directory>[?key=value&...]
+//   pace=realtime   frames at their frames.json times (default), like a real device
+//   pace=step       one frame set per step request (OpenNI2Source sends it before each frame),
+//                   so no frame can be dropped: deterministic tests and offline runs
+//   stop_after=N    the device stops sending after N frames, like an unplugged sensor
+//   loop=1          start again at the first frame after the last (realtime only; viewers)
+//   fps=F           the frame rate it announces (default: from the frame times, else 30)
+// Depth is offered as ONI_PIXEL_FORMAT_DEPTH_100_UM (default) and DEPTH_1_MM, IR as GRAY16, both
+// at the directory's resolution. Any OpenNI2 program opens the device named by the environment
+// variable ROMUNECT_VIRTUAL_DEVICE (a URI or a plain directory) as its first device.
+#pragma once
+
+#include <filesystem>
+#include <string>
+
+namespace romunect::openni2 {
+
+struct VirtualDeviceOptions {
+  enum class Pace { kRealtime, kStep };
+  Pace pace = Pace::kRealtime;
+  int stop_after = -1;  // frames sent before the device goes silent; -1 = never
+  bool loop = false;    // repeat the directory forever (realtime pace only)
+  double fps = 0.0;     // announced frame rate (Hz); 0 = from the frame times
+
+  // Why the options are unusable, or "" when they are valid.
+  std::string Problem() const;
+};
+
+// The URI that opens `frame_dir` (made absolute) as a virtual device with `options`.
+// Throws InputError if the options are invalid or the path holds '?' (the URI's separator).
+std::string VirtualDeviceUri(const std::filesystem::path& frame_dir,
+                             const VirtualDeviceOptions& options = {});
+
+// OpenNI2's private device command that asks a step-paced virtual device for the next frame set.
+inline constexpr int kVirtualDeviceStepCommand = 0x524D0001;  // 'RM' 0001
+
+}  // namespace romunect::openni2

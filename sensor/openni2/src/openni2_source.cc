@@ -1,0 +1,537 @@
+#include "romunect/openni2/openni2_source.h"
+
+#include <dlfcn.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <mutex>
+#include <sstream>
+#include <thread>
+
+#include <OpenNI.h>
+#include <PS1080.h>
+
+#include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/check.h"
+#include "romunect/sensor/errors.h"
+#include "virtual_device_uri.h"
+
+namespace romunect::openni2 {
+namespace {
+
+// OpenNI2's recorder starts on its own thread: frames sent before that are not recorded. Nothing
+// reports when it has started, so the streams start only after this pause (docs/openni2.md).
+constexpr std::chrono::milliseconds kRecorderStartPause{300};
+
+void EnsureOpenNI() {
+  static std::mutex mutex;
+  static bool initialized = false;
+  std::lock_guard<std::mutex> lock(mutex);
+  if (initialized) return;
+  if (openni::OpenNI::initialize() != openni::STATUS_OK) {
+    throw InputError("OpenNI2", "initialize", std::string("cannot start: ") + openni::OpenNI::getExtendedError());
+  }
+  initialized = true;  // never shut down: drivers and their threads live as long as the process
+}
+
+std::string ExtendedError() {
+  std::string e = openni::OpenNI::getExtendedError();
+  while (!e.empty() && (e.back() == '\n' || e.back() == ' ')) e.pop_back();
+  for (char& c : e) {
+    if (c == '\n') c = ';';
+  }
+  return e.empty() ? "no detail from OpenNI2" : e;
+}
+
+const char* FormatName(openni::PixelFormat f) {
+  switch (f) {
+    case openni::PIXEL_FORMAT_DEPTH_1_MM: return "1mm";
+    case openni::PIXEL_FORMAT_DEPTH_100_UM: return "100um";
+    case openni::PIXEL_FORMAT_SHIFT_9_2: return "shift9.2";
+    case openni::PIXEL_FORMAT_SHIFT_9_3: return "shift9.3";
+    case openni::PIXEL_FORMAT_RGB888: return "rgb888";
+    case openni::PIXEL_FORMAT_YUV422: return "yuv422";
+    case openni::PIXEL_FORMAT_GRAY8: return "gray8";
+    case openni::PIXEL_FORMAT_GRAY16: return "gray16";
+    case openni::PIXEL_FORMAT_JPEG: return "jpeg";
+    case openni::PIXEL_FORMAT_YUYV: return "yuyv";
+    default: return "unknown";
+  }
+}
+
+const char* SensorName(openni::SensorType t) {
+  switch (t) {
+    case openni::SENSOR_DEPTH: return "depth";
+    case openni::SENSOR_IR: return "ir";
+    case openni::SENSOR_COLOR: return "color";
+    default: return "unknown";
+  }
+}
+
+std::string ModeString(openni::SensorType t, const openni::VideoMode& m) {
+  std::ostringstream s;
+  s << SensorName(t) << ' ' << m.getResolutionX() << 'x' << m.getResolutionY() << " @" << m.getFps() << " Hz "
+    << FormatName(m.getPixelFormat());
+  return s.str();
+}
+
+std::string ModesOf(openni::Device& device, openni::SensorType t) {
+  const openni::SensorInfo* info = device.getSensorInfo(t);
+  if (info == nullptr) return "none";
+  std::string out;
+  const auto& modes = info->getSupportedVideoModes();
+  for (int i = 0; i < modes.getSize(); ++i) out += (i ? ", " : "") + ModeString(t, modes[i]);
+  return out.empty() ? "none" : out;
+}
+
+std::string DeviceListText() {
+  openni::Array<openni::DeviceInfo> list;
+  openni::OpenNI::enumerateDevices(&list);
+  std::string out;
+  for (int i = 0; i < list.getSize(); ++i) out += std::string(i ? ", " : "") + list[i].getUri();
+  return out.empty() ? "none" : out;
+}
+
+bool IsDepthFormat(openni::PixelFormat f) {
+  return f == openni::PIXEL_FORMAT_DEPTH_1_MM || f == openni::PIXEL_FORMAT_DEPTH_100_UM;
+}
+
+template <typename T>
+std::optional<T> ReadProperty(const openni::VideoStream& stream, int id) {
+  // Ask directly: the file driver answers recorded PS1080 properties without listing them.
+  T value{};
+  int size = sizeof(T);
+  if (stream.getProperty(id, &value, &size) != openni::STATUS_OK || size != static_cast<int>(sizeof(T))) {
+    return std::nullopt;
+  }
+  return value;
+}
+
+}  // namespace
+
+std::string OpenNI2SourceOptions::Problem() const {
+  auto bad = [](const std::string& field, const std::string& value, const std::string& rule) {
+    return field + " = " + value + ": " + rule;
+  };
+  if (width < 0 || height < 0 || fps < 0) return bad("width/height/fps", std::to_string(width) + "/" + std::to_string(height) + "/" + std::to_string(fps), "must be >= 0 (0 = default)");
+  if ((width == 0) != (height == 0)) return bad("width/height", std::to_string(width) + "/" + std::to_string(height), "give both or neither");
+  if (!depth && !ir) return bad("depth/ir", "false/false", "at least one stream must be opened");
+  if (!(timeout_s > 0.0 && timeout_s <= 3600.0)) return bad("timeout_s", std::to_string(timeout_s), "must be in (0, 3600]");
+  if (max_frames < 0) return bad("max_frames", std::to_string(max_frames), "must be >= 0 (0 = no limit)");
+  if (camera) {
+    const std::string p = camera->Problem();
+    if (!p.empty()) return bad("camera", "(model)", p);
+  }
+  return "";
+}
+
+std::string PS1080Properties::Describe() const {
+  std::ostringstream s;
+  s.precision(6);
+  auto m = [&s](const char* name, const std::optional<double>& v, double scale, const char* unit) {
+    s << name << ' ';
+    if (v) s << *v * scale << ' ' << unit; else s << "n/a";
+  };
+  m("zero plane", zero_plane_distance_m, 1e3, "mm");
+  s << ", ";
+  m("zero-plane pixel", zero_plane_pixel_size_m, 1e3, "mm");
+  s << ", ";
+  m("emitter-camera", emitter_camera_distance_m, 1e3, "mm");
+  return s.str();
+}
+
+struct OpenNI2Source::Impl {
+  OpenNI2SourceOptions options;
+  std::string name;  // the URI as shown in messages
+  openni::Device device;
+  openni::VideoStream depth, ir;
+  openni::Recorder recorder;
+  bool file = false, step = false;
+  CameraModel camera;
+  PS1080Properties chip;
+  DepthUnit unit = DepthUnit::k100um;
+  openni::VideoMode mode;
+  int total_frames = 0;  // frames the stream will send; 0 = unknown (live device)
+  int primary_read = 0;
+  int first_index = -1, last_index = 0;
+  uint64_t first_timestamp_us = 0;
+  openni::VideoFrameRef pending_ir;
+  OpenNI2SourceStats stats;
+
+  openni::VideoStream& primary() { return options.depth ? depth : ir; }
+
+  void Read(openni::VideoStream& stream, const char* what, openni::VideoFrameRef* ref) {
+    openni::VideoStream* streams[] = {&stream};
+    int ready = -1;
+    const int timeout_ms = static_cast<int>(std::ceil(options.timeout_s * 1000.0));
+    if (openni::OpenNI::waitForAnyStream(streams, 1, &ready, timeout_ms) != openni::STATUS_OK) {
+      std::ostringstream s;
+      s << "no frame for " << options.timeout_s << " s (device unplugged or stalled); "
+        << stats.frames << " frames were delivered before"
+        << (stats.frames > 0 ? ", the last at index " + std::to_string(last_index - first_index) : std::string());
+      throw InputError(name, std::string(what) + " stream", s.str());
+    }
+    if (stream.readFrame(ref) != openni::STATUS_OK) {
+      throw InputError(name, std::string(what) + " stream", "reading a frame failed: " + ExtendedError());
+    }
+  }
+
+  void SetUp(openni::VideoStream& stream, openni::SensorType type, const char* what) {
+    if (!device.hasSensor(type)) {
+      throw InputError(name, std::string(what) + " stream",
+                       file ? "the recording has no " + std::string(what) + " stream"
+                            : "the device has no " + std::string(what) + " sensor");
+    }
+    if (stream.create(device, type) != openni::STATUS_OK) {
+      throw InputError(name, std::string(what) + " stream", "cannot create it: " + ExtendedError());
+    }
+  }
+
+  // The mode to ask for: the options' size and rate (or 640 x 480 @ 30 when offered, else the
+  // current one) and, for depth, the unit.
+  openni::VideoMode ChooseMode(openni::VideoStream& stream, openni::SensorType type, int w, int h, int fps) {
+    const auto& modes = stream.getSensorInfo().getSupportedVideoModes();
+    const openni::VideoMode current = stream.getVideoMode();
+    auto offered = [&](int mw, int mh, int mfps, openni::PixelFormat f) {
+      for (int i = 0; i < modes.getSize(); ++i) {
+        if (modes[i].getResolutionX() == mw && modes[i].getResolutionY() == mh &&
+            (mfps == 0 || modes[i].getFps() == mfps) && modes[i].getPixelFormat() == f) {
+          return std::optional<openni::VideoMode>(modes[i]);
+        }
+      }
+      return std::optional<openni::VideoMode>();
+    };
+    std::vector<openni::PixelFormat> formats;
+    if (type == openni::SENSOR_IR) {
+      formats = {openni::PIXEL_FORMAT_GRAY16};
+    } else if (options.depth_unit) {
+      formats = {*options.depth_unit == DepthUnit::k100um ? openni::PIXEL_FORMAT_DEPTH_100_UM : openni::PIXEL_FORMAT_DEPTH_1_MM};
+    } else {
+      formats = {openni::PIXEL_FORMAT_DEPTH_100_UM, openni::PIXEL_FORMAT_DEPTH_1_MM};
+    }
+    std::vector<std::array<int, 3>> sizes;
+    if (w > 0) {
+      sizes.push_back({w, h, fps});
+    } else {
+      sizes.push_back({640, 480, fps > 0 ? fps : 30});
+      sizes.push_back({current.getResolutionX(), current.getResolutionY(), fps > 0 ? fps : current.getFps()});
+    }
+    for (const auto& size : sizes) {
+      for (openni::PixelFormat f : formats) {
+        if (auto m = offered(size[0], size[1], size[2], f)) return *m;
+      }
+    }
+    std::ostringstream want;
+    want << SensorName(type) << ' ';
+    if (w > 0) want << w << 'x' << h; else want << "640x480 or the current size";
+    if (fps > 0 || w == 0) want << " @" << (fps > 0 ? fps : 30) << " Hz";
+    want << " in ";
+    for (size_t i = 0; i < formats.size(); ++i) want << (i ? " or " : "") << FormatName(formats[i]);
+    throw InputError(name, "video mode", want.str() + " is not offered; the device offers: " + ModesOf(device, type));
+  }
+};
+
+OpenNI2Source::OpenNI2Source(const OpenNI2SourceOptions& options) : impl_(std::make_unique<Impl>()) {
+  Impl& s = *impl_;
+  s.options = options;
+  const std::string problem = options.Problem();
+  if (!problem.empty()) throw InputError("OpenNI2 source options", "", problem);
+  s.name = options.uri.empty() ? "the first OpenNI2 device" : options.uri;
+  const bool oni = options.uri.size() > 4 && options.uri.compare(options.uri.size() - 4, 4, ".oni") == 0;
+  if (oni) {
+    std::error_code ec;
+    if (!std::filesystem::is_regular_file(options.uri, ec)) throw InputError(options.uri, "", "no such .oni file");
+  }
+  if (IsVirtualDeviceUri(options.uri)) {
+    // Say what is wrong with a virtual device's URI; OpenNI2 itself only reports "not found".
+    std::string why;
+    const auto parsed = ParseVirtualDeviceUri(options.uri, &why);
+    if (!parsed) throw InputError(options.uri, "", "not a valid virtual-device URI: " + why);
+    std::error_code ec;
+    if (!std::filesystem::is_regular_file(parsed->dir / "frames.json", ec)) {
+      throw InputError(options.uri, "", "no OpenNI2 device opens with this URI: " + parsed->dir.string() +
+                                            " is not a frame directory (no frames.json)");
+    }
+  }
+  EnsureOpenNI();
+
+  if (s.device.open(options.uri.empty() ? openni::ANY_DEVICE : options.uri.c_str()) != openni::STATUS_OK) {
+    if (oni) throw InputError(s.name, "", "not a readable .oni recording: " + ExtendedError());
+    throw InputError(s.name, "", "no OpenNI2 device opens with this URI (" + ExtendedError() +
+                                     "); devices found: " + DeviceListText());
+  }
+  s.file = s.device.isFile();
+  if (s.file) {
+    // Speed -1: the file driver sends each frame on demand, so none is skipped; no repeat.
+    s.device.getPlaybackControl()->setSpeed(-1.0f);
+    s.device.getPlaybackControl()->setRepeatEnabled(false);
+  }
+  s.step = s.device.isCommandSupported(kVirtualDeviceStepCommand);
+  if (s.device.isImageRegistrationModeSupported(openni::IMAGE_REGISTRATION_OFF)) {
+    s.device.setImageRegistrationMode(openni::IMAGE_REGISTRATION_OFF);  // depth stays in the IR camera
+  }
+
+  if (options.depth) s.SetUp(s.depth, openni::SENSOR_DEPTH, "depth");
+  if (options.ir) s.SetUp(s.ir, openni::SENSOR_IR, "IR");
+
+  openni::VideoStream& primary = s.primary();
+  const openni::SensorType primary_type = options.depth ? openni::SENSOR_DEPTH : openni::SENSOR_IR;
+  if (s.file) {
+    // Recordings play in their recorded mode; check it against what was asked for.
+    s.mode = primary.getVideoMode();
+    const bool size_ok = options.width == 0 || (s.mode.getResolutionX() == options.width && s.mode.getResolutionY() == options.height);
+    const bool fps_ok = options.fps == 0 || s.mode.getFps() == options.fps;
+    if (!size_ok || !fps_ok) {
+      throw InputError(s.name, "video mode", "the recording holds " + ModeString(primary_type, s.mode) +
+                                                 ", not the requested " + std::to_string(options.width) + "x" +
+                                                 std::to_string(options.height) + " @" + std::to_string(options.fps) + " Hz");
+    }
+  } else {
+    s.mode = s.ChooseMode(primary, primary_type, options.width, options.height, options.fps);
+    if (primary.setVideoMode(s.mode) != openni::STATUS_OK) {
+      throw InputError(s.name, "video mode", "the device refused " + ModeString(primary_type, s.mode) + ": " + ExtendedError());
+    }
+  }
+  if (options.depth) {
+    const openni::PixelFormat f = s.depth.getVideoMode().getPixelFormat();
+    if (!IsDepthFormat(f)) throw InputError(s.name, "depth stream", std::string("pixel format ") + FormatName(f) + " is not a depth unit (1mm or 100um)");
+    s.unit = f == openni::PIXEL_FORMAT_DEPTH_100_UM ? DepthUnit::k100um : DepthUnit::k1mm;
+    if (s.file && options.depth_unit && *options.depth_unit != s.unit) {
+      throw InputError(s.name, "depth unit", std::string("the recording holds ") + ToString(s.unit) + ", not " + ToString(*options.depth_unit));
+    }
+  }
+  if (options.depth && options.ir) {
+    // IR in the same size and rate as depth, so every Frame's images share one camera.
+    if (!s.file) {
+      const openni::VideoMode ir_mode = s.ChooseMode(s.ir, openni::SENSOR_IR, s.mode.getResolutionX(), s.mode.getResolutionY(), s.mode.getFps());
+      if (s.ir.setVideoMode(ir_mode) != openni::STATUS_OK) {
+        throw InputError(s.name, "video mode", "the device refused " + ModeString(openni::SENSOR_IR, ir_mode) + ": " + ExtendedError());
+      }
+    }
+    const openni::VideoMode m = s.ir.getVideoMode();
+    if (m.getResolutionX() != s.mode.getResolutionX() || m.getResolutionY() != s.mode.getResolutionY() ||
+        m.getPixelFormat() != openni::PIXEL_FORMAT_GRAY16) {
+      throw InputError(s.name, "IR stream", ModeString(openni::SENSOR_IR, m) + " does not match depth " + ModeString(openni::SENSOR_DEPTH, s.mode) + " in size, or is not gray16");
+    }
+  }
+  for (openni::VideoStream* stream : {&s.depth, &s.ir}) {
+    if (stream->isValid() && !s.file && stream->isPropertySupported(ONI_STREAM_PROPERTY_MIRRORING)) {
+      stream->setMirroringEnabled(false);
+    }
+  }
+
+  // Camera: given, or a centred pinhole from the fields of view.
+  const int w = s.mode.getResolutionX(), h = s.mode.getResolutionY();
+  if (options.camera) {
+    if (options.camera->width != w || options.camera->height != h) {
+      throw InputError(s.name, "camera", "the given camera is " + std::to_string(options.camera->width) + "x" +
+                                             std::to_string(options.camera->height) + " but the stream is " +
+                                             std::to_string(w) + "x" + std::to_string(h));
+    }
+    s.camera = *options.camera;
+  } else {
+    const double hfov = primary.getHorizontalFieldOfView(), vfov = primary.getVerticalFieldOfView();
+    if (!(hfov > 0.0 && hfov < M_PI && vfov > 0.0 && vfov < M_PI)) {
+      throw InputError(s.name, "field of view", "the device reports " + std::to_string(hfov) + " x " + std::to_string(vfov) + " rad; give a camera model instead");
+    }
+    s.camera.width = w;
+    s.camera.height = h;
+    s.camera.fx = w / (2.0 * std::tan(hfov / 2.0));
+    s.camera.fy = h / (2.0 * std::tan(vfov / 2.0));
+    s.camera.cx = (w - 1) / 2.0;
+    s.camera.cy = (h - 1) / 2.0;
+  }
+
+  if (options.depth) {
+    // The PS1080 reports ZPD in mm, ZPPS in mm, LDDIS and DCRCDIS in cm.
+    if (auto v = ReadProperty<uint64_t>(s.depth, XN_STREAM_PROPERTY_ZERO_PLANE_DISTANCE)) s.chip.zero_plane_distance_m = *v * 1e-3;
+    if (auto v = ReadProperty<double>(s.depth, XN_STREAM_PROPERTY_ZERO_PLANE_PIXEL_SIZE)) s.chip.zero_plane_pixel_size_m = *v * 1e-3;
+    if (auto v = ReadProperty<double>(s.depth, XN_STREAM_PROPERTY_EMITTER_DCMOS_DISTANCE)) s.chip.emitter_camera_distance_m = *v * 1e-2;
+    if (auto v = ReadProperty<double>(s.depth, XN_STREAM_PROPERTY_DCMOS_RCMOS_DISTANCE)) s.chip.depth_rgb_camera_distance_m = *v * 1e-2;
+    auto integer = [&](int id, std::optional<long long>* out) {
+      if (auto v = ReadProperty<uint64_t>(s.depth, id)) *out = static_cast<long long>(*v);
+    };
+    integer(XN_STREAM_PROPERTY_CONST_SHIFT, &s.chip.const_shift);
+    integer(XN_STREAM_PROPERTY_PARAM_COEFF, &s.chip.param_coeff);
+    integer(XN_STREAM_PROPERTY_SHIFT_SCALE, &s.chip.shift_scale);
+    integer(XN_STREAM_PROPERTY_MAX_SHIFT, &s.chip.max_shift);
+    integer(XN_STREAM_PROPERTY_PIXEL_SIZE_FACTOR, &s.chip.pixel_size_factor);
+  }
+
+  if (s.file) {
+    s.total_frames = s.device.getPlaybackControl()->getNumberOfFrames(primary);
+    if (s.total_frames <= 0) throw InputError(s.name, "", "not a readable .oni recording: its streams hold no frames");
+  } else if (auto n = ReadProperty<int>(primary, ONI_STREAM_PROPERTY_NUMBER_OF_FRAMES)) {
+    s.total_frames = *n;  // a finite (virtual) device announces its length
+  }
+
+  if (!options.record_oni.empty()) {
+    const std::string path = options.record_oni.string();
+    if (s.recorder.create(path.c_str()) != openni::STATUS_OK) {
+      throw InputError(path, "", "cannot create the .oni recording: " + ExtendedError());
+    }
+    for (openni::VideoStream* stream : {&s.depth, &s.ir}) {
+      if (stream->isValid() && s.recorder.attach(*stream, false) != openni::STATUS_OK) {
+        throw InputError(path, "", "cannot attach a stream to the recorder: " + ExtendedError());
+      }
+    }
+    s.recorder.start();
+    std::this_thread::sleep_for(kRecorderStartPause);
+  }
+  for (openni::VideoStream* stream : {&s.depth, &s.ir}) {
+    if (stream->isValid() && stream->start() != openni::STATUS_OK) {
+      throw InputError(s.name, "streams", "cannot start: " + ExtendedError());
+    }
+  }
+}
+
+OpenNI2Source::~OpenNI2Source() {
+  FinishRecording();
+  impl_->pending_ir.release();
+  for (openni::VideoStream* stream : {&impl_->depth, &impl_->ir}) {
+    if (stream->isValid()) {
+      stream->stop();
+      stream->destroy();
+    }
+  }
+  if (impl_->device.isValid()) impl_->device.close();
+}
+
+void OpenNI2Source::FinishRecording() {
+  if (impl_->recorder.isValid()) {
+    impl_->recorder.stop();
+    impl_->recorder.destroy();  // waits for the recorder thread to write what it queued
+  }
+}
+
+const CameraModel& OpenNI2Source::camera() const { return impl_->camera; }
+const PS1080Properties& OpenNI2Source::chip() const { return impl_->chip; }
+DepthUnit OpenNI2Source::depth_unit() const { return impl_->unit; }
+bool OpenNI2Source::is_recording_playback() const { return impl_->file; }
+const OpenNI2SourceStats& OpenNI2Source::stats() const { return impl_->stats; }
+
+std::string OpenNI2Source::Describe() const {
+  const Impl& s = *impl_;
+  const openni::DeviceInfo& info = s.device.getDeviceInfo();
+  std::ostringstream d;
+  d << (s.file ? "OpenNI2 recording " : "OpenNI2 device ") << info.getUri() << " (" << info.getVendor() << ' '
+    << info.getName() << "), " << s.mode.getResolutionX() << 'x' << s.mode.getResolutionY() << " @"
+    << s.mode.getFps() << " Hz";
+  if (s.options.depth) d << ", depth in " << ToString(s.unit);
+  if (s.options.ir) d << ", IR";
+  if (s.total_frames > 0) d << ", " << s.total_frames << " frames";
+  return d.str();
+}
+
+FrameStatus OpenNI2Source::Next(Frame* frame, std::string* error) {
+  ROMUNECT_CHECK(frame != nullptr && error != nullptr);
+  Impl& s = *impl_;
+  if (s.options.max_frames > 0 && s.stats.frames >= s.options.max_frames) return FrameStatus::kEndOfStream;
+  // Sources that announce a length (recordings, finite virtual devices) number frames 1..N.
+  if (s.total_frames > 0 && (s.primary_read >= s.total_frames || s.last_index >= s.total_frames)) {
+    return FrameStatus::kEndOfStream;
+  }
+  if (s.step) s.device.invoke(kVirtualDeviceStepCommand, nullptr, 0);
+
+  openni::VideoFrameRef primary;
+  s.Read(s.primary(), s.options.depth ? "depth" : "IR", &primary);
+  ++s.primary_read;
+  const int index = primary.getFrameIndex();
+  if (s.first_index < 0) {
+    s.first_index = index;
+    s.first_timestamp_us = primary.getTimestamp();
+    if (s.total_frames > 0 && index > 1) s.stats.dropped_frames += index - 1;
+  } else if (index > s.last_index + 1) {
+    s.stats.dropped_frames += index - s.last_index - 1;
+  }
+  s.last_index = index;
+
+  *frame = Frame();
+  frame->index = s.total_frames > 0 ? index - 1 : index - s.first_index;
+  frame->time_s = static_cast<double>(static_cast<int64_t>(primary.getTimestamp() - s.first_timestamp_us)) * 1e-6;
+  const int w = s.camera.width, h = s.camera.height;
+  auto check_size = [&](const openni::VideoFrameRef& ref, const char* what) {
+    if (ref.getWidth() != w || ref.getHeight() != h || ref.getStrideInBytes() < w * 2 ||
+        ref.getDataSize() < ref.getStrideInBytes() * (h - 1) + w * 2) {
+      *error = std::string(what) + " frame " + std::to_string(ref.getFrameIndex()) + " is " +
+               std::to_string(ref.getWidth()) + "x" + std::to_string(ref.getHeight()) + ", expected " +
+               std::to_string(w) + "x" + std::to_string(h);
+      return false;
+    }
+    return true;
+  };
+  auto copy16 = [&](const openni::VideoFrameRef& ref) {
+    cv::Mat out(h, w, CV_16U);
+    const auto* data = static_cast<const uint8_t*>(ref.getData());
+    for (int v = 0; v < h; ++v) std::memcpy(out.ptr(v), data + static_cast<size_t>(v) * ref.getStrideInBytes(), w * 2);
+    return out;
+  };
+
+  if (s.options.depth) {
+    if (!check_size(primary, "depth")) return FrameStatus::kBadFrame;
+    const cv::Mat counts = copy16(primary);
+    frame->depth_m.create(h, w, CV_32F);
+    for (int v = 0; v < h; ++v) {
+      const uint16_t* in = counts.ptr<uint16_t>(v);
+      float* out = frame->depth_m.ptr<float>(v);
+      for (int u = 0; u < w; ++u) out[u] = DequantizeDepth(in[u], s.unit);
+    }
+    if (s.options.ir) {
+      // Pair by frame number: older IR frames are skipped, a newer one waits for its depth.
+      for (int tries = 0; tries < 8; ++tries) {
+        if (!s.pending_ir.isValid()) s.Read(s.ir, "IR", &s.pending_ir);
+        if (s.pending_ir.getFrameIndex() >= index) break;
+        s.pending_ir.release();
+        ++s.stats.unpaired_ir;
+      }
+      if (s.pending_ir.isValid() && s.pending_ir.getFrameIndex() == index) {
+        if (!check_size(s.pending_ir, "IR")) return FrameStatus::kBadFrame;
+        frame->ir = copy16(s.pending_ir);
+        s.pending_ir.release();
+      } else {
+        ++s.stats.unpaired_ir;
+      }
+    }
+  } else {
+    if (!check_size(primary, "IR")) return FrameStatus::kBadFrame;
+    frame->ir = copy16(primary);
+  }
+  ++s.stats.frames;
+  return FrameStatus::kOk;
+}
+
+std::vector<DeviceListing> ListDevices() {
+  EnsureOpenNI();
+  openni::Array<openni::DeviceInfo> list;
+  openni::OpenNI::enumerateDevices(&list);
+  std::vector<DeviceListing> out;
+  for (int i = 0; i < list.getSize(); ++i) out.push_back({list[i].getUri(), list[i].getVendor(), list[i].getName()});
+  return out;
+}
+
+std::vector<std::string> ListVideoModes(const std::string& uri) {
+  EnsureOpenNI();
+  openni::Device device;
+  const std::string name = uri.empty() ? "the first OpenNI2 device" : uri;
+  if (device.open(uri.empty() ? openni::ANY_DEVICE : uri.c_str()) != openni::STATUS_OK) {
+    throw InputError(name, "", "no OpenNI2 device opens with this URI (" + ExtendedError() + "); devices found: " + DeviceListText());
+  }
+  std::vector<std::string> out;
+  for (openni::SensorType t : {openni::SENSOR_DEPTH, openni::SENSOR_IR, openni::SENSOR_COLOR}) {
+    const openni::SensorInfo* info = device.getSensorInfo(t);
+    if (info == nullptr) continue;
+    const auto& modes = info->getSupportedVideoModes();
+    for (int i = 0; i < modes.getSize(); ++i) out.push_back(ModeString(t, modes[i]));
+  }
+  device.close();
+  return out;
+}
+
+std::filesystem::path DriverDirectory() {
+  Dl_info info{};
+  if (dladdr(reinterpret_cast<void*>(&oniInitialize), &info) == 0 || info.dli_fname == nullptr) return {};
+  return std::filesystem::path(info.dli_fname).parent_path() / "OpenNI2" / "Drivers";
+}
+
+}  // namespace romunect::openni2

@@ -1,0 +1,103 @@
+#include "virtual_device_uri.h"
+
+#include <cmath>
+#include <cstdlib>
+#include <sstream>
+
+#include "romunect/sensor/errors.h"
+
+namespace romunect::openni2 {
+
+std::string VirtualDeviceOptions::Problem() const {
+  if (stop_after < -1) return "stop_after = " + std::to_string(stop_after) + ": must be -1 (never) or >= 0";
+  if (!std::isfinite(fps) || fps < 0.0 || fps > 1000.0) {
+    return "fps = " + std::to_string(fps) + ": must be 0 (from frame times) or in (0, 1000]";
+  }
+  if (loop && pace == Pace::kStep) return "loop = 1: only with pace=realtime";
+  return "";
+}
+
+std::string VirtualDeviceUri(const std::filesystem::path& frame_dir, const VirtualDeviceOptions& options) {
+  const std::string problem = options.Problem();
+  if (!problem.empty()) throw InputError("virtual device", "options", problem);
+  const std::string dir = std::filesystem::absolute(frame_dir).lexically_normal().string();
+  if (dir.find('?') != std::string::npos) {
+    throw InputError(dir, "", "a virtual device's directory may not contain '?'");
+  }
+  std::ostringstream uri;
+  uri << kVirtualDeviceScheme << dir;
+  char sep = '?';
+  auto add = [&](const std::string& key, const std::string& value) {
+    uri << sep << key << '=' << value;
+    sep = '&';
+  };
+  if (options.pace == VirtualDeviceOptions::Pace::kStep) add("pace", "step");
+  if (options.stop_after >= 0) add("stop_after", std::to_string(options.stop_after));
+  if (options.loop) add("loop", "1");
+  if (options.fps > 0.0) {
+    std::ostringstream fps;
+    fps.precision(17);
+    fps << options.fps;
+    add("fps", fps.str());
+  }
+  return uri.str();
+}
+
+bool IsVirtualDeviceUri(const std::string& uri) { return uri.rfind(kVirtualDeviceScheme, 0) == 0; }
+
+std::optional<ParsedVirtualDeviceUri> ParseVirtualDeviceUri(const std::string& uri, std::string* problem) {
+  if (!IsVirtualDeviceUri(uri)) {
+    *problem = std::string("does not start with ") + kVirtualDeviceScheme;
+    return std::nullopt;
+  }
+  std::string rest = uri.substr(std::string(kVirtualDeviceScheme).size());
+  // Accept both romunect:/abs/dir and romunect:///abs/dir.
+  if (rest.rfind("//", 0) == 0) rest = rest.substr(2);
+  ParsedVirtualDeviceUri parsed;
+  const size_t q = rest.find('?');
+  parsed.dir = rest.substr(0, q);
+  if (parsed.dir.empty() || !parsed.dir.is_absolute()) {
+    *problem = "the directory must be an absolute path";
+    return std::nullopt;
+  }
+  if (q != std::string::npos) {
+    std::stringstream query(rest.substr(q + 1));
+    std::string item;
+    while (std::getline(query, item, '&')) {
+      const size_t eq = item.find('=');
+      const std::string key = item.substr(0, eq);
+      const std::string value = eq == std::string::npos ? "" : item.substr(eq + 1);
+      char* end = nullptr;
+      if (key == "pace" && (value == "step" || value == "realtime")) {
+        parsed.options.pace = value == "step" ? VirtualDeviceOptions::Pace::kStep : VirtualDeviceOptions::Pace::kRealtime;
+      } else if (key == "stop_after" && !value.empty()) {
+        const long n = std::strtol(value.c_str(), &end, 10);
+        if (*end != '\0') {
+          *problem = "stop_after=" + value + ": not an integer";
+          return std::nullopt;
+        }
+        parsed.options.stop_after = static_cast<int>(n);
+      } else if (key == "loop" && (value == "0" || value == "1")) {
+        parsed.options.loop = value == "1";
+      } else if (key == "fps" && !value.empty()) {
+        parsed.options.fps = std::strtod(value.c_str(), &end);
+        if (*end != '\0') {
+          *problem = "fps=" + value + ": not a number";
+          return std::nullopt;
+        }
+      } else {
+        *problem = "unknown or malformed parameter '" + item +
+                   "' (expected pace=realtime|step, stop_after=N, loop=0|1, fps=F)";
+        return std::nullopt;
+      }
+    }
+  }
+  const std::string options_problem = parsed.options.Problem();
+  if (!options_problem.empty()) {
+    *problem = options_problem;
+    return std::nullopt;
+  }
+  return parsed;
+}
+
+}  // namespace romunect::openni2

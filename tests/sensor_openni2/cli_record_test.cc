@@ -1,0 +1,106 @@
+// `romunect record`, run as a user would: the virtual device to a frame directory and an .oni
+// file, the .oni back to a frame directory, a device that stops, and bad input.
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "romunect/openni2/depth_units.h"
+#include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/frame_io.h"
+#include "romunect/testing/test_support.h"
+
+namespace romunect::openni2 {
+namespace {
+
+using testing::ImagesBitEqual;
+using testing::RunRomunect;
+using testing::ScratchDir;
+
+std::string Quote(const std::string& s) { return "'" + s + "'"; }
+
+// Every frame of `recorded` equals the source directory's, depth after 100 um quantization.
+void ExpectSameFrames(const std::filesystem::path& recorded, const std::filesystem::path& truth, size_t count) {
+  FrameDirectorySource a(recorded), b(truth);
+  ASSERT_EQ(a.manifest().frames.size(), count);
+  for (size_t i = 0; i < count; ++i) {
+    const Frame fa = LoadFrame(recorded, a.manifest(), i), fb = LoadFrame(truth, b.manifest(), i);
+    cv::Mat expected(fb.depth_m.size(), CV_32F);
+    for (int v = 0; v < expected.rows; ++v) {
+      for (int u = 0; u < expected.cols; ++u) {
+        expected.at<float>(v, u) = DequantizeDepth(QuantizeDepth(fb.depth_m.at<float>(v, u), DepthUnit::k100um), DepthUnit::k100um);
+      }
+    }
+    EXPECT_EQ(fa.index, static_cast<int>(i));
+    EXPECT_TRUE(ImagesBitEqual(fa.depth_m, expected)) << i;
+    EXPECT_TRUE(ImagesBitEqual(fa.ir, fb.ir)) << i;
+  }
+}
+
+TEST(CliRecord, Help) {
+  const auto r = RunRomunect("record --help");
+  EXPECT_EQ(r.exit_code, 0);
+  for (const char* word : {"SOURCE", "OUT_DIR", "--oni", "--pose-log", "--frames", "--list-devices", "romunect:DIR"}) {
+    EXPECT_NE(r.output.find(word), std::string::npos) << word << "\n" << r.output;
+  }
+}
+
+TEST(CliRecord, RecordsTheVirtualDeviceToAFrameDirectoryAndOniAndPlaysTheOniBack) {
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 4, 31);
+  VirtualDeviceOptions step;
+  step.pace = VirtualDeviceOptions::Pace::kStep;
+  const std::string uri = VirtualDeviceUri(dir.path(), step);
+  const auto r = RunRomunect("record " + Quote(uri) + " " + (out / "live").string() + " --oni " + (out / "live.oni").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("recorded 4 frames (0 skipped, 0 dropped by the device)"), std::string::npos) << r.output;
+  ExpectSameFrames(out / "live", dir.path(), 4);
+  const auto doc = nlohmann::json::parse(testing::ReadText(out / "live" / "frames.json"));
+  EXPECT_EQ(doc["ps1080"]["zero_plane_distance_mm"], 120);
+  EXPECT_EQ(doc["recording"]["depth_unit"], "100 um");
+
+  const auto back = RunRomunect("record " + (out / "live.oni").string() + " " + (out / "replayed").string());
+  ASSERT_EQ(back.exit_code, 0) << back.output;
+  ExpectSameFrames(out / "replayed", dir.path(), 4);
+  EXPECT_EQ(RunRomunect("info " + (out / "replayed").string()).exit_code, 0);
+
+  const auto modes = RunRomunect("record " + Quote(uri) + " --list-modes");
+  EXPECT_EQ(modes.exit_code, 0);
+  EXPECT_NE(modes.output.find("depth 80x60 @30 Hz 100um"), std::string::npos) << modes.output;
+}
+
+TEST(CliRecord, ADeviceThatStopsKeepsTheFramesSoFarAndFails) {
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 5, 32);
+  VirtualDeviceOptions device;
+  device.pace = VirtualDeviceOptions::Pace::kStep;
+  device.stop_after = 2;
+  const auto r = RunRomunect("record " + Quote(VirtualDeviceUri(dir.path(), device)) + " " + (out / "cut").string() +
+                             " --timeout 0.5");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("no frame for 0.5 s (device unplugged or stalled)"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("kept 2 frames"), std::string::npos) << r.output;
+  ExpectSameFrames(out / "cut", dir.path(), 2);
+  const auto doc = nlohmann::json::parse(testing::ReadText(out / "cut" / "frames.json"));
+  EXPECT_NE(doc["recording"]["incomplete"].get<std::string>().find("no frame for 0.5 s"), std::string::npos);
+}
+
+TEST(CliRecord, BadInputGivesClearMessages) {
+  ScratchDir out("out");
+  auto r = RunRomunect("record /no/such/dir " + (out / "x").string());
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.output.find("/no/such/dir: not a directory"), std::string::npos) << r.output;
+  r = RunRomunect("record " + Quote("romunect:/no/such/dir?pace=step") + " " + (out / "x").string());
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.output.find("no OpenNI2 device opens with this URI"), std::string::npos) << r.output;
+  r = RunRomunect("record " + (out / "missing.oni").string() + " " + (out / "x").string());
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.output.find("no such .oni file"), std::string::npos) << r.output;
+  r = RunRomunect("record " + (out / "x").string());
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.output.find("OUT_DIR: missing"), std::string::npos) << r.output;
+  EXPECT_NE(RunRomunect("record oni:// x --depth-unit 2mm").exit_code, 0);
+}
+
+}  // namespace
+}  // namespace romunect::openni2

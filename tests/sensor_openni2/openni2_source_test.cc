@@ -1,0 +1,315 @@
+// OpenNI2Source against the virtual device and OpenNI2's file driver: every frame of a small
+// frame directory must come back through libOpenNI2 bit for bit (depth after the wire's
+// quantization, IR and microsecond timestamps exactly).
+#include "romunect/openni2/openni2_source.h"
+
+#include <chrono>
+#include <cmath>
+#include <fstream>
+
+#include <gtest/gtest.h>
+
+#include "romunect/openni2/depth_units.h"
+#include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/errors.h"
+#include "romunect/sensor/frame_io.h"
+#include "romunect/testing/test_support.h"
+
+namespace romunect::openni2 {
+namespace {
+
+using testing::ImagesBitEqual;
+using testing::ScratchDir;
+
+// The device reports fields of view as float radians: fx comes back to float precision.
+constexpr double kFovFocalRelTolerance = 1e-6;
+// A stalled stream must be reported within its timeout plus scheduling slack on a loaded CI box.
+constexpr double kStallReportSlackS = 3.0;
+constexpr int kFrames = 5;
+
+// The slow, obvious reference for the wire's depth rule: per pixel, in double.
+cv::Mat ExpectedDepth(const cv::Mat& depth_m, DepthUnit unit) {
+  cv::Mat out(depth_m.size(), CV_32F);
+  const double unit_m = unit == DepthUnit::k100um ? 1e-4 : 1e-3;
+  for (int v = 0; v < depth_m.rows; ++v) {
+    for (int u = 0; u < depth_m.cols; ++u) {
+      const double d = depth_m.at<float>(v, u);
+      double counts = d > 0.0 ? std::round(d / unit_m) : 0.0;
+      if (counts > 65535.0) counts = 0.0;
+      out.at<float>(v, u) = static_cast<float>(counts * unit_m);
+    }
+  }
+  return out;
+}
+
+double ExpectedTime(double t_s, double t0_s) {
+  return static_cast<double>(std::llround(t_s * 1e6) - std::llround(t0_s * 1e6)) * 1e-6;
+}
+
+std::vector<Frame> ReadAll(FrameSource& source) {
+  std::vector<Frame> frames;
+  Frame f;
+  std::string error;
+  for (FrameStatus s; (s = source.Next(&f, &error)) != FrameStatus::kEndOfStream;) {
+    EXPECT_EQ(s, FrameStatus::kOk) << error;
+    frames.push_back(f);
+  }
+  return frames;
+}
+
+// Checks frames against the directory they came from, frame by frame.
+void ExpectMatchesDirectory(const std::vector<Frame>& frames, const std::filesystem::path& dir, DepthUnit unit,
+                            size_t expected_count) {
+  FrameDirectorySource truth(dir);
+  const auto& records = truth.manifest().frames;
+  ASSERT_EQ(frames.size(), expected_count);
+  for (const Frame& f : frames) {
+    ASSERT_GE(f.index, 0);
+    ASSERT_LT(static_cast<size_t>(f.index), records.size());
+    const Frame expected = LoadFrame(dir, truth.manifest(), f.index);
+    SCOPED_TRACE("frame " + std::to_string(f.index));
+    EXPECT_TRUE(ImagesBitEqual(f.depth_m, ExpectedDepth(expected.depth_m, unit)));
+    EXPECT_TRUE(ImagesBitEqual(f.ir, expected.ir));
+    EXPECT_EQ(f.time_s, ExpectedTime(records[f.index].time_s, records[0].time_s));
+    EXPECT_FALSE(f.T_B_H.has_value());
+  }
+}
+
+VirtualDeviceOptions Step() {
+  VirtualDeviceOptions o;
+  o.pace = VirtualDeviceOptions::Pace::kStep;
+  return o;
+}
+
+TEST(DepthUnits, QuantizationFollowsTheDocumentedRule) {
+  EXPECT_EQ(QuantizeDepth(0.2f, DepthUnit::k100um), 2000);
+  EXPECT_EQ(QuantizeDepth(0.2f, DepthUnit::k1mm), 200);
+  EXPECT_EQ(QuantizeDepth(0.0f, DepthUnit::k100um), 0);
+  EXPECT_EQ(QuantizeDepth(-0.1f, DepthUnit::k100um), 0);
+  EXPECT_EQ(QuantizeDepth(std::nanf(""), DepthUnit::k100um), 0);
+  EXPECT_EQ(QuantizeDepth(6.5535f, DepthUnit::k100um), 65535);
+  EXPECT_EQ(QuantizeDepth(6.6f, DepthUnit::k100um), 0);  // beyond the wire's range: no measurement
+  EXPECT_EQ(DequantizeDepth(2000, DepthUnit::k100um), static_cast<float>(0.2));
+  // Over the working range the round trip errs by at most half a unit (plus float rounding).
+  for (float d = 0.15f; d < 0.25f; d += 0.0000137f) {
+    EXPECT_LE(std::abs(DequantizeDepth(QuantizeDepth(d, DepthUnit::k100um), DepthUnit::k100um) - d), 0.5e-4 + 1e-7);
+  }
+}
+
+TEST(VirtualDevice, PlaysAFrameDirectoryThroughOpenNI2BitForBit) {
+  ScratchDir dir("frames");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), kFrames, 11);
+  OpenNI2SourceOptions options;
+  options.uri = VirtualDeviceUri(dir.path(), Step());
+  OpenNI2Source source(options);
+  EXPECT_EQ(source.depth_unit(), DepthUnit::k100um);
+  EXPECT_FALSE(source.is_recording_playback());
+  EXPECT_NE(source.Describe().find("80x60 @30 Hz, depth in 100 um, IR, 5 frames"), std::string::npos) << source.Describe();
+  const CameraModel truth = testing::SmallCamera();
+  EXPECT_EQ(source.camera().width, truth.width);
+  EXPECT_NEAR(source.camera().fx, truth.fx, kFovFocalRelTolerance * truth.fx);
+  EXPECT_NEAR(source.camera().fy, truth.fy, kFovFocalRelTolerance * truth.fy);
+  // The stock chip's geometry, as the twin's kinect-v1 preset has it.
+  ASSERT_TRUE(source.chip().zero_plane_distance_m.has_value());
+  EXPECT_DOUBLE_EQ(*source.chip().zero_plane_distance_m, 0.120);
+  ASSERT_TRUE(source.chip().emitter_camera_distance_m.has_value());
+  EXPECT_NEAR(*source.chip().emitter_camera_distance_m, 0.075, 1e-12);
+  EXPECT_TRUE(source.chip().zero_plane_pixel_size_m.has_value());
+
+  const std::vector<Frame> frames = ReadAll(source);
+  ExpectMatchesDirectory(frames, dir.path(), DepthUnit::k100um, kFrames);
+  for (int i = 0; i < kFrames; ++i) EXPECT_EQ(frames[i].index, i);
+  EXPECT_EQ(source.stats().frames, kFrames);
+  EXPECT_EQ(source.stats().dropped_frames, 0);
+  EXPECT_EQ(source.stats().unpaired_ir, 0);
+}
+
+TEST(VirtualDevice, OneMillimetreUnitAndDepthOnly) {
+  ScratchDir dir("frames");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 3, 12);
+  OpenNI2SourceOptions options;
+  options.uri = VirtualDeviceUri(dir.path(), Step());
+  options.depth_unit = DepthUnit::k1mm;
+  options.ir = false;
+  OpenNI2Source source(options);
+  EXPECT_EQ(source.depth_unit(), DepthUnit::k1mm);
+  const std::vector<Frame> frames = ReadAll(source);
+  ASSERT_EQ(frames.size(), 3u);
+  FrameDirectorySource truth(dir.path());
+  for (const Frame& f : frames) {
+    EXPECT_TRUE(ImagesBitEqual(f.depth_m, ExpectedDepth(LoadFrame(dir.path(), truth.manifest(), f.index).depth_m, DepthUnit::k1mm)));
+    EXPECT_TRUE(f.ir.empty());
+  }
+}
+
+TEST(VirtualDevice, RealtimePaceDeliversMatchingFramesAndCountsDrops) {
+  ScratchDir dir("frames");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 4, 13);
+  OpenNI2SourceOptions options;
+  options.uri = VirtualDeviceUri(dir.path());
+  OpenNI2Source source(options);
+  const std::vector<Frame> frames = ReadAll(source);
+  // A loaded machine may drop frames at 30 Hz; whatever arrives must be exact and accounted for.
+  ASSERT_FALSE(frames.empty());
+  ExpectMatchesDirectory(frames, dir.path(), DepthUnit::k100um, frames.size());
+  EXPECT_EQ(source.stats().frames + source.stats().dropped_frames, 4);
+}
+
+TEST(OniRecording, RecordsTheVirtualDeviceAndPlaysBackThroughTheFileDriver) {
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), kFrames, 14);
+  const std::filesystem::path oni = out / "scan.oni";
+  {
+    OpenNI2SourceOptions options;
+    options.uri = VirtualDeviceUri(dir.path(), Step());
+    options.record_oni = oni;
+    OpenNI2Source live(options);
+    ExpectMatchesDirectory(ReadAll(live), dir.path(), DepthUnit::k100um, kFrames);
+    live.FinishRecording();
+  }
+  ASSERT_TRUE(std::filesystem::is_regular_file(oni));
+
+  OpenNI2SourceOptions options;
+  options.uri = oni.string();
+  OpenNI2Source playback(options);
+  EXPECT_TRUE(playback.is_recording_playback());
+  EXPECT_EQ(playback.depth_unit(), DepthUnit::k100um);
+  EXPECT_NEAR(playback.camera().fx, testing::SmallCamera().fx, kFovFocalRelTolerance * testing::SmallCamera().fx);
+  // The chip's geometry travels in the recording.
+  ASSERT_TRUE(playback.chip().zero_plane_distance_m.has_value());
+  EXPECT_DOUBLE_EQ(*playback.chip().zero_plane_distance_m, 0.120);
+  ASSERT_TRUE(playback.chip().emitter_camera_distance_m.has_value());
+  EXPECT_NEAR(*playback.chip().emitter_camera_distance_m, 0.075, 1e-12);
+  const std::vector<Frame> frames = ReadAll(playback);
+  ExpectMatchesDirectory(frames, dir.path(), DepthUnit::k100um, kFrames);
+  for (int i = 0; i < kFrames; ++i) EXPECT_EQ(frames[i].index, i);
+  EXPECT_EQ(playback.stats().dropped_frames, 0);
+}
+
+TEST(VirtualDevice, StalledDeviceGivesAClearErrorWithinTheTimeoutAndKeepsEarlierFrames) {
+  ScratchDir dir("frames");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), kFrames, 15);
+  VirtualDeviceOptions device = Step();
+  device.stop_after = 2;
+  OpenNI2SourceOptions options;
+  options.uri = VirtualDeviceUri(dir.path(), device);
+  options.timeout_s = 0.5;
+  OpenNI2Source source(options);
+  std::vector<Frame> kept;
+  Frame f;
+  std::string error;
+  ASSERT_EQ(source.Next(&f, &error), FrameStatus::kOk) << error;
+  kept.push_back(f);
+  ASSERT_EQ(source.Next(&f, &error), FrameStatus::kOk) << error;
+  kept.push_back(f);
+  const auto t0 = std::chrono::steady_clock::now();
+  try {
+    source.Next(&f, &error);
+    FAIL() << "a stalled device must throw";
+  } catch (const InputError& e) {
+    const std::string message = e.what();
+    EXPECT_NE(message.find(options.uri), std::string::npos) << message;
+    EXPECT_NE(message.find("no frame for 0.5 s (device unplugged or stalled); 2 frames were delivered before, the last at index 1"),
+              std::string::npos) << message;
+  }
+  const double elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  EXPECT_GE(elapsed_s, 0.5);
+  EXPECT_LT(elapsed_s, 0.5 + kStallReportSlackS);
+  // What came before the stall is intact.
+  ExpectMatchesDirectory(kept, dir.path(), DepthUnit::k100um, 2);
+}
+
+std::string OpenError(const OpenNI2SourceOptions& options) {
+  try {
+    OpenNI2Source source(options);
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "(no error)";
+}
+
+TEST(OpenNI2SourceErrors, UnknownUriNamesTheUriAndTheDevicesFound) {
+  OpenNI2SourceOptions options;
+  options.uri = "romunect:/no/such/frame/directory";
+  std::string m = OpenError(options);
+  EXPECT_NE(m.find("romunect:/no/such/frame/directory: no OpenNI2 device opens with this URI: "
+                   "/no/such/frame/directory is not a frame directory (no frames.json)"), std::string::npos) << m;
+  options.uri = "romunect:/tmp?pace=fast";
+  m = OpenError(options);
+  EXPECT_NE(m.find("romunect:/tmp?pace=fast: not a valid virtual-device URI: unknown or malformed parameter 'pace=fast'"),
+            std::string::npos) << m;
+  options.uri = "usb://bogus/1";
+  m = OpenError(options);
+  EXPECT_NE(m.find("usb://bogus/1: no OpenNI2 device opens with this URI"), std::string::npos) << m;
+  EXPECT_NE(m.find("devices found:"), std::string::npos) << m;
+}
+
+TEST(OpenNI2SourceErrors, UnsupportedModeListsTheOfferedModes) {
+  ScratchDir dir("frames");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 2, 16);
+  OpenNI2SourceOptions options;
+  options.uri = VirtualDeviceUri(dir.path(), Step());
+  options.width = 1280;
+  options.height = 1024;
+  options.fps = 30;
+  const std::string m = OpenError(options);
+  EXPECT_NE(m.find("video mode: depth 1280x1024 @30 Hz in 100um or 1mm is not offered; the device offers: "
+                   "depth 80x60 @30 Hz 100um, depth 80x60 @30 Hz 1mm"), std::string::npos) << m;
+  const auto modes = ListVideoModes(options.uri);
+  ASSERT_EQ(modes.size(), 3u);
+  EXPECT_EQ(modes[2], "ir 80x60 @30 Hz gray16");
+}
+
+TEST(OpenNI2SourceErrors, InvalidOptionsNameTheField) {
+  OpenNI2SourceOptions options;
+  options.timeout_s = -1.0;
+  EXPECT_NE(OpenError(options).find("timeout_s = -1"), std::string::npos);
+  options = {};
+  options.depth = options.ir = false;
+  EXPECT_NE(OpenError(options).find("at least one stream"), std::string::npos);
+}
+
+TEST(OpenNI2SourceErrors, CorruptOrMissingOniFileIsRejected) {
+  ScratchDir dir("oni");
+  testing::WriteText(dir / "garbage.oni", std::string(4096, 'x'));
+  testing::WriteText(dir / "empty.oni", "");
+  OpenNI2SourceOptions options;
+  for (const char* name : {"garbage.oni", "empty.oni"}) {
+    options.uri = (dir / name).string();
+    const std::string m = OpenError(options);
+    EXPECT_NE(m.find(options.uri + ": not a readable .oni recording"), std::string::npos) << m;
+  }
+  options.uri = (dir / "missing.oni").string();
+  EXPECT_NE(OpenError(options).find("missing.oni: no such .oni file"), std::string::npos);
+}
+
+TEST(OpenNI2SourceErrors, TruncatedRecordingIsRejected) {
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), kFrames, 17);
+  const std::filesystem::path oni = out / "scan.oni";
+  {
+    OpenNI2SourceOptions options;
+    options.uri = VirtualDeviceUri(dir.path(), Step());
+    options.record_oni = oni;
+    OpenNI2Source live(options);
+    ReadAll(live);
+  }
+  // A recording cut to a quarter (a copy interrupted early) has lost its stream descriptions.
+  const std::string bytes = testing::ReadText(oni);
+  testing::WriteText(out / "cut.oni", bytes.substr(0, bytes.size() / 4));
+  OpenNI2SourceOptions options;
+  options.uri = (out / "cut.oni").string();
+  const std::string m = OpenError(options);
+  EXPECT_NE(m.find("cut.oni: not a readable .oni recording"), std::string::npos) << m;
+}
+
+TEST(OpenNI2Runtime, DriversComeFromTheBuildTree) {
+  const std::filesystem::path drivers = DriverDirectory();
+  EXPECT_EQ(drivers, std::filesystem::path(ROMUNECT_BINARY_DIR) / "lib" / "OpenNI2" / "Drivers");
+  EXPECT_TRUE(std::filesystem::exists(drivers / "libRomunectVirtual.so.0"));
+}
+
+}  // namespace
+}  // namespace romunect::openni2

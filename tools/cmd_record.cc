@@ -1,0 +1,172 @@
+// romunect record SOURCE OUT_DIR: capture from an OpenNI2 device (real or virtual), a recording
+// or a frame directory into a frame directory, optionally also into an .oni file. A device that
+// stops mid-stream ends the capture with an error, and the frames up to then are kept.
+#include <atomic>
+#include <csignal>
+#include <cstdio>
+#include <filesystem>
+#include <memory>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+#include "commands.h"
+#include "romunect/openni2/open_source.h"
+#include "romunect/openni2/openni2_source.h"
+#include "romunect/sensor/errors.h"
+#include "romunect/sensor/frame_io.h"
+
+namespace romunect::tools {
+namespace {
+
+volatile std::sig_atomic_t g_interrupted = 0;
+void OnInterrupt(int) { g_interrupted = 1; }
+
+struct RecordArgs {
+  std::string source, out_dir, oni, camera, pose_log, depth_unit;
+  int frames = 0, width = 0, height = 0, fps = 0;
+  double timeout_s = 2.0, pose_offset_s = 0.0;
+  bool no_ir = false, list_devices = false, list_modes = false;
+};
+
+openni2::OpenNI2Source* FindDevice(FrameSource* source) {
+  if (auto* logged = dynamic_cast<openni2::PoseLogSource*>(source)) source = &logged->inner();
+  return dynamic_cast<openni2::OpenNI2Source*>(source);
+}
+
+// frames.json's top-level "recording" (provenance) and "ps1080" (the chip's geometry, in the
+// keys the virtual device reads back, so a recorded directory replays with the same chip).
+std::string ExtraJson(const RecordArgs& args, FrameSource& source, const std::string& incomplete) {
+  nlohmann::json extra;
+  extra["recording"]["source"] = args.source;
+  extra["recording"]["description"] = source.Describe();
+  if (!incomplete.empty()) extra["recording"]["incomplete"] = incomplete;
+  if (auto* device = FindDevice(&source)) {
+    const openni2::PS1080Properties& c = device->chip();
+    extra["recording"]["depth_unit"] = openni2::ToString(device->depth_unit());
+    nlohmann::json chip = nlohmann::json::object();
+    if (c.zero_plane_distance_m) chip["zero_plane_distance_mm"] = std::llround(*c.zero_plane_distance_m * 1e3);
+    if (c.zero_plane_pixel_size_m) chip["zero_plane_pixel_size_mm"] = *c.zero_plane_pixel_size_m * 1e3;
+    if (c.emitter_camera_distance_m) chip["emitter_dcmos_distance_cm"] = *c.emitter_camera_distance_m * 1e2;
+    if (c.depth_rgb_camera_distance_m) chip["dcmos_rcmos_distance_cm"] = *c.depth_rgb_camera_distance_m * 1e2;
+    if (c.const_shift) chip["const_shift"] = *c.const_shift;
+    if (c.param_coeff) chip["param_coeff"] = *c.param_coeff;
+    if (c.shift_scale) chip["shift_scale"] = *c.shift_scale;
+    if (c.max_shift) chip["max_shift"] = *c.max_shift;
+    if (c.pixel_size_factor) chip["pixel_size_factor"] = *c.pixel_size_factor;
+    if (!chip.empty()) extra["ps1080"] = chip;
+  }
+  return extra.dump();
+}
+
+void RunRecord(const RecordArgs& args) {
+  if (args.list_devices) {
+    const auto devices = openni2::ListDevices();
+    std::printf("OpenNI2 drivers: %s\n", openni2::DriverDirectory().string().c_str());
+    for (const auto& d : devices) std::printf("%s  (%s %s)\n", d.uri.c_str(), d.vendor.c_str(), d.name.c_str());
+    if (devices.empty()) std::printf("no OpenNI2 devices found\n");
+    return;
+  }
+  if (args.source.empty()) throw InputError("record", "SOURCE", "missing (a device URI, a .oni file or a frame directory)");
+  if (args.list_modes) {
+    if (openni2::ClassifySource(args.source) == openni2::SourceKind::kFrameDirectory) {
+      throw InputError(args.source, "--list-modes", "only OpenNI2 devices have video modes");
+    }
+    std::string uri = args.source.rfind("oni://", 0) == 0 ? args.source.substr(6) : args.source;
+    for (const std::string& m : openni2::ListVideoModes(uri)) std::printf("%s\n", m.c_str());
+    return;
+  }
+  if (args.out_dir.empty()) throw InputError("record", "OUT_DIR", "missing (the frame directory to write)");
+
+  openni2::OpenSourceOptions options;
+  options.pose_log = args.pose_log;
+  options.pose.time_offset_s = args.pose_offset_s;
+  openni2::OpenNI2SourceOptions& device = options.openni2;
+  device.width = args.width;
+  device.height = args.height;
+  device.fps = args.fps;
+  device.ir = !args.no_ir;
+  device.timeout_s = args.timeout_s;
+  device.max_frames = args.frames;
+  device.record_oni = args.oni;
+  if (args.depth_unit == "100um") device.depth_unit = openni2::DepthUnit::k100um;
+  else if (args.depth_unit == "1mm") device.depth_unit = openni2::DepthUnit::k1mm;
+  else if (!args.depth_unit.empty()) throw InputError("--depth-unit", "", "'" + args.depth_unit + "': expected 100um or 1mm");
+  if (!args.camera.empty()) device.camera = CameraModel::Load(args.camera);
+  if (!args.oni.empty() && openni2::ClassifySource(args.source) == openni2::SourceKind::kFrameDirectory) {
+    throw InputError("--oni", "", "only an OpenNI2 source (device or .oni file) can be recorded to .oni");
+  }
+
+  std::unique_ptr<FrameSource> source = openni2::OpenSource(args.source, options);
+  FrameDirectoryWriter writer(args.out_dir, source->camera());
+  std::printf("recording from %s\n", source->Describe().c_str());
+
+  g_interrupted = 0;
+  auto previous = std::signal(SIGINT, OnInterrupt);
+  int skipped = 0;
+  Frame frame;
+  std::string error;
+  try {
+    while (!g_interrupted && (args.frames == 0 || static_cast<int>(writer.size()) < args.frames)) {
+      const FrameStatus status = source->Next(&frame, &error);
+      if (status == FrameStatus::kEndOfStream) break;
+      if (status == FrameStatus::kBadFrame) {
+        ++skipped;
+        std::fprintf(stderr, "romunect: warning: frame skipped: %s\n", error.c_str());
+        continue;
+      }
+      if (frame.depth_m.empty()) {
+        ++skipped;
+        std::fprintf(stderr, "romunect: warning: frame %d has no depth, skipped\n", frame.index);
+        continue;
+      }
+      writer.Add(frame);
+    }
+  } catch (const InputError& e) {
+    // The device is gone: keep what arrived, say so in the directory, then report the error.
+    std::signal(SIGINT, previous);
+    writer.SetExtraJson(ExtraJson(args, *source, e.what()));
+    writer.Finish();
+    std::fprintf(stderr, "romunect: kept %zu frames in %s\n", writer.size(), args.out_dir.c_str());
+    throw;
+  }
+  std::signal(SIGINT, previous);
+  writer.SetExtraJson(ExtraJson(args, *source, g_interrupted ? "interrupted" : ""));
+  writer.Finish();
+  std::string dropped;
+  if (auto* d = FindDevice(source.get())) {
+    d->FinishRecording();
+    dropped = ", " + std::to_string(d->stats().dropped_frames) + " dropped by the device";
+  }
+  std::printf("recorded %zu frames (%d skipped%s) to %s%s\n", writer.size(), skipped, dropped.c_str(),
+              args.out_dir.c_str(), args.oni.empty() ? "" : (" and " + args.oni).c_str());
+}
+
+}  // namespace
+
+void AddRecordCommand(CLI::App& app) {
+  auto* cmd = app.add_subcommand(
+      "record",
+      "Capture from an OpenNI2 device, an .oni recording or a frame directory into a frame directory "
+      "(and optionally an .oni file)");
+  auto args = std::make_shared<RecordArgs>();
+  cmd->add_option("SOURCE", args->source,
+                  "oni:// (first device) | oni://URI | romunect:DIR[?pace=step&...] (virtual device) | FILE.oni | DIR");
+  cmd->add_option("OUT_DIR", args->out_dir, "Frame directory to write (must not hold frames.json yet)");
+  cmd->add_option("--oni", args->oni, "Also record the streams, lossless, to this .oni file");
+  cmd->add_option("--frames", args->frames, "Stop after this many frames (0 = until the stream ends or Ctrl-C)")->check(CLI::NonNegativeNumber);
+  cmd->add_option("--timeout", args->timeout_s, "Seconds without a frame before the device counts as gone")->check(CLI::PositiveNumber);
+  cmd->add_option("--width", args->width, "Video mode width (default 640 when offered)")->check(CLI::NonNegativeNumber);
+  cmd->add_option("--height", args->height, "Video mode height (default 480 when offered)")->check(CLI::NonNegativeNumber);
+  cmd->add_option("--fps", args->fps, "Video mode rate (default 30 when offered)")->check(CLI::NonNegativeNumber);
+  cmd->add_option("--depth-unit", args->depth_unit, "Depth on the wire: 100um (default when offered) or 1mm");
+  cmd->add_flag("--no-ir", args->no_ir, "Do not open the IR stream");
+  cmd->add_option("--camera", args->camera, "Camera model (OpenCV YAML/JSON) of the frames; default: from the fields of view");
+  cmd->add_option("--pose-log", args->pose_log, "CSV pose log of T_B_H (time_s,x_m,y_m,z_m,qw,qx,qy,qz)");
+  cmd->add_option("--pose-offset", args->pose_offset_s, "Seconds added to frame times to get pose-log times");
+  cmd->add_flag("--list-devices", args->list_devices, "List the OpenNI2 devices and exit");
+  cmd->add_flag("--list-modes", args->list_modes, "List the video modes of SOURCE and exit");
+  cmd->callback([args] { RunRecord(*args); });
+}
+
+}  // namespace romunect::tools
