@@ -47,21 +47,23 @@ ObjectSpec MakeKey(uint32_t seed) {
   const double s = SizeFactor(seed);
   const double t = 0.003 * s;
   ObjectSpec spec;
-  // Bow: a ring around the key hole, as convex sectors.
+  // Seen: a bow (a ring around the key hole, as convex sectors), shoulder, blade and teeth.
   const double bow_x = -0.014 * s, r_in = 0.0035 * s, r_out = 0.011 * s;
   const int kSegments = 10;
   for (int i = 0; i < kSegments; ++i) {
     const double a0 = 2.0 * kPi * i / kSegments, a1 = 2.0 * kPi * (i + 1) / kSegments;
-    spec.parts_O.push_back(ConvexPrism(RingSegment(bow_x, 0, r_in, r_out, a0, a1), 0, t));
+    spec.visual_O.push_back(ConvexPrism(RingSegment(bow_x, 0, r_in, r_out, a0, a1), 0, t));
   }
-  spec.parts_O.push_back(ConvexPrism(Rectangle(-0.004 * s, -0.005 * s, 0.003 * s, 0.005 * s), 0, t));
-  spec.parts_O.push_back(ConvexPrism(Rectangle(0.003 * s, -0.0035 * s, 0.036 * s, 0.0035 * s), 0, t));
-  // Teeth: triangles below the blade.
+  spec.visual_O.push_back(ConvexPrism(Rectangle(-0.004 * s, -0.005 * s, 0.003 * s, 0.005 * s), 0, t));
+  spec.visual_O.push_back(ConvexPrism(Rectangle(0.003 * s, -0.0035 * s, 0.036 * s, 0.0035 * s), 0, t));
   for (int i = 0; i < 4; ++i) {
     const double x = (0.010 + 0.0065 * i) * s;
-    spec.parts_O.push_back(ConvexPrism(
+    spec.visual_O.push_back(ConvexPrism(
         {{x - 0.0025 * s, -0.0035 * s}, {x, -0.0065 * s}, {x + 0.0025 * s, -0.0035 * s}}, 0, t));
   }
+  // Collides as a disc and a bar.
+  spec.parts_O.push_back(ConvexPrism(RegularPolygon(bow_x, 0, r_out, 12), 0, t));
+  spec.parts_O.push_back(ConvexPrism(Rectangle(-0.004 * s, -0.005 * s, 0.036 * s, 0.005 * s), 0, t));
   spec.density_kg_m3 = 8500.0;  // brass
   spec.material = ShinyMaterial();
   return spec;
@@ -70,8 +72,9 @@ ObjectSpec MakeKey(uint32_t seed) {
 ObjectSpec MakePillBox(uint32_t seed) {
   const double s = SizeFactor(seed);
   ObjectSpec spec;
-  spec.parts_O.push_back(Box({0, 0, 0.006 * s}, {0.020 * s, 0.011 * s, 0.006 * s}));
-  spec.parts_O.push_back(Box({0, 0, 0.014 * s}, {0.0205 * s, 0.0115 * s, 0.002 * s}));  // lid
+  spec.visual_O.push_back(Box({0, 0, 0.006 * s}, {0.020 * s, 0.011 * s, 0.006 * s}));
+  spec.visual_O.push_back(Box({0, 0, 0.014 * s}, {0.0205 * s, 0.0115 * s, 0.002 * s}));  // lid
+  spec.parts_O.push_back(Box({0, 0, 0.008 * s}, {0.0205 * s, 0.0115 * s, 0.008 * s}));
   spec.density_kg_m3 = 300.0;  // a hollow plastic box with a few pills
   spec.material = BrightMaterial();
   return spec;
@@ -81,12 +84,16 @@ ObjectSpec MakePuzzlePiece(uint32_t seed) {
   const double s = SizeFactor(seed);
   const double t = 0.004 * s, h = 0.009 * s;
   ObjectSpec spec;
-  spec.parts_O.push_back(ConvexPrism(Rectangle(-h, -h, h, h), 0, t));
+  spec.visual_O.push_back(ConvexPrism(Rectangle(-h, -h, h, h), 0, t));
   // Two knobs (on +x and +y), each a neck and a round head.
-  spec.parts_O.push_back(ConvexPrism(Rectangle(h, -0.0018 * s, h + 0.002 * s, 0.0018 * s), 0, t));
-  spec.parts_O.push_back(Cylinder(h + 0.0045 * s, 0, 0.0035 * s, 0, t, 12));
-  spec.parts_O.push_back(ConvexPrism(Rectangle(-0.0018 * s, h, 0.0018 * s, h + 0.002 * s), 0, t));
-  spec.parts_O.push_back(Cylinder(0, h + 0.0045 * s, 0.0035 * s, 0, t, 12));
+  spec.visual_O.push_back(ConvexPrism(Rectangle(h, -0.0018 * s, h + 0.002 * s, 0.0018 * s), 0, t));
+  spec.visual_O.push_back(Cylinder(h + 0.0045 * s, 0, 0.0035 * s, 0, t, 12));
+  spec.visual_O.push_back(ConvexPrism(Rectangle(-0.0018 * s, h, 0.0018 * s, h + 0.002 * s), 0, t));
+  spec.visual_O.push_back(Cylinder(0, h + 0.0045 * s, 0.0035 * s, 0, t, 12));
+  // Collides as the square and the two heads, each convex.
+  spec.parts_O.push_back(ConvexPrism(Rectangle(-h, -h, h, h), 0, t));
+  spec.parts_O.push_back(Cylinder(h + 0.0045 * s, 0, 0.0035 * s, 0, t, 8));
+  spec.parts_O.push_back(Cylinder(0, h + 0.0045 * s, 0.0035 * s, 0, t, 8));
   spec.density_kg_m3 = 700.0;  // pressed cardboard
   spec.material = IrMaterial{0.55f, 0.05f, 10.0f};
   return spec;
@@ -96,10 +103,11 @@ ObjectSpec MakeLegoBrick(uint32_t seed) {
   const double s = SizeFactor(seed);
   ObjectSpec spec;
   const double hx = 0.0159 * s, hy = 0.0079 * s, hz = 0.0048 * s;
-  spec.parts_O.push_back(Box({0, 0, hz}, {hx, hy, hz}));
+  spec.parts_O.push_back(Box({0, 0, hz}, {hx, hy, hz}));  // collides without its studs
+  spec.visual_O.push_back(Box({0, 0, hz}, {hx, hy, hz}));
   for (int i = 0; i < 4; ++i) {
     for (int j = 0; j < 2; ++j) {
-      spec.parts_O.push_back(Cylinder((-0.012 + 0.008 * i) * s, (-0.004 + 0.008 * j) * s,
+      spec.visual_O.push_back(Cylinder((-0.012 + 0.008 * i) * s, (-0.004 + 0.008 * j) * s,
                                       0.0024 * s, 2 * hz, 2 * hz + 0.0017 * s, 12));
     }
   }
@@ -112,13 +120,15 @@ ObjectSpec MakeGear(uint32_t seed) {
   const double s = SizeFactor(seed);
   const double t = 0.007 * s, r = 0.013 * s, r_tip = 0.016 * s;
   ObjectSpec spec;
-  spec.parts_O.push_back(ConvexPrism(RegularPolygon(0, 0, r, 24), 0, t));
+  spec.visual_O.push_back(ConvexPrism(RegularPolygon(0, 0, r, 24), 0, t));
+  // Collides as one disc between root and tip radius.
+  spec.parts_O.push_back(ConvexPrism(RegularPolygon(0, 0, 0.5 * (r + r_tip), 24), 0, t));
   const int kTeeth = 12;
   for (int i = 0; i < kTeeth; ++i) {
     const double a = 2.0 * kPi * i / kTeeth;
     const Eigen::Vector2d radial(std::cos(a), std::sin(a)), tangent(-std::sin(a), std::cos(a));
     const double base = 0.0022 * s, tip = 0.0012 * s, r0 = r - 0.0005 * s;
-    spec.parts_O.push_back(ConvexPrism({r0 * radial - base * tangent, r_tip * radial - tip * tangent,
+    spec.visual_O.push_back(ConvexPrism({r0 * radial - base * tangent, r_tip * radial - tip * tangent,
                                         r_tip * radial + tip * tangent, r0 * radial + base * tangent},
                                        0, t));
   }

@@ -54,24 +54,43 @@ std::string ObjectsXml(const std::vector<ObjectSpec>& objects) {
               Num(std::min(1.0, mat.shininess / 128.0)) + "\"/>\n";
     bodies += "<body name=\"" + name + "\" pos=\"0 0 " + Num(1.0 + 0.1 * i) + "\">\n<freejoint name=\"" +
               name + "_joint\"/>\n";
-    // Small objects: torsional and rolling friction keep a settled pile still.
+    // Small objects: torsional friction keeps a settled pile still, and stiff contacts
+    // (time constant 2 ms, two steps of the pile's settle) keep millimetre parts from sinking
+    // into each other.
     const std::string geom_attrs = "\" material=\"" + name + "_mat\" density=\"" + Num(o.density_kg_m3) +
-                                   "\" contype=\"1\" conaffinity=\"3\" condim=\"4\" friction=\"0.8 0.005 0.0001\"/>\n";
+                                   "\" contype=\"1\" conaffinity=\"3\" condim=\"4\" friction=\"0.8 0.005 0.0001\"" +
+                                   " solref=\"0.002 1\"/>\n";
     if (o.kind == ObjectKind::kUserMesh) {
       const std::string s = Num(o.mesh_scale);
       assets += "<mesh name=\"" + name + "_p0\" file=\"" + o.mesh_file.string() + "\" scale=\"" + s + " " + s +
                 " " + s + "\"/>\n";
       bodies += "<geom name=\"" + name + "_p0\" type=\"mesh\" mesh=\"" + name + "_p0" + geom_attrs;
     } else {
-      for (size_t p = 0; p < o.parts_O.size(); ++p) {
-        const std::string part = name + "_p" + std::to_string(p);
+      auto add_mesh = [&](const std::string& mesh_name, const Mesh& mesh) {
         std::string vertex, face;
-        for (const auto& v : o.parts_O[p].vertices) vertex += Num(v.x()) + " " + Num(v.y()) + " " + Num(v.z()) + " ";
-        for (const auto& t : o.parts_O[p].triangles) {
+        for (const auto& v : mesh.vertices) vertex += Num(v.x()) + " " + Num(v.y()) + " " + Num(v.z()) + " ";
+        for (const auto& t : mesh.triangles) {
           face += std::to_string(t[0]) + " " + std::to_string(t[1]) + " " + std::to_string(t[2]) + " ";
         }
-        assets += "<mesh name=\"" + part + "\" vertex=\"" + vertex + "\" face=\"" + face + "\"/>\n";
-        bodies += "<geom name=\"" + part + "\" type=\"mesh\" mesh=\"" + part + geom_attrs;
+        assets += "<mesh name=\"" + mesh_name + "\" vertex=\"" + vertex + "\" face=\"" + face + "\"/>\n";
+      };
+      // With separate render geometry, the collision parts are invisible (alpha 0, no
+      // material) and the render parts massless and contact-free.
+      const bool separate = !o.visual_O.empty();
+      for (size_t p = 0; p < o.parts_O.size(); ++p) {
+        const std::string part = name + "_p" + std::to_string(p);
+        add_mesh(part, o.parts_O[p]);
+        bodies += "<geom name=\"" + part + "\" type=\"mesh\" mesh=\"" + part +
+                  (separate ? "\" rgba=\"0 0 0 0\" group=\"3\" density=\"" + Num(o.density_kg_m3) +
+                                  "\" contype=\"1\" conaffinity=\"3\" condim=\"4\" friction=\"0.8 0.005 0.0001\"" +
+                                  " solref=\"0.002 1\"/>\n"
+                            : geom_attrs);
+      }
+      for (size_t p = 0; p < o.visual_O.size(); ++p) {
+        const std::string part = name + "_v" + std::to_string(p);
+        add_mesh(part, o.visual_O[p]);
+        bodies += "<geom name=\"" + part + "\" type=\"mesh\" mesh=\"" + part + "\" material=\"" + name +
+                  "_mat\" contype=\"0\" conaffinity=\"0\" mass=\"0\"/>\n";
       }
     }
     bodies += "</body>\n";
@@ -82,8 +101,8 @@ std::string ObjectsXml(const std::vector<ObjectSpec>& objects) {
   // Constraint buffers sized for the pile: MuJoCo's defaults (njmax 500, nconmax 100) overflow
   // at about 30 objects, and efc arrays grow as njmax^2, so they scale with the pile.
   const size_t n = objects.size();
-  const std::string size = "<size njmax=\"" + std::to_string(500 + 60 * n) + "\" nconmax=\"" +
-                           std::to_string(100 + 15 * n) + "\" nstack=\"" + std::to_string(1000000 + 50000 * n) +
+  const std::string size = "<size njmax=\"" + std::to_string(500 + 100 * n) + "\" nconmax=\"" +
+                           std::to_string(100 + 30 * n) + "\" nstack=\"" + std::to_string(1000000 + 100000 * n) +
                            "\"/>\n";
   return "<!-- romunect: generated objects -->\n" + size + "<asset>\n" + assets + "</asset>\n<worldbody>\n" + bodies +
          "</worldbody>\n<equality>\n" + welds + "</equality>\n";
@@ -479,6 +498,7 @@ double World::ObjectKineticEnergyJ() const {
 }
 
 std::vector<double> World::ObjectQpos() const {
+  if (impl_->frozen) return impl_->frozen_qpos;
   std::vector<double> qpos;
   for (const auto& o : impl_->objects) qpos.insert(qpos.end(), impl_->data->qpos + o.qpos_adr, impl_->data->qpos + o.qpos_adr + 7);
   return qpos;
@@ -493,6 +513,9 @@ void World::SetObjectQpos(const std::vector<double>& qpos) {
   }
   if (w.frozen) w.frozen_qpos = qpos;
   mj_forward(w.model.get(), w.data.get());
+  // MuJoCo renormalizes quaternions in place, and renormalizing is not idempotent in the last
+  // bit: put the given numbers back, so a restored pile holds exactly the saved doubles.
+  for (size_t i = 0; i < w.objects.size(); ++i) mju_copy(w.data->qpos + w.objects[i].qpos_adr, qpos.data() + 7 * i, 7);
 }
 
 std::optional<int> World::SuctionContact(double max_distance_m) const {

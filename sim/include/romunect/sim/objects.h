@@ -32,7 +32,13 @@ struct Mesh {
 struct ObjectSpec {
   ObjectKind kind = ObjectKind::kPillBox;
   uint32_t seed = 0;             // the seed that made it (sizes vary a little per seed)
-  std::vector<Mesh> parts_O;     // convex parts in O, each a closed convex mesh
+  // Convex parts in O, each a closed convex mesh: the collision geometry, and what is rendered
+  // unless visual_O is given.
+  std::vector<Mesh> parts_O;
+  // Optional finer render geometry in O (closed meshes, not necessarily convex parts); when
+  // present, parts_O only collide and are invisible. Keeps collisions cheap (few convex parts)
+  // while teeth, studs and key holes show in the depth images.
+  std::vector<Mesh> visual_O;
   std::filesystem::path mesh_file;  // kUserMesh only: STL or OBJ (absolute path)
   double mesh_scale = 1.0;          // kUserMesh only: file units to metres
   double density_kg_m3 = 1000.0;

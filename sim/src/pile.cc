@@ -1,0 +1,287 @@
+#include "romunect/sim/pile.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <random>
+
+#include <nlohmann/json.hpp>
+
+#include "romunect/sensor/check.h"
+#include "romunect/sensor/errors.h"
+#include "romunect/sensor/image_io.h"
+#include "world_impl.h"
+
+namespace romunect::sim {
+namespace {
+
+constexpr const char* kSceneFormat = "romunect-scene";
+constexpr int kSceneVersion = 1;
+// Objects waiting for their drop are held far from everything, out of every collision.
+constexpr double kParkX = 5.0, kParkY = 5.0, kParkZ = 1.0;
+// User meshes are not measured here: assume a bounding sphere of this radius about O.
+constexpr double kUserMeshRadiusM = 0.02;
+
+// A sphere about the centre of the object's bounding box that holds all its parts, in O.
+void BoundingSphere(const ObjectSpec& spec, Eigen::Vector3d* centre_O, double* radius_m) {
+  Eigen::AlignedBox3d box;
+  for (const Mesh& part : spec.parts_O) {
+    for (const auto& v : part.vertices) box.extend(v);
+  }
+  if (box.isEmpty()) {
+    *centre_O = Eigen::Vector3d::Zero();
+    *radius_m = kUserMeshRadiusM;
+    return;
+  }
+  *centre_O = box.center();
+  *radius_m = 0.0;
+  for (const Mesh& part : spec.parts_O) {
+    for (const auto& v : part.vertices) *radius_m = std::max(*radius_m, (v - *centre_O).norm());
+  }
+}
+
+void Park(World::Impl& w, int object) {
+  mjtNum* q = w.data->qpos + w.objects[object].qpos_adr;
+  q[0] = kParkX + 0.2 * object;
+  q[1] = kParkY;
+  q[2] = kParkZ;
+  q[3] = 1.0;
+  q[4] = q[5] = q[6] = 0.0;
+  mju_zero(w.data->qvel + w.objects[object].dof_adr, 6);
+}
+
+// A uniformly random rotation (Shoemake's method), from the seeded generator.
+Eigen::Quaterniond RandomRotation(std::mt19937& rng) {
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const double u1 = u(rng), u2 = 2 * M_PI * u(rng), u3 = 2 * M_PI * u(rng);
+  const double a = std::sqrt(1 - u1), b = std::sqrt(u1);
+  return Eigen::Quaterniond(b * std::cos(u3), a * std::sin(u2), a * std::cos(u2), b * std::sin(u3));
+}
+
+nlohmann::json PoseJson(const Pose& T) {
+  const auto rows = PoseToRowMajor(T);
+  return nlohmann::json(std::vector<double>(rows.begin(), rows.end()));
+}
+
+Pose PoseFromJson(const nlohmann::json& j, const std::string& source, const std::string& field) {
+  if (!j.is_array() || j.size() != 16) throw InputError(source, field, "expected 16 numbers (row-major 4x4)");
+  std::array<double, 16> rows;
+  Eigen::Matrix4d M;
+  for (int i = 0; i < 16; ++i) {
+    if (!j[i].is_number()) throw InputError(source, field, "expected numbers");
+    rows[i] = j[i].get<double>();
+    M(i / 4, i % 4) = rows[i];
+  }
+  const std::string problem = RigidityProblem(M);
+  if (!problem.empty()) throw InputError(source, field, problem);
+  return PoseFromRowMajor(rows);
+}
+
+template <typename T>
+T Get(const nlohmann::json& j, const char* key, const std::string& source, const std::string& where) {
+  if (!j.contains(key)) throw InputError(source, where + "." + key, "missing");
+  try {
+    return j.at(key).get<T>();
+  } catch (const nlohmann::json::exception&) {
+    throw InputError(source, where + "." + key, "has the wrong type");
+  }
+}
+
+}  // namespace
+
+std::string PileOptions::Problem() const {
+  auto num = [](double v) { return std::to_string(v); };
+  if (num_objects < 0 || num_objects > 60) return "num_objects = " + std::to_string(num_objects) + ": must be in [0, 60]";
+  for (ObjectKind k : kinds) {
+    if (k == ObjectKind::kUserMesh) return "kinds: user_mesh cannot be generated; add user meshes as ObjectSpecs";
+  }
+  if (!(drop_interval_s > 0)) return "drop_interval_s = " + num(drop_interval_s) + ": must be > 0";
+  if (!(max_drop_speed_m_s > 0)) return "max_drop_speed_m_s = " + num(max_drop_speed_m_s) + ": must be > 0";
+  if (!(drop_height_m >= 0)) return "drop_height_m = " + num(drop_height_m) + ": must be >= 0";
+  if (!(kinetic_energy_threshold_j > 0)) return "kinetic_energy_threshold_j = " + num(kinetic_energy_threshold_j) + ": must be > 0";
+  if (!(quiet_time_s >= 0)) return "quiet_time_s = " + num(quiet_time_s) + ": must be >= 0";
+  if (!(timestep_s > 0 && timestep_s <= 0.01)) return "timestep_s = " + num(timestep_s) + ": must be in (0, 0.01]";
+  if (!(max_settle_time_s > 0)) return "max_settle_time_s = " + num(max_settle_time_s) + ": must be > 0";
+  return "";
+}
+
+std::vector<ObjectSpec> MakePileObjects(const PileOptions& options) {
+  ROMUNECT_CHECK_MSG(options.Problem().empty(), options.Problem().c_str());
+  std::vector<ObjectKind> kinds = options.kinds;
+  if (kinds.empty()) {
+    kinds = {ObjectKind::kKey, ObjectKind::kPillBox, ObjectKind::kPuzzlePiece, ObjectKind::kLegoBrick,
+             ObjectKind::kGear};
+  }
+  std::mt19937 rng(options.seed);
+  std::vector<ObjectSpec> objects;
+  for (int i = 0; i < options.num_objects; ++i) {
+    const ObjectKind kind = kinds[std::uniform_int_distribution<size_t>(0, kinds.size() - 1)(rng)];
+    objects.push_back(MakeObject(kind, static_cast<uint32_t>(rng())));
+  }
+  return objects;
+}
+
+std::string SettleSummary::BriefReport() const {
+  char s[200];
+  std::snprintf(s, sizeof s, "pile %s after %.2f s simulated (%.2f s wall), kinetic energy %.2g J, %d objects in the bin",
+                converged ? "settled" : "NOT settled", simulated_s, wall_s, kinetic_energy_j, objects_in_bin);
+  return s;
+}
+
+bool ObjectInBin(const World& world, int object) {
+  const Eigen::Vector3d p = world.T_W_Bin().inverse() * world.T_W_O(object).translation();
+  const Eigen::Vector3d inner = world.bin_inner_size_m();
+  // Above the rim counts while the object is over the bin: a full small bin piles up high.
+  return std::abs(p.x()) < inner.x() / 2 && std::abs(p.y()) < inner.y() / 2 && p.z() > -1e-3 &&
+         p.z() < inner.z() + 0.03;
+}
+
+SettleSummary DropAndSettle(World* world, const PileOptions& options) {
+  ROMUNECT_CHECK(world != nullptr);
+  ROMUNECT_CHECK_MSG(options.Problem().empty(), options.Problem().c_str());
+  const auto wall_start = std::chrono::steady_clock::now();
+  World::Impl& w = world->impl();
+  world->SetPileFrozen(false);
+  world->Release();
+  world->SetArmTarget(world->arm_q(), World::ArmVector::Zero());
+  const int n = world->num_objects();
+  for (int i = 0; i < n; ++i) Park(w, i);
+
+  const Pose T_W_Bin = world->T_W_Bin();
+  const Eigen::Vector3d inner = world->bin_inner_size_m();
+  std::mt19937 rng(options.seed);
+  std::vector<Pose> drops;
+  for (int i = 0; i < n; ++i) {
+    // The object's bounding sphere starts wholly above the bin's inner floor (as far as the bin
+    // is wide enough), its lowest point drop_height_m above the rim.
+    Eigen::Vector3d centre_O;
+    double radius_m = 0.0;
+    BoundingSphere(world->options().objects[i], &centre_O, &radius_m);
+    const double mx = std::clamp(radius_m, 0.0, inner.x() / 2 - 0.002);
+    const double my = std::clamp(radius_m, 0.0, inner.y() / 2 - 0.002);
+    const Eigen::Vector3d centre_Bin(std::uniform_real_distribution<double>(-inner.x() / 2 + mx, inner.x() / 2 - mx)(rng),
+                                     std::uniform_real_distribution<double>(-inner.y() / 2 + my, inner.y() / 2 - my)(rng),
+                                     inner.z() + options.drop_height_m + radius_m);
+    Pose T_Bin_O = Pose::Identity();
+    T_Bin_O.linear() = RandomRotation(rng).toRotationMatrix();
+    T_Bin_O.translation() = centre_Bin - T_Bin_O.linear() * centre_O;
+    drops.push_back(T_W_Bin * T_Bin_O);
+  }
+
+  const double scene_timestep_s = w.model->opt.timestep;
+  w.model->opt.timestep = options.timestep_s;
+  const double dt = options.timestep_s;
+  const int steps_per_drop = std::max(1, static_cast<int>(std::lround(options.drop_interval_s / dt)));
+  const int max_steps = steps_per_drop * n + static_cast<int>(std::lround(options.max_settle_time_s / dt));
+  const int quiet_steps = static_cast<int>(std::lround(options.quiet_time_s / dt));
+  SettleSummary summary;
+  int dropped = 0, quiet = 0, step = 0;
+  for (; step < max_steps; ++step) {
+    if (dropped < n && step == dropped * steps_per_drop) {
+      world->SetObjectPose(dropped, drops[dropped]);
+      ++dropped;
+    }
+    world->Step();
+    for (int i = dropped; i < n; ++i) Park(w, i);
+    for (int i = 0; i < dropped; ++i) {
+      mjtNum* v = w.data->qvel + w.objects[i].dof_adr;
+      const double speed = mju_norm3(v);
+      if (speed > options.max_drop_speed_m_s) mju_scl3(v, v, options.max_drop_speed_m_s / speed);
+    }
+    if (dropped == n) {
+      summary.kinetic_energy_j = world->ObjectKineticEnergyJ();
+      quiet = summary.kinetic_energy_j < options.kinetic_energy_threshold_j ? quiet + 1 : 0;
+      if (quiet > quiet_steps) {
+        summary.converged = true;
+        ++step;
+        break;
+      }
+    }
+  }
+  w.model->opt.timestep = scene_timestep_s;
+  // The settled state is these doubles; the world holds them exactly as a reload would.
+  world->SetObjectQpos(world->ObjectQpos());
+  summary.simulated_s = step * dt;
+  for (int i = 0; i < n; ++i) summary.objects_in_bin += ObjectInBin(*world, i) ? 1 : 0;
+  summary.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+  return summary;
+}
+
+void SaveSettledScene(const World& world, const std::filesystem::path& path) {
+  nlohmann::ordered_json j;
+  j["format"] = kSceneFormat;
+  j["version"] = kSceneVersion;
+  j["scene_file"] = world.options().scene_file.string();
+  if (world.options().T_H_C) j["T_H_C"] = PoseJson(*world.options().T_H_C);
+  if (world.options().T_C_P) j["T_C_P"] = PoseJson(*world.options().T_C_P);
+  nlohmann::ordered_json objects = nlohmann::ordered_json::array();
+  for (const ObjectSpec& o : world.options().objects) {
+    nlohmann::ordered_json e;
+    e["kind"] = ToString(o.kind);
+    if (o.kind == ObjectKind::kUserMesh) {
+      e["file"] = o.mesh_file.string();
+      e["scale"] = o.mesh_scale;
+    } else {
+      e["seed"] = o.seed;
+    }
+    e["density_kg_m3"] = o.density_kg_m3;
+    e["material"] = {{"albedo", o.material.albedo}, {"specular", o.material.specular}, {"shininess", o.material.shininess}};
+    objects.push_back(e);
+  }
+  j["objects"] = objects;
+  j["qpos_order"] = "per object: x y z (m, in W), quaternion w x y z";
+  j["qpos"] = world.ObjectQpos();
+  WriteTextAtomically(path, j.dump(2) + "\n");
+}
+
+World LoadSettledScene(const std::filesystem::path& path) {
+  const std::string source = path.string();
+  std::ifstream in(path);
+  if (!in) throw InputError(source, "", "cannot open the saved scene");
+  nlohmann::json j;
+  try {
+    in >> j;
+  } catch (const nlohmann::json::exception& e) {
+    throw InputError(source, "", std::string("not valid JSON: ") + e.what());
+  }
+  if (!j.is_object() || j.value("format", "") != kSceneFormat) throw InputError(source, "format", std::string("expected '") + kSceneFormat + "'");
+  if (j.value("version", 0) != kSceneVersion) throw InputError(source, "version", "expected 1");
+  WorldOptions options;
+  options.scene_file = Get<std::string>(j, "scene_file", source, "");
+  if (j.contains("T_H_C")) options.T_H_C = PoseFromJson(j["T_H_C"], source, "T_H_C");
+  if (j.contains("T_C_P")) options.T_C_P = PoseFromJson(j["T_C_P"], source, "T_C_P");
+  if (!j.contains("objects") || !j["objects"].is_array()) throw InputError(source, "objects", "expected an array");
+  for (size_t i = 0; i < j["objects"].size(); ++i) {
+    const nlohmann::json& e = j["objects"][i];
+    const std::string where = "objects[" + std::to_string(i) + "]";
+    const ObjectKind kind = ObjectKindFromString(Get<std::string>(e, "kind", source, where), source + ": " + where);
+    IrMaterial material;
+    if (!e.contains("material")) throw InputError(source, where + ".material", "missing");
+    material.albedo = Get<float>(e["material"], "albedo", source, where + ".material");
+    material.specular = Get<float>(e["material"], "specular", source, where + ".material");
+    material.shininess = Get<float>(e["material"], "shininess", source, where + ".material");
+    const double density = Get<double>(e, "density_kg_m3", source, where);
+    ObjectSpec spec = kind == ObjectKind::kUserMesh
+                          ? MakeUserMeshObject(Get<std::string>(e, "file", source, where),
+                                               Get<double>(e, "scale", source, where), material, density)
+                          : MakeObject(kind, Get<uint32_t>(e, "seed", source, where));
+    spec.material = material;
+    spec.density_kg_m3 = density;
+    options.objects.push_back(std::move(spec));
+  }
+  const auto qpos = Get<std::vector<double>>(j, "qpos", source, "");
+  if (qpos.size() != 7 * options.objects.size()) {
+    throw InputError(source, "qpos", "expected " + std::to_string(7 * options.objects.size()) + " numbers, got " +
+                                         std::to_string(qpos.size()));
+  }
+  for (double v : qpos) {
+    if (!std::isfinite(v)) throw InputError(source, "qpos", "holds a number that is not finite");
+  }
+  World world(options);
+  world.SetObjectQpos(qpos);
+  return world;
+}
+
+}  // namespace romunect::sim
