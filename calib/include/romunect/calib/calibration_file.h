@@ -1,0 +1,69 @@
+// The one calibration file (DESIGN.md, "Formats"): a cv::FileStorage YAML that plain OpenCV
+// reads without romunect. Keys:
+//   format: "romunect-calibration", version: 1, date: ISO 8601 UTC
+//   image_width, image_height, camera_matrix, distortion_coefficients  (OpenCV's names)
+//   H_P_rec: 3x3 (projector pre-warp homography, projector pixels)
+//   T_H_C: 4x4 (camera in hand, metres), T_B_K: 4x4 (board in base, metres)
+//   depth_model: {kind: none | affine_depth | inverse_depth_raw, chip_c0_per_m, chip_c1_per_m,
+//                 chip_invalid_raw, a, b: CV_32F maps inline, or a_exr, b_exr: paths relative
+//                 to the file}
+//   residuals: {intrinsics_rms_px, intrinsics_holdout_rms_px, hand_eye_rms_px,
+//               homography_rms_px, depth_rms_m}  (-1 = step not run)
+#pragma once
+
+#include <filesystem>
+#include <string>
+
+#include <Eigen/Core>
+
+#include "romunect/calib/depth_correction.h"
+#include "romunect/sensor/camera_model.h"
+#include "romunect/sensor/pose.h"
+
+namespace romunect::calib {
+
+inline constexpr const char* kCalibrationFormat = "romunect-calibration";
+inline constexpr int kCalibrationVersion = 1;
+
+struct CalibrationResiduals {
+  double intrinsics_rms_px = -1.0;
+  double intrinsics_holdout_rms_px = -1.0;
+  double hand_eye_rms_px = -1.0;
+  double homography_rms_px = -1.0;
+  double depth_rms_m = -1.0;
+};
+
+struct Calibration {
+  CameraModel camera;
+  Eigen::Matrix3d H_P_rec = Eigen::Matrix3d::Identity();
+  Pose T_H_C = Pose::Identity();
+  Pose T_B_K = Pose::Identity();
+  DepthModel depth;
+  std::string date;  // set by Save when empty
+  CalibrationResiduals residuals;
+};
+
+// Which steps of `candidate` are worse than `existing` (a residual larger by more than 1 %,
+// or a step that `existing` has and `candidate` lacks); "" when none is.
+std::string WorseThan(const Calibration& candidate, const Calibration& existing);
+
+struct SaveOptions {
+  bool maps_as_exr = false;     // write depth maps as <stem>_depth_a.exr / _b.exr beside the file
+  bool overwrite_worse = false;  // replace an existing file even if the new one is worse
+};
+
+struct SaveReport {
+  bool replaced_existing = false;
+  std::string worse_than_existing;  // non-empty when a worse result replaced the old file
+};
+
+// Writes atomically (maps first, YAML last). If `path` exists and the new calibration is worse
+// (WorseThan), throws InputError naming the file and the worse steps unless overwrite_worse.
+// An existing file that does not load is never replaced without overwrite_worse either.
+SaveReport SaveCalibration(const std::filesystem::path& path, Calibration calibration,
+                           const SaveOptions& options = {});
+
+// Loads and validates every field; throws InputError naming the file and the field.
+Calibration LoadCalibration(const std::filesystem::path& path);
+
+}  // namespace romunect::calib

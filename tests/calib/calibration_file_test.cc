@@ -1,0 +1,158 @@
+#include "romunect/calib/calibration_file.h"
+
+#include <cmath>
+#include <fstream>
+#include <regex>
+
+#include <gtest/gtest.h>
+#include <opencv2/core/persistence.hpp>
+
+#include "romunect/sensor/errors.h"
+#include "romunect/testing/test_support.h"
+#include "synthetic.h"
+
+namespace romunect::calib {
+namespace {
+
+namespace fs = std::filesystem;
+using romunect::testing::ReadText;
+using romunect::testing::ScratchDir;
+using romunect::testing::WriteText;
+
+Calibration Sample() {
+  Calibration c;
+  c.camera = testing::Scaled(testing::TruthCamera(), 0.1);  // 64 x 48, small maps
+  c.H_P_rec << 1.01, 0.02, -3.5, -0.01, 0.99, 2.25, 1e-6, -2e-6, 1.0;
+  c.T_H_C = testing::TruthHandEye();
+  c.T_B_K = testing::TruthBoardInBase();
+  c.depth.kind = DepthModelKind::kInverseDepthRaw;
+  c.depth.a = cv::Mat(c.camera.height, c.camera.width, CV_32F);
+  c.depth.b = cv::Mat(c.camera.height, c.camera.width, CV_32F);
+  cv::randu(c.depth.a, -0.003, -0.002);
+  cv::randu(c.depth.b, 6.0, 7.0);
+  c.depth.a.at<float>(3, 4) = std::numeric_limits<float>::quiet_NaN();  // an unfitted pixel
+  c.date = "2026-11-26T12:00:00Z";
+  c.residuals = {0.19, 0.21, 0.2, 0.05, 3e-5};
+  return c;
+}
+
+// Same size and values, NaN where the other has NaN (YAML writes NaN as .Nan, sign lost).
+::testing::AssertionResult MapsEqual(const cv::Mat& a, const cv::Mat& b) {
+  if (a.size() != b.size() || a.type() != CV_32F || b.type() != CV_32F) return ::testing::AssertionFailure() << "size/type";
+  for (int r = 0; r < a.rows; ++r) {
+    for (int c = 0; c < a.cols; ++c) {
+      const float x = a.at<float>(r, c), y = b.at<float>(r, c);
+      if (!(x == y || (std::isnan(x) && std::isnan(y)))) {
+        return ::testing::AssertionFailure() << "differ at " << c << "," << r << ": " << x << " vs " << y;
+      }
+    }
+  }
+  return ::testing::AssertionSuccess();
+}
+
+void ExpectSame(const Calibration& a, const Calibration& b) {
+  EXPECT_EQ(a.camera, b.camera);
+  EXPECT_EQ(a.H_P_rec, b.H_P_rec);
+  EXPECT_TRUE(a.T_H_C.isApprox(b.T_H_C, 1e-15));
+  EXPECT_TRUE(a.T_B_K.isApprox(b.T_B_K, 1e-15));
+  EXPECT_EQ(a.depth.kind, b.depth.kind);
+  EXPECT_TRUE(MapsEqual(a.depth.a, b.depth.a));
+  EXPECT_TRUE(MapsEqual(a.depth.b, b.depth.b));
+  EXPECT_EQ(a.date, b.date);
+  EXPECT_EQ(a.residuals.depth_rms_m, b.residuals.depth_rms_m);
+  EXPECT_EQ(a.residuals.intrinsics_holdout_rms_px, b.residuals.intrinsics_holdout_rms_px);
+}
+
+TEST(CalibrationFileTest, RoundTripsAndPlainOpenCvReadsIt) {
+  ScratchDir dir("file");
+  const Calibration c = Sample();
+  SaveCalibration(dir / "calib.yaml", c);
+  ExpectSame(LoadCalibration(dir / "calib.yaml"), c);
+
+  // Plain OpenCV, no romunect: the names ROS and OpenCV samples use.
+  cv::FileStorage fs((dir / "calib.yaml").string(), cv::FileStorage::READ);
+  ASSERT_TRUE(fs.isOpened());
+  cv::Mat K, dist, T_H_C, a;
+  fs["camera_matrix"] >> K;
+  fs["distortion_coefficients"] >> dist;
+  fs["T_H_C"] >> T_H_C;
+  fs["depth_model"]["a"] >> a;
+  EXPECT_EQ(K.at<double>(0, 0), c.camera.fx);
+  EXPECT_EQ(dist.total(), 5u);
+  EXPECT_EQ(T_H_C.at<double>(0, 3), c.T_H_C.translation().x());
+  EXPECT_EQ(a.size(), c.depth.a.size());
+  EXPECT_EQ(static_cast<std::string>(fs["depth_model"]["kind"]), "inverse_depth_raw");
+}
+
+TEST(CalibrationFileTest, RoundTripsMapsAsExrBesideTheFile) {
+  ScratchDir dir("exr");
+  const Calibration c = Sample();
+  SaveCalibration(dir / "rig.yaml", c, {.maps_as_exr = true});
+  EXPECT_TRUE(fs::exists(dir / "rig_depth_a.exr"));
+  EXPECT_EQ(ReadText(dir / "rig.yaml").find("\"a\":"), std::string::npos);
+  ExpectSame(LoadCalibration(dir / "rig.yaml"), c);
+}
+
+TEST(CalibrationFileTest, StampsTheDateWhenEmpty) {
+  ScratchDir dir("date");
+  Calibration c = Sample();
+  c.date.clear();
+  SaveCalibration(dir / "c.yaml", c);
+  EXPECT_TRUE(std::regex_match(LoadCalibration(dir / "c.yaml").date, std::regex(R"(\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ)")));
+}
+
+// Rewrites one line of a saved file, then expects the load to fail naming `field`.
+void ExpectLoadFails(const std::string& from_regex, const std::string& to, const std::string& field) {
+  ScratchDir dir("bad");
+  SaveCalibration(dir / "c.yaml", Sample());
+  const std::string text = ReadText(dir / "c.yaml");
+  const std::string changed = std::regex_replace(text, std::regex(from_regex), to, std::regex_constants::format_first_only);
+  ASSERT_NE(changed, text) << from_regex;
+  WriteText(dir / "c.yaml", changed);
+  try {
+    LoadCalibration(dir / "c.yaml");
+    FAIL() << "loaded with " << to;
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.field(), field) << e.what();
+    EXPECT_NE(std::string(e.what()).find("c.yaml"), std::string::npos) << e.what();
+  }
+}
+
+TEST(CalibrationFileTest, MissingOrMalformedFieldsNameTheField) {
+  ExpectLoadFails("T_H_C:", "T_H_X:", "T_H_C");
+  ExpectLoadFails("kind: inverse_depth_raw", "kind: quadratic", "depth_model.kind");
+  ExpectLoadFails("depth_rms_m: [^\\n]*", "depth_rms_m: fast", "residuals.depth_rms_m");
+  ExpectLoadFails("date: [^\\n]*", "dat: x", "date");
+  ExpectLoadFails("format: [^\\n]*", "format: something", "format");
+  // A non-rigid T_H_C: scale the first entry.
+  ExpectLoadFails("(T_H_C: !!opencv-matrix\\n(?:.*\\n){3}\\s*data: \\[ )", "$01.5, ", "T_H_C");
+  // A depth map of the wrong size.
+  ExpectLoadFails("(a: !!opencv-matrix\\n\\s*rows: )48", "$0147", "depth_model.a");
+}
+
+TEST(CalibrationFileTest, NeverOverwritesWithAWorseResultWithoutTheFlag) {
+  ScratchDir dir("worse");
+  const Calibration good = Sample();
+  SaveCalibration(dir / "c.yaml", good);
+  Calibration worse = Sample();
+  worse.residuals.hand_eye_rms_px = 0.5;
+  worse.H_P_rec(0, 0) = 2.0;
+  try {
+    SaveCalibration(dir / "c.yaml", worse);
+    FAIL() << "worse result overwrote the file";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("hand_eye_rms_px"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(LoadCalibration(dir / "c.yaml").H_P_rec(0, 0), good.H_P_rec(0, 0));
+  const SaveReport report = SaveCalibration(dir / "c.yaml", worse, {.overwrite_worse = true});
+  EXPECT_TRUE(report.replaced_existing);
+  EXPECT_NE(report.worse_than_existing.find("hand_eye_rms_px"), std::string::npos);
+  EXPECT_EQ(LoadCalibration(dir / "c.yaml").H_P_rec(0, 0), 2.0);
+
+  // A better one replaces it without the flag and says nothing is worse.
+  const SaveReport better = SaveCalibration(dir / "c.yaml", good);
+  EXPECT_TRUE(better.worse_than_existing.empty());
+}
+
+}  // namespace
+}  // namespace romunect::calib
