@@ -1,0 +1,80 @@
+// The scan's motion: a joint-space move to above the bin, then a Cartesian approach of the
+// camera from start_distance_m down to end_distance_m above the bin floor at speed_m_s, with
+// lateral passes where the field of view at the end distance does not cover the region of
+// interest. The camera looks straight down (C's z = -z of the bin frame, C's x = the bin's x).
+// The plan is checked for reachability by IK at every physics step before anything moves; the
+// executor then tracks it with the position servos, and the executed poses (not the planned
+// ones) are what the frames report. Frames: W world, C camera, bin frame; SI units.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "romunect/sensor/camera_model.h"
+#include "romunect/sensor/pose.h"
+#include "romunect/sim/ik.h"
+#include "romunect/sim/world.h"
+
+namespace romunect::sim {
+
+struct ApproachOptions {
+  double start_distance_m = 0.40;  // camera height above the bin floor at the start
+  double end_distance_m = 0.20;    // ... at the end (the working distance)
+  double speed_m_s = 0.3;          // along the path
+  double acceleration_m_s2 = 1.5;  // speed ramps at both ends
+  Eigen::Vector2d region_size_m{0.15, 0.08};  // region of interest (bin x, y), centred on the bin
+  double pass_overlap = 0.1;       // fraction of the footprint shared by neighbouring passes
+  double corner_smoothing_s = 0.1;  // box filter over the path's corners (0: sharp corners)
+  double joint_speed_rad_s = 1.0;  // peak joint speed of the move to the start
+  double hold_before_s = 0.3;      // still time at the start, for the servos to settle
+
+  std::string Problem() const;  // "" when valid; otherwise "field = value: rule"
+};
+
+struct ApproachPlan {
+  double timestep_s = 0.0;               // one sample per physics step
+  std::vector<Pose> T_W_C;               // planned camera poses, one per step
+  std::vector<World::ArmVector> q;       // joint angles that reach them (IK)
+  int passes_x = 1, passes_y = 1;        // lateral passes over the region
+  double length_m = 0.0;                 // path length
+  double duration_s() const { return T_W_C.empty() ? 0.0 : (T_W_C.size() - 1) * timestep_s; }
+};
+
+// Plans the approach over the world's bin for `camera`. Throws InputError("approach", field,
+// ...) when a pose along the way is outside the arm's workspace (IK does not converge).
+ApproachPlan PlanApproach(const World& world, const CameraModel& camera, const ApproachOptions& options,
+                          const IkOptions& ik = {});
+
+struct TrackingStats {
+  double max_position_error_m = 0.0;  // executed vs planned camera position, over the approach
+  double rms_position_error_m = 0.0;
+  double max_angle_error_rad = 0.0;
+  int steps = 0;
+};
+
+// Drives the world along a plan: MoveToStart() (joint space, min-jerk, then a hold), then
+// AdvanceTo(t) steps the physics until the approach's time t.
+class ApproachExecutor {
+ public:
+  ApproachExecutor(World* world, const ApproachPlan& plan, const ApproachOptions& options);
+
+  // Moves from the current joint angles to plan.q[0]; returns the simulated time it took.
+  double MoveToStart();
+  // Steps until the approach clock reaches t_s (clamped to the plan's end, holding there).
+  void AdvanceTo(double t_s);
+  double time_s() const { return step_ * plan_.timestep_s; }
+  bool finished() const { return step_ + 1 >= static_cast<int>(plan_.q.size()); }
+  const TrackingStats& tracking() const { return tracking_; }
+
+ private:
+  World* world_;
+  const ApproachPlan& plan_;
+  ApproachOptions options_;
+  int step_ = 0;
+  double sum_sq_error_ = 0.0;
+  TrackingStats tracking_;
+};
+
+}  // namespace romunect::sim

@@ -1,0 +1,195 @@
+#include "romunect/sim/approach.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "romunect/sensor/check.h"
+#include "romunect/sensor/errors.h"
+
+namespace romunect::sim {
+namespace {
+
+std::string Num(double v) { return std::to_string(v); }
+
+// Positions at constant speed with acceleration ramps along a polyline, one per time step.
+std::vector<Eigen::Vector3d> TimeParameterize(const std::vector<Eigen::Vector3d>& polyline, double speed,
+                                              double accel, double dt) {
+  std::vector<double> s_at{0.0};
+  for (size_t i = 1; i < polyline.size(); ++i) s_at.push_back(s_at.back() + (polyline[i] - polyline[i - 1]).norm());
+  const double length = s_at.back();
+  // Trapezoid (or triangle, for short paths) in arc length.
+  const double t_ramp_full = speed / accel, s_ramp_full = 0.5 * accel * t_ramp_full * t_ramp_full;
+  double v_peak = speed, t_ramp = t_ramp_full, t_cruise = 0.0;
+  if (2 * s_ramp_full >= length) {
+    v_peak = std::sqrt(accel * length);
+    t_ramp = v_peak / accel;
+  } else {
+    t_cruise = (length - 2 * s_ramp_full) / speed;
+  }
+  const double total = 2 * t_ramp + t_cruise;
+  const int steps = std::max(1, static_cast<int>(std::ceil(total / dt)));
+  std::vector<Eigen::Vector3d> out;
+  size_t seg = 1;
+  for (int k = 0; k <= steps; ++k) {
+    const double t = std::min(total, k * dt);
+    double s;
+    if (t < t_ramp) {
+      s = 0.5 * accel * t * t;
+    } else if (t < t_ramp + t_cruise) {
+      s = 0.5 * accel * t_ramp * t_ramp + v_peak * (t - t_ramp);
+    } else {
+      const double tr = total - t;
+      s = length - 0.5 * accel * tr * tr;
+    }
+    s = std::clamp(s, 0.0, length);
+    while (seg + 1 < s_at.size() && s_at[seg] < s) ++seg;
+    const double span = s_at[seg] - s_at[seg - 1];
+    const double a = span > 0 ? (s - s_at[seg - 1]) / span : 0.0;
+    out.push_back(polyline[seg - 1] + a * (polyline[seg] - polyline[seg - 1]));
+  }
+  return out;
+}
+
+// A centred moving average of `window` samples that narrows towards the ends, so the first
+// and last positions stay exact (rounds the corners).
+std::vector<Eigen::Vector3d> Smooth(const std::vector<Eigen::Vector3d>& p, int window) {
+  if (window <= 1) return p;
+  const int n = static_cast<int>(p.size());
+  std::vector<Eigen::Vector3d> out(p.size());
+  for (int i = 0; i < n; ++i) {
+    const int h = std::min({window / 2, i, n - 1 - i});
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    for (int k = -h; k <= h; ++k) sum += p[i + k];
+    out[i] = sum / (2 * h + 1);
+  }
+  return out;
+}
+
+}  // namespace
+
+std::string ApproachOptions::Problem() const {
+  if (!(start_distance_m > 0)) return "start_distance_m = " + Num(start_distance_m) + ": must be > 0";
+  if (!(end_distance_m > 0) || !(end_distance_m <= start_distance_m)) {
+    return "end_distance_m = " + Num(end_distance_m) + ": must be in (0, start_distance_m]";
+  }
+  if (!(speed_m_s > 0) || speed_m_s > 2.0) return "speed_m_s = " + Num(speed_m_s) + ": must be in (0, 2]";
+  if (!(acceleration_m_s2 > 0)) return "acceleration_m_s2 = " + Num(acceleration_m_s2) + ": must be > 0";
+  if (!(region_size_m.x() > 0) || !(region_size_m.y() > 0)) return "region_size_m: both sizes must be > 0";
+  if (!(pass_overlap >= 0 && pass_overlap < 0.9)) return "pass_overlap = " + Num(pass_overlap) + ": must be in [0, 0.9)";
+  if (!(corner_smoothing_s >= 0)) return "corner_smoothing_s = " + Num(corner_smoothing_s) + ": must be >= 0";
+  if (!(joint_speed_rad_s > 0)) return "joint_speed_rad_s = " + Num(joint_speed_rad_s) + ": must be > 0";
+  if (!(hold_before_s >= 0)) return "hold_before_s = " + Num(hold_before_s) + ": must be >= 0";
+  return "";
+}
+
+ApproachPlan PlanApproach(const World& world, const CameraModel& camera, const ApproachOptions& options,
+                          const IkOptions& ik) {
+  if (!options.Problem().empty()) throw InputError("approach", "options", options.Problem());
+  ApproachPlan plan;
+  plan.timestep_s = world.timestep_s();
+  const Pose T_W_Bin = world.T_W_Bin();
+  // Camera looking down the bin's -z with its x along the bin's -x: the arm reaches out along
+  // +x with the flange turned down, which leaves the hand's x (and C's) pointing back at it.
+  Eigen::Matrix3d R_Bin_C;
+  R_Bin_C.col(0) = -Eigen::Vector3d::UnitX();
+  R_Bin_C.col(1) = Eigen::Vector3d::UnitY();
+  R_Bin_C.col(2) = -Eigen::Vector3d::UnitZ();
+
+  // Passes: the footprint at the working distance, with overlap, tiles the region.
+  const double foot_x = options.end_distance_m * camera.width / camera.fx * (1.0 - options.pass_overlap);
+  const double foot_y = options.end_distance_m * camera.height / camera.fy * (1.0 - options.pass_overlap);
+  plan.passes_x = std::max(1, static_cast<int>(std::ceil(options.region_size_m.x() / foot_x - 1e-9)));
+  plan.passes_y = std::max(1, static_cast<int>(std::ceil(options.region_size_m.y() / foot_y - 1e-9)));
+  std::vector<Eigen::Vector2d> centres;
+  for (int j = 0; j < plan.passes_y; ++j) {
+    for (int i = 0; i < plan.passes_x; ++i) {
+      const int ii = (j % 2 == 0) ? i : plan.passes_x - 1 - i;  // serpentine
+      centres.emplace_back(options.region_size_m.x() * ((ii + 0.5) / plan.passes_x - 0.5),
+                           options.region_size_m.y() * ((j + 0.5) / plan.passes_y - 0.5));
+    }
+  }
+  // Descend linearly in the lateral path length (straight down when there is one pass).
+  std::vector<double> lateral{0.0};
+  for (size_t i = 1; i < centres.size(); ++i) lateral.push_back(lateral.back() + (centres[i] - centres[i - 1]).norm());
+  std::vector<Eigen::Vector3d> polyline;
+  for (size_t i = 0; i < centres.size(); ++i) {
+    const double a = lateral.back() > 0 ? lateral[i] / lateral.back() : 0.0;
+    polyline.emplace_back(centres[i].x(), centres[i].y(),
+                          options.start_distance_m + a * (options.end_distance_m - options.start_distance_m));
+  }
+  if (centres.size() == 1) {
+    polyline.push_back(polyline[0]);
+    polyline.back().z() = options.end_distance_m;
+  }
+  for (size_t i = 1; i < polyline.size(); ++i) plan.length_m += (polyline[i] - polyline[i - 1]).norm();
+  std::vector<Eigen::Vector3d> p_Bin = TimeParameterize(polyline, options.speed_m_s, options.acceleration_m_s2,
+                                                        plan.timestep_s);
+  p_Bin = Smooth(p_Bin, 2 * static_cast<int>(std::lround(options.corner_smoothing_s / plan.timestep_s / 2)) + 1);
+
+  // Reachability: IK at every step, warm-started from the previous one. The first pose starts
+  // from a seed with the elbow up and the flange pointing down (the scan posture).
+  World::ArmVector q;
+  q << std::atan2(T_W_Bin.translation().y(), T_W_Bin.translation().x()), 0.3, 0.9, 0.0, 0.37, 0.0;
+  for (size_t k = 0; k < p_Bin.size(); ++k) {
+    const Pose T_W_C = T_W_Bin * MakePose(R_Bin_C, p_Bin[k]);
+    const IkResult r = SolveIk(world, ArmSite::kCamera, T_W_C, q, ik);
+    if (!r.converged) {
+      throw InputError("approach", "T_W_C at t = " + Num(k * plan.timestep_s) + " s",
+                       "outside the arm's workspace: camera at (" + Num(T_W_C.translation().x()) + ", " +
+                           Num(T_W_C.translation().y()) + ", " + Num(T_W_C.translation().z()) +
+                           ") m in W is missed by " + Num(r.position_error_m) + " m, " + Num(r.angle_error_rad) +
+                           " rad");
+    }
+    q = r.q;
+    plan.T_W_C.push_back(T_W_C);
+    plan.q.push_back(q);
+  }
+  return plan;
+}
+
+ApproachExecutor::ApproachExecutor(World* world, const ApproachPlan& plan, const ApproachOptions& options)
+    : world_(world), plan_(plan), options_(options) {
+  ROMUNECT_CHECK(world != nullptr && !plan.q.empty());
+  ROMUNECT_CHECK(std::abs(plan.timestep_s - world->timestep_s()) < 1e-12);
+}
+
+double ApproachExecutor::MoveToStart() {
+  const World::ArmVector q0 = world_->arm_q(), q1 = plan_.q.front();
+  const double dt = world_->timestep_s();
+  // Minimum-jerk profile: peak joint speed 1.875 * distance / duration.
+  const double duration = std::max(0.1, 1.875 * (q1 - q0).cwiseAbs().maxCoeff() / options_.joint_speed_rad_s);
+  const int steps = static_cast<int>(std::ceil(duration / dt));
+  for (int k = 1; k <= steps; ++k) {
+    const double s = static_cast<double>(k) / steps;
+    const double blend = s * s * s * (10 - 15 * s + 6 * s * s);
+    const double rate = 30 * s * s * (1 - s) * (1 - s) / duration;
+    world_->SetArmTarget(q0 + blend * (q1 - q0), rate * (q1 - q0));
+    world_->Step();
+  }
+  const int hold = static_cast<int>(std::lround(options_.hold_before_s / dt));
+  world_->SetArmTarget(q1, World::ArmVector::Zero());
+  world_->Step(hold);
+  step_ = 0;
+  return (steps + hold) * dt;
+}
+
+void ApproachExecutor::AdvanceTo(double t_s) {
+  const int last = static_cast<int>(plan_.q.size()) - 1;
+  const int target = std::clamp(static_cast<int>(std::lround(t_s / plan_.timestep_s)), 0, last);
+  const double dt = plan_.timestep_s;
+  while (step_ < target) {
+    const int k = step_ + 1;
+    const World::ArmVector qdot = (plan_.q[std::min(k + 1, last)] - plan_.q[k - 1]) / (2 * dt);
+    world_->SetArmTarget(plan_.q[k], k == last ? World::ArmVector::Zero() : qdot);
+    world_->Step();
+    step_ = k;
+    const PoseError e = ComparePoses(world_->T_W_C(), plan_.T_W_C[k]);
+    tracking_.max_position_error_m = std::max(tracking_.max_position_error_m, e.translation_m);
+    tracking_.max_angle_error_rad = std::max(tracking_.max_angle_error_rad, e.angle_rad);
+    sum_sq_error_ += e.translation_m * e.translation_m;
+    ++tracking_.steps;
+    tracking_.rms_position_error_m = std::sqrt(sum_sq_error_ / tracking_.steps);
+  }
+}
+
+}  // namespace romunect::sim

@@ -1,0 +1,82 @@
+#include "romunect/sim/approach.h"
+
+#include <cmath>
+
+#include <gtest/gtest.h>
+
+#include "romunect/sensor/errors.h"
+#include "romunect/sensor/rig.h"
+
+namespace romunect::sim {
+namespace {
+
+// The plan's own poses are exact up to IK's convergence tolerance (1e-6 m).
+constexpr double kPlanToleranceM = 1e-5;
+// The measured peak tracking error of a DLS-driven position servo is about 3 mm; we
+// allow 5 mm at 0.3 m/s with lateral passes.
+constexpr double kMaxTrackingErrorM = 5e-3;
+// After the hold at the end, the servo has converged: below the sensor's 0.1 mm accuracy.
+constexpr double kSettledErrorM = 1e-4;
+
+TEST(ApproachTest, PlanDescendsFromStartToWorkingDistanceWithPassesCoveringTheRegion) {
+  World world(WorldOptions{});
+  const CameraModel camera = RigPreset("romunect").camera;
+  ApproachOptions options;
+  const ApproachPlan plan = PlanApproach(world, camera, options);
+  const Pose T_W_Bin = world.T_W_Bin();
+  const Eigen::Vector3d start = T_W_Bin.inverse() * plan.T_W_C.front().translation();
+  const Eigen::Vector3d end = T_W_Bin.inverse() * plan.T_W_C.back().translation();
+  EXPECT_NEAR(start.z(), 0.40, kPlanToleranceM);
+  EXPECT_NEAR(end.z(), 0.20, kPlanToleranceM);
+  // The footprint at 200 mm (about 6 x 4.5 cm) needs 3 x 2 passes over 150 x 80 mm.
+  const double foot_x = 0.2 * camera.width / camera.fx, foot_y = 0.2 * camera.height / camera.fy;
+  EXPECT_EQ(plan.passes_x, static_cast<int>(std::ceil(0.15 / (0.9 * foot_x))));
+  EXPECT_EQ(plan.passes_y, static_cast<int>(std::ceil(0.08 / (0.9 * foot_y))));
+  EXPECT_GT(plan.passes_x * plan.passes_y, 1);
+  // About a second at 0.3 m/s: the duration is the length at speed plus the two ramps.
+  EXPECT_GT(plan.duration_s(), plan.length_m / options.speed_m_s);
+  EXPECT_LT(plan.duration_s(), plan.length_m / options.speed_m_s + 2 * options.speed_m_s / options.acceleration_m_s2);
+  for (size_t k = 0; k < plan.q.size(); k += 50) {
+    const PoseError e = ComparePoses(world.ForwardKinematics(plan.q[k], ArmSite::kCamera), plan.T_W_C[k]);
+    EXPECT_LT(e.translation_m, kPlanToleranceM);
+  }
+}
+
+TEST(ApproachTest, ExecutedApproachTracksThePlanAtThirtyCentimetresPerSecond) {
+  World world(WorldOptions{});
+  const ApproachOptions options;
+  const ApproachPlan plan = PlanApproach(world, RigPreset("romunect").camera, options);
+  ApproachExecutor executor(&world, plan, options);
+  executor.MoveToStart();
+  EXPECT_LT(ComparePoses(world.T_W_C(), plan.T_W_C.front()).translation_m, kSettledErrorM);
+  // Sample at 30 Hz like the sensor: the executed speed stays near the commanded one.
+  Eigen::Vector3d last = world.T_W_C().translation();
+  double max_speed = 0.0;
+  for (int frame = 1; !executor.finished(); ++frame) {
+    executor.AdvanceTo(frame / 30.0);
+    max_speed = std::max(max_speed, (world.T_W_C().translation() - last).norm() * 30.0);
+    last = world.T_W_C().translation();
+  }
+  EXPECT_LT(executor.tracking().max_position_error_m, kMaxTrackingErrorM);
+  EXPECT_LT(max_speed, 1.1 * options.speed_m_s);  // no overshoot beyond 10 %
+  EXPECT_GT(max_speed, 0.8 * options.speed_m_s);
+  // Holding the last pose: no oscillation, converged below 0.1 mm within 0.3 s.
+  world.Step(150);
+  EXPECT_LT(ComparePoses(world.T_W_C(), plan.T_W_C.back()).translation_m, kSettledErrorM);
+  EXPECT_LT(world.arm_qdot().norm(), 1e-3);
+}
+
+TEST(ApproachTest, UnreachableApproachIsAClearError) {
+  World world(WorldOptions{});
+  ApproachOptions options;
+  options.start_distance_m = 1.5;  // far above the arm's reach
+  try {
+    PlanApproach(world, RigPreset("romunect").camera, options);
+    FAIL() << "no exception";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("workspace"), std::string::npos) << e.what();
+  }
+}
+
+}  // namespace
+}  // namespace romunect::sim
