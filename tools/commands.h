@@ -7,6 +7,7 @@
 namespace romunect::tools {
 
 void AddInfoCommand(CLI::App& app);
+void AddFuseCommand(CLI::App& app);  // cmd_fuse.cc (fusion)
 void AddRecordCommand(CLI::App& app);  // cmd_record.cc (sensor/openni2)
 
 }  // namespace romunect::tools

@@ -15,6 +15,7 @@ int main(int argc, char** argv) {
   app.fallthrough(false);
 
   romunect::tools::AddInfoCommand(app);
+  romunect::tools::AddFuseCommand(app);
   romunect::tools::AddRecordCommand(app);
 
   try {

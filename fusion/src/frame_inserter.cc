@@ -110,6 +110,87 @@ inline void ApplyMisses(Vote* v, int n) {
 
 inline void ApplyHit(Vote* v) { *v = static_cast<Vote>(std::min(*v + 1, int{kVoteMax})); }
 
+struct WalkContext {
+  double ox, oy, oz;  // camera centre, grid units
+  int nx, ny, nz;
+  int ya, yb;         // this thread's rows [ya, yb)
+  Vote* votes;
+  uint16_t* hit_lo;
+  uint16_t* hit_hi;
+  size_t hits, misses;
+};
+
+// The start voxel on one axis: clamp(floor(x)) into [0, n).
+inline int StartIndex(double x, int n) { return static_cast<int>(std::clamp(std::floor(x), 0.0, n - 1.0)); }
+
+// Walks one ray through the columns of the thread's rows (voting_grid.h semantics). State is in
+// scalars and the x/y step is branch-free: the walk is dominated by per-column overhead.
+inline void WalkRay(const RaySetup& ray, WalkContext* c) {
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  const double ox = c->ox, oy = c->oy, oz = c->oz;
+  const int nx = c->nx, ny = c->ny, nz = c->nz, ya = c->ya, yb = c->yb;
+  const double dx = ray.p_g[0] - ox, dy = ray.p_g[1] - oy, dz = ray.p_g[2] - oz;
+  const double inv_x = 1.0 / dx, inv_y = 1.0 / dy, inv_z = 1.0 / dz;
+  int ix = StartIndex(ox + ray.t_enter * dx, nx);
+  int iy = StartIndex(oy + ray.t_enter * dy, ny);
+  int iz = StartIndex(oz + ray.t_enter * dz, nz);
+  const int sx = dx > 0.0 ? 1 : (dx < 0.0 ? -1 : 0);
+  const int sy = dy > 0.0 ? 1 : (dy < 0.0 ? -1 : 0);
+  const int sz = dz > 0.0 ? 1 : (dz < 0.0 ? -1 : 0);
+  const int bx = dx > 0.0, by = dy > 0.0, bz = dz > 0.0;  // next plane = index + b
+  // Crossing out of voxel k on an axis: the exact expression of the 3D walk.
+  auto t_x = [&](int k) { return sx != 0 ? (static_cast<double>(k + bx) - ox) * inv_x : kInf; };
+  auto t_y = [&](int k) { return sy != 0 ? (static_cast<double>(k + by) - oy) * inv_y : kInf; };
+  auto t_z = [&](int k) { return (static_cast<double>(k + bz) - oz) * inv_z; };
+  double tx = t_x(ix), ty = t_y(iy);
+  const double t_exit = ray.t_exit;
+  const int z_end = sz > 0 ? nz - 1 : 0;
+  for (;;) {
+    const double t_column = std::min(tx, ty);
+    const double limit = std::min(t_column, t_exit);
+    // The last z voxel in this column: the first k (from iz on) whose crossing is not < limit.
+    // Crossings grow monotonically along the walk, so estimate from the z at `limit` and settle
+    // with the exact comparisons.
+    int iz_last = iz;
+    if (sz != 0) {
+      const double z_limit = std::floor(oz + limit * dz);
+      iz_last = static_cast<int>(sz > 0 ? std::clamp(z_limit, static_cast<double>(iz), nz - 1.0)
+                                        : std::clamp(z_limit, 0.0, static_cast<double>(iz)));
+      while (iz_last != iz && !(t_z(iz_last - sz) < limit)) iz_last -= sz;
+      while (iz_last != z_end && t_z(iz_last) < limit) iz_last += sz;
+    }
+    const bool ends_here = !(t_column < t_exit);
+    if (iy >= ya && iy < yb) {
+      const size_t column_index = static_cast<size_t>(iy) * nx + ix;
+      Vote* column = c->votes + column_index * nz;
+      const int lo = std::min(iz, iz_last), hi = std::max(iz, iz_last);
+      if (ends_here && ray.ends_inside) {  // the last voxel gets the hit, the rest misses
+        ApplyMisses(column + lo + (sz < 0), hi - lo);
+        ApplyHit(column + iz_last);
+        c->misses += hi - lo;
+        ++c->hits;
+        c->hit_lo[column_index] = std::min<uint16_t>(c->hit_lo[column_index], static_cast<uint16_t>(iz_last));
+        c->hit_hi[column_index] = std::max<uint16_t>(c->hit_hi[column_index], static_cast<uint16_t>(iz_last));
+      } else {
+        ApplyMisses(column + lo, hi - lo + 1);
+        c->misses += hi - lo + 1;
+      }
+    }
+    if (ends_here) break;
+    iz = iz_last;
+    const int step_x = tx <= ty;  // ties: x first, as in the 3D walk
+    ix += step_x * sx;
+    iy += (1 - step_x) * sy;
+    if (static_cast<unsigned>(ix) >= static_cast<unsigned>(nx) ||
+        static_cast<unsigned>(iy) >= static_cast<unsigned>(ny)) {
+      break;  // cannot happen before t_exit; a guard
+    }
+    if (sy > 0 ? iy >= yb : iy < ya) break;  // left this thread's rows for good
+    tx = t_x(ix);
+    ty = t_y(iy);
+  }
+}
+
 }  // namespace
 
 void InsertStats::Add(const InsertStats& o) {
@@ -291,8 +372,9 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
   uint16_t* hit_hi = mutable_grid->mutable_hit_hi();
   auto walk = [&](int thread) {
     const int ya = ws.slab[thread], yb = ws.slab[thread + 1];
-    size_t hits = 0, misses = 0;
     if (ya >= yb) return;
+    WalkContext context{o_g[0], o_g[1], o_g[2], n[0], n[1], n[2], ya, yb, mutable_grid->mutable_column(0),
+                        hit_lo, hit_hi, 0, 0};
     for (int chunk = 0; chunk < threads; ++chunk) {
       const int v0 = static_cast<int>(static_cast<int64_t>(height) * chunk / threads);
       const RaySetup* rays = &ws.rays[static_cast<size_t>(v0) * width];
@@ -300,79 +382,11 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
       for (size_t i = 0; i < count; ++i) {
         const RaySetup& ray = rays[i];
         if (ray.iy_hi < ya || ray.iy_lo >= yb) continue;
-        double dg[3], inv[3], tn[3];
-        int idx[3], step[3];
-        for (int a = 0; a < 3; ++a) {
-          dg[a] = ray.p_g[a] - o_g[a];
-          inv[a] = 1.0 / dg[a];
-          idx[a] = static_cast<int>(std::clamp(std::floor(o_g[a] + ray.t_enter * dg[a]), 0.0, n[a] - 1.0));
-          if (dg[a] > 0.0) {
-            step[a] = 1;
-            tn[a] = (static_cast<double>(idx[a] + 1) - o_g[a]) * inv[a];
-          } else if (dg[a] < 0.0) {
-            step[a] = -1;
-            tn[a] = (static_cast<double>(idx[a]) - o_g[a]) * inv[a];
-          } else {
-            step[a] = 0;
-            tn[a] = std::numeric_limits<double>::infinity();
-          }
-        }
-        const double t_exit = ray.t_exit;
-        const int sz = step[2];
-        for (;;) {
-          const double t_column = std::min(tn[0], tn[1]);
-          const double limit = std::min(t_column, t_exit);
-          // z steps inside this column: every plane k with crossing t(k) < limit. Crossings grow
-          // monotonically with k, so estimate the count from the z at `limit`, then settle it
-          // with the exact comparisons the 3D walk would make.
-          int m = 0;
-          if (tn[2] < limit) {
-            const int max_steps = sz > 0 ? n[2] - 1 - idx[2] : idx[2];
-            const double plane0 = sz > 0 ? idx[2] + 1 : idx[2];
-            auto t_plane = [&](int k) { return ((plane0 + k * sz) - o_g[2]) * inv[2]; };
-            const double z_limit = o_g[2] + limit * dg[2];
-            const double estimate = std::ceil(sz > 0 ? z_limit - plane0 : plane0 - z_limit);
-            m = static_cast<int>(std::clamp(estimate, 1.0, static_cast<double>(std::max(max_steps, 1))));
-            m = std::min(m, max_steps);
-            while (m > 1 && !(t_plane(m - 1) < limit)) --m;
-            while (m < max_steps && t_plane(m) < limit) ++m;
-            tn[2] = t_plane(m);
-          }
-          const int iz_last = idx[2] + m * sz;
-          const bool ends_here = !(t_column < t_exit);
-          if (idx[1] >= ya && idx[1] < yb) {
-            const size_t c = grid.ColumnIndex(idx[0], idx[1]);
-            Vote* column = mutable_grid->mutable_column(c);
-            const int lo = std::min(idx[2], iz_last), hi = std::max(idx[2], iz_last);
-            if (ends_here && ray.ends_inside) {
-              // The last voxel gets the hit, the rest of the run misses.
-              if (sz >= 0) {
-                ApplyMisses(column + lo, hi - lo);
-              } else {
-                ApplyMisses(column + lo + 1, hi - lo);
-              }
-              ApplyHit(column + iz_last);
-              misses += hi - lo;
-              ++hits;
-              hit_lo[c] = std::min<uint16_t>(hit_lo[c], static_cast<uint16_t>(iz_last));
-              hit_hi[c] = std::max<uint16_t>(hit_hi[c], static_cast<uint16_t>(iz_last));
-            } else {
-              ApplyMisses(column + lo, hi - lo + 1);
-              misses += hi - lo + 1;
-            }
-          }
-          if (ends_here) break;
-          idx[2] = iz_last;
-          const int a = tn[0] <= tn[1] ? 0 : 1;
-          idx[a] += step[a];
-          if (idx[a] < 0 || idx[a] >= n[a]) break;  // cannot happen before t_exit; a guard
-          if (a == 1 && (step[1] > 0 ? idx[1] >= yb : idx[1] < ya)) break;  // left this slab
-          tn[a] = (static_cast<double>(step[a] > 0 ? idx[a] + 1 : idx[a]) - o_g[a]) * inv[a];
-        }
+        WalkRay(ray, &context);
       }
     }
-    thread_hits[thread] = hits;
-    thread_misses[thread] = misses;
+    thread_hits[thread] = context.hits;
+    thread_misses[thread] = context.misses;
   };
   ws.pool.Run(walk);
 

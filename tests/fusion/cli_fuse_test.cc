@@ -1,0 +1,182 @@
+// `romunect fuse` run as a user would: a good run against ground truth, and every kind of bad
+// input the issue lists (clear message, non-zero exit; per-pixel junk counted).
+#include <cmath>
+#include <limits>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "romunect/fusion/voting_grid.h"
+#include "romunect/sensor/frame_io.h"
+#include "romunect/sensor/image_io.h"
+#include "romunect/testing/analytic_bin.h"
+#include "romunect/testing/test_support.h"
+
+namespace romunect::fusion {
+namespace {
+
+using ::testing::HasSubstr;
+using testing::AnalyticBin;
+using testing::AnalyticBinOptions;
+using testing::ReadText;
+using testing::RunRomunect;
+using testing::ScratchDir;
+using testing::WriteText;
+
+constexpr double kVoxelM = 0.001;  // coarse: the CLI test is about wiring, not resolution
+constexpr const char* kVoxelArg = "--voxel 0.001";
+
+// A small analytic-bin capture as a frame directory, with its ground-truth height map.
+AnalyticBin WriteBinDirectory(const std::filesystem::path& dir, int frames) {
+  AnalyticBinOptions options;
+  options.width = 96;
+  options.height = 72;
+  options.frames = frames;
+  options.seed = 3;
+  AnalyticBin bin(options);
+  FrameDirectoryWriter writer(dir, bin.camera());
+  for (int i = 0; i < frames; ++i) writer.Add(bin.RenderFrame(i));
+  writer.Finish();
+  return bin;
+}
+
+nlohmann::json ReadManifestJson(const std::filesystem::path& dir) {
+  return nlohmann::json::parse(ReadText(dir / "frames.json"));
+}
+
+TEST(FuseCliTest, FusesAnAnalyticBinAndReportsAgainstGroundTruth) {
+  ScratchDir scratch("fuse_cli_good");
+  const AnalyticBin bin = WriteBinDirectory(scratch / "capture", 8);
+  GridOptions grid;
+  grid.voxel_m = kVoxelM;
+  const Eigen::Vector3i n = grid.Dims();
+  WriteDepthExr(scratch / "gt.exr", bin.GroundTruthHeightMap(grid.min_W, kVoxelM, n.x(), n.y()));
+
+  const auto result = RunRomunect("fuse " + (scratch / "capture").string() + " " + kVoxelArg +
+                                  " --threads 2 --gt " + (scratch / "gt.exr").string());
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  EXPECT_THAT(result.output, HasSubstr("frame 8/8"));  // the progress line
+  const std::filesystem::path out = scratch / "capture_fused";  // default: beside the input
+  for (const char* file : {"fused_depth.exr", "fused_depth.png", "fused_points.ply", "completeness.png", "report.json"}) {
+    EXPECT_TRUE(std::filesystem::exists(out / file)) << file;
+  }
+  const nlohmann::json report = nlohmann::json::parse(ReadText(out / "report.json"));
+  EXPECT_EQ(report["frames"], 8);
+  EXPECT_EQ(report["grid"]["nx"], 150);
+  EXPECT_EQ(report["grid"]["ny"], 80);
+  EXPECT_EQ(report["grid"]["nz"], 64);
+  EXPECT_EQ(report["completeness_per_frame"].size(), 8u);
+  // Fusion is the point: completeness grows from the first frame (grazing rays' misses cancel
+  // single hits, so one coarse frame fills little) to most of the region.
+  constexpr double kMinCompleteness = 0.5;  // measured 0.62 with 8 frames of 96 x 72 at 1 mm
+  EXPECT_GT(report["completeness"].get<double>(), kMinCompleteness);
+  EXPECT_GT(report["completeness"].get<double>(), 3 * report["completeness_per_frame"][0].get<double>());
+  // Heights are voxel centres (error up to half a voxel) plus 0.1 mm noise; cells straddling a
+  // wall or an object's edge can be off by centimetres, so bound the bulk, not the maximum.
+  constexpr double kMinWithin1mm = 0.9;  // measured 0.954: most cells are within half a voxel
+  constexpr double kMaxMaeMm = 2.0;      // measured 1.32: half a voxel plus the edge cells' share
+  EXPECT_GT(report["within_1mm"].get<double>(), kMinWithin1mm);
+  EXPECT_LT(report["mae_mm"].get<double>(), kMaxMaeMm);
+  EXPECT_GT(report["rmse_mm"].get<double>(), 0.0);
+  const cv::Mat fused = ReadDepthExr(out / "fused_depth.exr");
+  EXPECT_EQ(fused.size(), cv::Size(150, 80));
+  EXPECT_GT(report["insert_ms"]["median"].get<double>(), 0.0);
+}
+
+TEST(FuseCliTest, RejectsEmptyInvertedOrMalformedBoxesAndBadVoxels) {
+  ScratchDir scratch("fuse_cli_box");
+  WriteBinDirectory(scratch / "capture", 1);
+  const std::string dir = (scratch / "capture").string();
+  struct Case {
+    std::string args, expected;
+  };
+  for (const Case& c : std::vector<Case>{
+           {"--box 0,0,0,0,0.05,0.05", "--box: box x range [0, 0] is empty or inverted"},
+           {"--box 0,0.05,0,0.05,0,0.05", "--box: box y range [0.05, 0] is empty or inverted"},
+           {"--box 0,0,0,1,1", "expected 6 comma-separated numbers"},
+           {"--box 0,0,0,a,1,1", "'a' is not a number"},
+           {"--voxel 0", "--voxel"},
+           {"--voxel -0.001", "must be a positive size"},
+           {"--threads 0", "--threads: threads = 0"},
+       }) {
+    const auto result = RunRomunect("fuse " + dir + " " + c.args);
+    EXPECT_NE(result.exit_code, 0) << c.args;
+    EXPECT_THAT(result.output, HasSubstr(c.expected)) << c.args;
+    EXPECT_FALSE(std::filesystem::exists(scratch / "capture_fused" / "report.json")) << c.args;
+  }
+}
+
+TEST(FuseCliTest, RefusesAGridThatDoesNotFitWithTheSizeItNeeds) {
+  ScratchDir scratch("fuse_cli_memory");
+  WriteBinDirectory(scratch / "capture", 1);
+  // 0.01 mm voxels over the default box: 15000 x 8000 x 6400 voxels, 1.5 TB.
+  const auto result = RunRomunect("fuse " + (scratch / "capture").string() + " --voxel 0.00001");
+  EXPECT_EQ(result.exit_code, 2) << result.output;
+  EXPECT_THAT(result.output, HasSubstr("15000 x 8000 x 6400 grid needs"));
+}
+
+TEST(FuseCliTest, RejectsANonRigidPose) {
+  ScratchDir scratch("fuse_cli_pose");
+  WriteBinDirectory(scratch / "capture", 2);
+  nlohmann::json manifest = ReadManifestJson(scratch / "capture");
+  manifest["frames"][1]["T_W_C"][0] = 2.0;  // scales x: not a rotation
+  WriteText(scratch / "capture" / "frames.json", manifest.dump());
+  const auto result = RunRomunect("fuse " + (scratch / "capture").string() + " " + kVoxelArg);
+  EXPECT_EQ(result.exit_code, 2) << result.output;
+  EXPECT_THAT(result.output, HasSubstr("frames[1].T_W_C"));
+}
+
+TEST(FuseCliTest, RejectsAFrameWithoutPose) {
+  ScratchDir scratch("fuse_cli_nopose");
+  WriteBinDirectory(scratch / "capture", 2);
+  nlohmann::json manifest = ReadManifestJson(scratch / "capture");
+  manifest["frames"][1].erase("T_W_C");
+  WriteText(scratch / "capture" / "frames.json", manifest.dump());
+  const auto result = RunRomunect("fuse " + (scratch / "capture").string() + " " + kVoxelArg);
+  EXPECT_EQ(result.exit_code, 2) << result.output;
+  EXPECT_THAT(result.output, HasSubstr("frames[1].T_W_C: missing"));
+}
+
+TEST(FuseCliTest, RejectsFramesOfADifferentSize) {
+  ScratchDir scratch("fuse_cli_size");
+  WriteBinDirectory(scratch / "capture", 2);
+  const nlohmann::json manifest = ReadManifestJson(scratch / "capture");
+  const std::string depth = manifest["frames"][1]["depth"];
+  WriteDepthExr(scratch / "capture" / depth, cv::Mat(36, 48, CV_32F, cv::Scalar(0.2f)));
+  const auto result = RunRomunect("fuse " + (scratch / "capture").string() + " " + kVoxelArg);
+  EXPECT_EQ(result.exit_code, 2) << result.output;
+  EXPECT_THAT(result.output, HasSubstr("frames[1]"));
+  EXPECT_THAT(result.output, HasSubstr("48"));
+}
+
+TEST(FuseCliTest, CountsNaNInfAndNegativePixelsAsSkipped) {
+  ScratchDir scratch("fuse_cli_nan");
+  WriteBinDirectory(scratch / "capture", 2);
+  const nlohmann::json manifest = ReadManifestJson(scratch / "capture");
+  const std::filesystem::path depth_path = scratch / "capture" / manifest["frames"][0]["depth"].get<std::string>();
+  cv::Mat depth = ReadDepthExr(depth_path);
+  depth.at<float>(0, 0) = std::numeric_limits<float>::quiet_NaN();
+  depth.at<float>(1, 1) = std::numeric_limits<float>::infinity();
+  depth.at<float>(2, 2) = -0.2f;
+  WriteDepthExr(depth_path, depth);
+  const auto result = RunRomunect("fuse " + (scratch / "capture").string() + " " + kVoxelArg + " --out " +
+                                  (scratch / "out").string());
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  const nlohmann::json report = nlohmann::json::parse(ReadText(scratch / "out" / "report.json"));
+  EXPECT_EQ(report["skipped_pixels"], 3);
+  EXPECT_EQ(report["frames"], 2);
+}
+
+TEST(FuseCliTest, RejectsGroundTruthOfAnotherGrid) {
+  ScratchDir scratch("fuse_cli_gt");
+  WriteBinDirectory(scratch / "capture", 1);
+  WriteDepthExr(scratch / "gt.exr", cv::Mat(10, 10, CV_32F, cv::Scalar(0.0f)));
+  const auto result = RunRomunect("fuse " + (scratch / "capture").string() + " " + kVoxelArg + " --gt " +
+                                  (scratch / "gt.exr").string());
+  EXPECT_EQ(result.exit_code, 2) << result.output;
+  EXPECT_THAT(result.output, HasSubstr("expected the grid's 150 x 80"));
+}
+
+}  // namespace
+}  // namespace romunect::fusion
