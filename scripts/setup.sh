@@ -13,6 +13,8 @@ packages=(
   # needs python3-imath.
   libqhull-dev libgl-dev python3-imath
 )
+# --bench-peers: the fusion benchmark's peers (cmake -DROMUNECT_BENCH_PEERS=ON), not needed otherwise.
+if [[ " $* " == *" --bench-peers "* ]]; then packages+=(libopen3d-dev liboctomap-dev); fi
 
 missing=()
 for p in "${packages[@]}"; do
