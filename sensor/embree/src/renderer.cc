@@ -8,6 +8,9 @@
 #include <sstream>
 #include <thread>
 
+#include <pmmintrin.h>
+#include <xmmintrin.h>
+
 #include <Eigen/Geometry>
 
 #include "ray_scene_impl.h"
@@ -92,8 +95,7 @@ void RenderPacket(const FrameSetup& f, int layer_index, int u0, int v0, Geometry
   for (int i = 0; i < 16; ++i) {
     shadow_valid[i] = 0;
     shadow.org_x[i] = shadow.org_y[i] = shadow.org_z[i] = 0.0f;
-    shadow.dir_x[i] = shadow.dir_y[i] = 0.0f;
-    shadow.dir_z[i] = 1.0f;
+    shadow.dir_x[i] = shadow.dir_y[i] = shadow.dir_z[i] = 1.0f;
     shadow.tnear[i] = 0.0f;
     shadow.tfar[i] = 1.0f;
     shadow.time[i] = 0.0f;
@@ -124,33 +126,11 @@ void RenderPacket(const FrameSetup& f, int layer_index, int u0, int v0, Geometry
     shadow_valid[i] = -1;
     ++counters->shadow_rays;
   }
-  // Two 8-wide halves: rtcOccluded16 of Debian's Embree 3.13.5 never returns for these
-  // packets on this AVX-512 machine (the 8-wide path is fine).
-  for (int half = 0; half < 2; ++half) {
-    alignas(32) RTCRay8 ray8;
-    alignas(32) int valid8[8];
-    bool any = false;
-    for (int j = 0; j < 8; ++j) {
-      const int i = 8 * half + j;
-      valid8[j] = shadow_valid[i];
-      any |= shadow_valid[i] != 0;
-      ray8.org_x[j] = shadow.org_x[i];
-      ray8.org_y[j] = shadow.org_y[i];
-      ray8.org_z[j] = shadow.org_z[i];
-      ray8.dir_x[j] = shadow.dir_x[i];
-      ray8.dir_y[j] = shadow.dir_y[i];
-      ray8.dir_z[j] = shadow.dir_z[i];
-      ray8.tnear[j] = shadow.tnear[i];
-      ray8.tfar[j] = shadow.tfar[i];
-      ray8.time[j] = 0.0f;
-      ray8.mask[j] = 0xFFFFFFFFu;
-      ray8.id[j] = static_cast<unsigned>(i);
-      ray8.flags[j] = 0;
-    }
-    if (!any) continue;
-    rtcOccluded8(valid8, f.top, &context, &ray8);
-    for (int j = 0; j < 8; ++j) shadow.tfar[8 * half + j] = ray8.tfar[j];
-  }
+  // Shadow rays use the default (incoherent) context: rtcOccluded16 with the coherent flag
+  // never returns in Debian's Embree 3.13.5 on AVX-512 (seen on this machine).
+  RTCIntersectContext shadow_context;
+  rtcInitIntersectContext(&shadow_context);
+  rtcOccluded16(shadow_valid, f.top, &shadow_context, &shadow);
 
   for (int i = 0; i < 16; ++i) {
     if (!valid[i]) continue;
@@ -322,6 +302,11 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
   const int thread_count = std::min(options.threads, tile_count);
   std::vector<Counters> counters(thread_count);
   auto work = [&](int thread) {
+    // Embree wants denormals flushed (its traversal slows down badly on them); every thread
+    // runs in the same mode, so results stay independent of the thread count.
+    const unsigned saved_mxcsr = _mm_getcsr();
+    _MM_SET_FLUSH_ZERO_MODE(_MM_FLUSH_ZERO_ON);
+    _MM_SET_DENORMALS_ZERO_MODE(_MM_DENORMALS_ZERO_ON);
     for (int t = next_tile++; t < tile_count; t = next_tile++) {
       const int tu = (t % tiles_x) * tile, tv = (t / tiles_x) * tile;
       const int u_end = std::min(tu + tile, camera.width), v_end = std::min(tv + tile, camera.height);
@@ -333,6 +318,7 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
         }
       }
     }
+    _mm_setcsr(saved_mxcsr);
   };
   std::vector<std::thread> pool;
   for (int i = 1; i < thread_count; ++i) pool.emplace_back(work, i);
