@@ -456,9 +456,9 @@ void World::Step(int n) {
 void World::SetPileFrozen(bool frozen) {
   Impl& w = *impl_;
   if (frozen == w.frozen) return;
+  if (frozen) w.frozen_qpos = ObjectQpos();  // before the flag: ObjectQpos reads it
   w.frozen = frozen;
   if (frozen) {
-    w.frozen_qpos = ObjectQpos();
     w.model->opt.disableflags |= mjDSBL_CONTACT;
   } else {
     w.model->opt.disableflags &= ~mjDSBL_CONTACT;

@@ -1,0 +1,303 @@
+#include "romunect/sim/scanner.h"
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+
+#include <opencv2/imgproc.hpp>
+
+#include "romunect/sensor/check.h"
+#include "romunect/sensor/embree/ray_scene.h"
+#include "romunect/sensor/embree/renderer.h"
+#include "romunect/sensor/errors.h"
+#include "romunect/sensor/mesh.h"
+
+namespace romunect::sim {
+namespace {
+
+// Object ids in the rendered GeometryLayer: pile objects by index, then these.
+constexpr int kStaticObjectId = 1000;
+constexpr int kArmObjectId = 2000;
+// The ground-truth height map is traced from this high up: rays 30 m long are parallel to
+// within 0.12 mm over a 15 cm box for surfaces 5 cm high, and float hits keep 2 um there.
+constexpr double kTruthCameraHeightM = 30.0;
+
+using Clock = std::chrono::steady_clock;
+double Seconds(Clock::time_point since) { return std::chrono::duration<double>(Clock::now() - since).count(); }
+
+TriangleMesh ToTriangleMesh(const Mesh& mesh) {
+  TriangleMesh out;
+  out.vertices_O.reserve(mesh.vertices.size());
+  for (const auto& v : mesh.vertices) out.vertices_O.push_back(v.cast<float>());
+  out.triangles = mesh.triangles;
+  return out;
+}
+
+int ObjectId(const GeomInfo& g) { return g.object >= 0 ? g.object : (g.arm ? kArmObjectId : kStaticObjectId); }
+
+// The world's visible geoms as a RayScene: fixed ones static, the rest instances. handles[i]
+// is the moving handle of geom i (-1 when static or left out).
+embree::RayScene MirrorWorld(const World& world, bool with_arm, std::vector<int>* handles) {
+  embree::RayScene scene;
+  std::vector<Pose> T_W_G;
+  world.GeomPoses(&T_W_G);
+  const auto& geoms = world.Geoms();
+  handles->assign(geoms.size(), -1);
+  for (size_t i = 0; i < geoms.size(); ++i) {
+    const GeomInfo& g = geoms[i];
+    if (g.arm && !with_arm) continue;
+    const TriangleMesh mesh = ToTriangleMesh(g.mesh_G);
+    if (!mesh.Problem().empty()) continue;  // degenerate geoms are not drawn
+    if (g.moving) {
+      (*handles)[i] = scene.AddMoving(mesh, T_W_G[i], g.material, ObjectId(g));
+    } else {
+      scene.AddStatic(mesh, T_W_G[i], g.material, ObjectId(g));
+    }
+  }
+  scene.Commit();
+  return scene;
+}
+
+void UpdatePoses(const World& world, const std::vector<int>& handles, std::vector<Pose>* T_W_G,
+                 embree::RayScene* scene) {
+  world.GeomPoses(T_W_G);
+  for (size_t i = 0; i < handles.size(); ++i) {
+    if (handles[i] >= 0) scene->SetPose(handles[i], (*T_W_G)[i]);
+  }
+  scene->Commit();
+}
+
+Pose LookAt(const Eigen::Vector3d& eye_W, const Eigen::Vector3d& target_W, const Eigen::Vector3d& up_W) {
+  const Eigen::Vector3d z = (target_W - eye_W).normalized();
+  const Eigen::Vector3d x = z.cross(up_W).normalized();  // right = forward x up
+  const Eigen::Vector3d y = z.cross(x);                  // down
+  Eigen::Matrix3d R;
+  R << x, y, z;
+  return MakePose(R, eye_W);
+}
+
+}  // namespace
+
+std::string ScanOptions::Problem() const {
+  if (const std::string p = pile.Problem(); !p.empty()) return "pile." + p;
+  if (const std::string p = approach.Problem(); !p.empty()) return "approach." + p;
+  if (const std::string p = ik.Problem(); !p.empty()) return "ik." + p;
+  if (const std::string p = rig.Problem(); !p.empty()) return "rig." + p;
+  if (samples_per_pixel != 1 && samples_per_pixel != 4) {
+    return "samples_per_pixel = " + std::to_string(samples_per_pixel) + ": must be 1 or 4";
+  }
+  if (threads < 1) return "threads = " + std::to_string(threads) + ": must be >= 1";
+  return "";
+}
+
+std::string ScanStats::BriefReport() const {
+  char s[400];
+  const double n = std::max(1, frames);
+  std::snprintf(s, sizeof s,
+                "%d frames over %.2f s simulated; per frame: physics %.1f ms, render %.1f ms, imaging %.1f ms; "
+                "tracking max %.2f mm, rms %.2f mm; setup %.2f s",
+                frames, simulated_s, 1e3 * physics_s / n, 1e3 * render_s / n, 1e3 * imaging_s / n,
+                1e3 * tracking.max_position_error_m, 1e3 * tracking.rms_position_error_m, setup_s);
+  return std::string(s) + "; " + settle.BriefReport();
+}
+
+struct Scanner::Impl {
+  ScanOptions options;
+  std::unique_ptr<World> world;
+  ApproachPlan plan;
+  std::unique_ptr<ApproachExecutor> executor;
+  embree::RayScene scene;
+  std::vector<int> handles;
+  std::vector<Pose> T_W_G;
+  embree::GeometryRenderer renderer;
+  embree::RenderOptions render_options;
+  GeometryBuffer geometry;
+  std::unique_ptr<FrameImager> imager;
+  ScanStats stats;
+  int next = 0;
+  int count = 0;
+};
+
+Scanner::Scanner(const ScanOptions& options) : impl_(std::make_unique<Impl>()) {
+  Impl& s = *impl_;
+  if (const std::string p = options.Problem(); !p.empty()) throw InputError("scan options", "", p);
+  s.options = options;
+  const auto setup_start = Clock::now();
+  double settle_wall_s = 0.0;
+  if (!options.saved_scene.empty()) {
+    s.world = std::make_unique<World>(LoadSettledScene(options.saved_scene));
+    s.stats.settle.converged = true;
+    s.stats.settle.objects_in_bin = 0;
+    for (int i = 0; i < s.world->num_objects(); ++i) s.stats.settle.objects_in_bin += ObjectInBin(*s.world, i);
+  } else {
+    WorldOptions w;
+    w.scene_file = options.scene_file;
+    w.objects = MakePileObjects(options.pile);
+    w.objects.insert(w.objects.end(), options.extra_objects.begin(), options.extra_objects.end());
+    w.T_H_C = options.T_H_C;
+    w.T_C_P = options.rig.T_C_P;
+    s.world = std::make_unique<World>(w);
+    s.stats.settle = DropAndSettle(s.world.get(), options.pile);
+    settle_wall_s = s.stats.settle.wall_s;
+    if (!s.stats.settle.converged) {
+      throw InputError(s.world->options().scene_file.string(), "pile",
+                       "the pile did not settle (kinetic energy above " +
+                           std::to_string(options.pile.kinetic_energy_threshold_j) + " J): " +
+                           s.stats.settle.BriefReport());
+    }
+  }
+  World& world = *s.world;
+  world.SetPileFrozen(true);  // scanning is kinematic for the pile
+  s.plan = PlanApproach(world, options.rig.camera, options.approach, options.ik);
+  s.executor = std::make_unique<ApproachExecutor>(&world, s.plan, options.approach);
+  s.stats.move_to_start_s = s.executor->MoveToStart();
+  s.count = static_cast<int>(std::floor(s.plan.duration_s() * options.rig.frame_rate_hz + 1e-9)) + 1;
+  s.scene = MirrorWorld(world, /*with_arm=*/true, &s.handles);
+  s.render_options.samples_per_pixel = options.samples_per_pixel;
+  s.render_options.threads = options.threads;
+  s.render_options.focus_distance_m = options.rig.optics.focus_distance_m;
+  s.render_options.aperture_radius_m = options.samples_per_pixel > 1 ? options.rig.optics.aperture_m / 2 : 0.0;
+  s.stats.setup_s = Seconds(setup_start) - settle_wall_s;
+}
+
+Scanner::~Scanner() = default;
+
+void Scanner::SetImager(std::unique_ptr<FrameImager> imager) { impl_->imager = std::move(imager); }
+const CameraModel& Scanner::camera() const { return impl_->options.rig.camera; }
+int Scanner::frame_count() const { return impl_->count; }
+const ScanOptions& Scanner::options() const { return impl_->options; }
+const ScanStats& Scanner::stats() const { return impl_->stats; }
+const ApproachPlan& Scanner::plan() const { return impl_->plan; }
+World& Scanner::world() { return *impl_->world; }
+const World& Scanner::world() const { return *impl_->world; }
+const GeometryBuffer& Scanner::geometry() const { return impl_->geometry; }
+
+std::string Scanner::Describe() const {
+  const Impl& s = *impl_;
+  char text[300];
+  std::snprintf(text, sizeof text, "simulated scan of %s: %d objects, %d frames at %.0f Hz, %d x %d passes, rig %s",
+                s.world->options().scene_file.string().c_str(), s.world->num_objects(), s.count,
+                s.options.rig.frame_rate_hz, s.plan.passes_x, s.plan.passes_y, s.options.rig.name.c_str());
+  return text;
+}
+
+FrameStatus Scanner::Next(Frame* frame, std::string* error) {
+  ROMUNECT_CHECK(frame != nullptr && error != nullptr);
+  Impl& s = *impl_;
+  if (s.next >= s.count) return FrameStatus::kEndOfStream;
+  const double t = s.next / s.options.rig.frame_rate_hz;
+
+  auto start = Clock::now();
+  s.executor->AdvanceTo(t);
+  s.stats.physics_s += Seconds(start);
+
+  start = Clock::now();
+  World& world = *s.world;
+  UpdatePoses(world, s.handles, &s.T_W_G, &s.scene);
+  const Pose T_W_C = world.T_W_C();
+  s.renderer.Render(s.scene, s.options.rig.camera, T_W_C, world.T_C_P(), s.render_options, &s.geometry);
+  *frame = Frame{};
+  frame->index = s.next;
+  frame->time_s = t;
+  frame->T_W_C = T_W_C;
+  frame->T_B_H = world.T_B_H();
+  frame->gt_depth_m = embree::GroundTruthDepth(s.geometry);
+  s.stats.render_s += Seconds(start);
+
+  start = Clock::now();
+  if (s.imager) {
+    s.imager->Image(s.options.rig, s.geometry, s.options.seed * 1000003ULL + s.next, frame);
+  } else {
+    frame->depth_m = frame->gt_depth_m.clone();  // an ideal sensor
+  }
+  s.stats.imaging_s += Seconds(start);
+
+  s.stats.tracking = s.executor->tracking();
+  s.stats.simulated_s = t;
+  ++s.stats.frames;
+  ++s.next;
+  return FrameStatus::kOk;
+}
+
+cv::Mat GroundTruthHeightMap(const World& world, const HeightMapLayout& layout) {
+  ROMUNECT_CHECK(layout.nx > 0 && layout.ny > 0 && layout.cell_m > 0);
+  std::vector<int> handles;
+  const embree::RayScene scene = MirrorWorld(world, /*with_arm=*/false, &handles);
+  // A camera high above the layout's centre looking straight down, one pixel per cell: x_C
+  // along W's x, y_C along W's -y (so image row 0 is the largest y; flipped below).
+  CameraModel camera;
+  camera.width = layout.nx;
+  camera.height = layout.ny;
+  camera.fx = camera.fy = kTruthCameraHeightM / layout.cell_m;
+  camera.cx = (layout.nx - 1) / 2.0;
+  camera.cy = (layout.ny - 1) / 2.0;
+  const Eigen::Vector3d centre(layout.min_x_m + layout.nx * layout.cell_m / 2,
+                               layout.min_y_m + layout.ny * layout.cell_m / 2, kTruthCameraHeightM);
+  Eigen::Matrix3d R;
+  R << 1, 0, 0, 0, -1, 0, 0, 0, -1;
+  const Pose T_W_C = MakePose(R, centre);
+  embree::GeometryRenderer renderer;
+  GeometryBuffer buffer;
+  embree::RenderOptions options;
+  renderer.Render(scene, camera, T_W_C, Pose::Identity(), options, &buffer);
+  cv::Mat height(layout.ny, layout.nx, CV_32F);
+  const cv::Mat& p_C = buffer.layers[0].p_C;
+  for (int v = 0; v < layout.ny; ++v) {
+    for (int u = 0; u < layout.nx; ++u) {
+      const cv::Vec3f p = p_C.at<cv::Vec3f>(v, u);
+      height.at<float>(layout.ny - 1 - v, u) =
+          std::isnan(p[2]) ? std::numeric_limits<float>::quiet_NaN() : static_cast<float>(kTruthCameraHeightM - p[2]);
+    }
+  }
+  return height;
+}
+
+cv::Mat OverviewPicture(const World& world, int width_px, int height_px) {
+  ROMUNECT_CHECK(width_px > 0 && height_px > 0);
+  std::vector<int> handles;
+  const embree::RayScene scene = MirrorWorld(world, /*with_arm=*/true, &handles);
+  const Eigen::Vector3d bin = world.T_W_Bin().translation();
+  const Eigen::Vector3d target = 0.5 * (bin + world.SitePose_W(ArmSite::kHand).translation());
+  const Eigen::Vector3d eye = bin + Eigen::Vector3d(0.55, -1.1, 0.75);
+  const Pose T_W_C = LookAt(eye, target, Eigen::Vector3d::UnitZ());
+  CameraModel camera;
+  camera.width = width_px;
+  camera.height = height_px;
+  camera.fx = camera.fy = 1.0 * width_px;
+  camera.cx = (width_px - 1) / 2.0;
+  camera.cy = (height_px - 1) / 2.0;
+  embree::GeometryRenderer renderer;
+  GeometryBuffer buffer;
+  embree::RenderOptions options;
+  options.threads = 2;
+  // Light from above and behind the viewer; shadows from a "projector" there.
+  const Eigen::Vector3d light_W = eye + Eigen::Vector3d(0.0, 0.0, 1.0);
+  const Pose T_C_L = MakePose(Eigen::Matrix3d::Identity(), T_W_C.inverse() * light_W);
+  renderer.Render(scene, camera, T_W_C, T_C_L, options, &buffer);
+  const GeometryLayer& layer = buffer.layers[0];
+  cv::Mat picture(height_px, width_px, CV_8UC3, cv::Scalar(235, 225, 215));
+  for (int v = 0; v < height_px; ++v) {
+    for (int u = 0; u < width_px; ++u) {
+      const int id = layer.object_id.at<int>(v, u);
+      if (id < 0) continue;
+      const cv::Vec3f p = layer.p_C.at<cv::Vec3f>(v, u), n = layer.normal_C.at<cv::Vec3f>(v, u);
+      const Eigen::Vector3d to_light = (T_C_L.translation() - Eigen::Vector3d(p[0], p[1], p[2])).normalized();
+      const double lambert = std::max(0.0, to_light.dot(Eigen::Vector3d(n[0], n[1], n[2])));
+      const double shade = 0.35 + 0.65 * lambert * (layer.lit.at<uint8_t>(v, u) ? 1.0 : 0.4);
+      const float albedo = buffer.materials[layer.material.at<int>(v, u)].albedo;
+      cv::Vec3d bgr;  // colours by kind: arm orange, static parts by albedo (blue-grey), objects warm
+      if (id == kArmObjectId) {
+        bgr = cv::Vec3d(40, 130, 240) * (0.5 + albedo);
+      } else if (id == kStaticObjectId) {
+        bgr = cv::Vec3d(200, 170, 150) * (0.3 + albedo);
+      } else {
+        const double hue = std::fmod(id * 0.61803398875, 1.0);
+        bgr = cv::Vec3d(90 + 120 * hue, 200 - 80 * hue, 120 + 100 * (1 - hue)) * (0.4 + albedo);
+      }
+      for (int c = 0; c < 3; ++c) picture.at<cv::Vec3b>(v, u)[c] = cv::saturate_cast<uint8_t>(bgr[c] * shade);
+    }
+  }
+  return picture;
+}
+
+}  // namespace romunect::sim
