@@ -371,6 +371,9 @@ std::string BinSceneOptions::Problem() const {
     return "max_object_radius_m = " + std::to_string(max_object_radius_m) +
            ": objects must fit in the bin";
   }
+  if (object_subdivisions < 0 || object_subdivisions > 6) {
+    return "object_subdivisions = " + std::to_string(object_subdivisions) + ": must be in [0, 6]";
+  }
   if (triangle_count < 0) return "triangle_count = " + std::to_string(triangle_count) + ": must be >= 0";
   return "";
 }
@@ -391,9 +394,9 @@ TriangleMesh MakeBinScene(const BinSceneOptions& o) {
   AddRectZ(&mesh, -w - rim, -w, -h, h, z_rim);
   AddRectZ(&mesh, w, w + rim, -h, h, z_rim);
 
-  // Ellipsoids of 1280 triangles each (icosphere level 3), piled in layers from the floor:
-  // each rests at a random x-y, on top of whatever it overlaps (a bounding-sphere pile).
-  const TriangleMesh unit = MakeIcosphere(Eigen::Vector3d::Zero(), 1.0, 3);
+  // Ellipsoids (icospheres of object_subdivisions), piled in layers from the floor: each
+  // rests at a random x-y, on top of whatever it overlaps (a bounding-sphere pile).
+  const TriangleMesh unit = MakeIcosphere(Eigen::Vector3d::Zero(), 1.0, o.object_subdivisions);
   const int count = std::max(0, (o.triangle_count - static_cast<int>(mesh.triangles.size())) /
                                     static_cast<int>(unit.triangles.size()));
   std::mt19937 rng(o.seed);

@@ -84,12 +84,13 @@ struct BinSceneOptions {
   double wall_height_m = 0.04;  // walls rise from the floor towards the camera (-z)
   double min_object_radius_m = 0.003;
   double max_object_radius_m = 0.008;
+  int object_subdivisions = 3;  // icosphere level of each object: 20 * 4^level triangles
 
   // Why the options are unusable, or "" (names the field, its value and the rule).
   std::string Problem() const;
 };
 
-// A bin (floor and four walls) holding a random pile of ellipsoids (scaled, rotated
+// A bin (floor, four walls and a rim) holding a random pile of ellipsoids (scaled, rotated
 // icospheres) resting in it, as one mesh. The same options give the same bytes.
 TriangleMesh MakeBinScene(const BinSceneOptions& options);
 
