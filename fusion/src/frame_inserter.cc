@@ -1,5 +1,7 @@
 #include "romunect/fusion/frame_inserter.h"
 
+#include <time.h>
+
 #include <algorithm>
 #include <cmath>
 #include <condition_variable>
@@ -108,6 +110,12 @@ inline void ApplyMisses(Vote* v, int n) {
   for (int k = 0; k < n; ++k) v[k] = static_cast<Vote>(std::max(v[k] - 1, int{kVoteMin}));
 }
 
+double ThreadCpuMs() {
+  timespec ts;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return ts.tv_sec * 1e3 + ts.tv_nsec / 1e6;
+}
+
 inline void ApplyHit(Vote* v) { *v = static_cast<Vote>(std::min(*v + 1, int{kVoteMax})); }
 
 struct WalkContext {
@@ -203,6 +211,7 @@ void InsertStats::Add(const InsertStats& o) {
   points_outside_box += o.points_outside_box;
   hits += o.hits;
   misses += o.misses;
+  critical_path_cpu_ms += o.critical_path_cpu_ms;
 }
 
 std::string InsertStats::BriefReport() const {
@@ -283,7 +292,9 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
   for (int a = 0; a < 3; ++a) o_g[a] = (o_W[a] - min_W[a]) / voxel;
 
   // Phase 1: per pixel rows, classify each pixel and set its ray up (clip to the box).
+  double thread_cpu_ms[256] = {};  // per thread, both phases: the frame's critical path
   auto setup = [&](int chunk) {
+    const double cpu0 = ThreadCpuMs();
     const int v0 = static_cast<int>(static_cast<int64_t>(height) * chunk / threads);
     const int v1 = static_cast<int>(static_cast<int64_t>(height) * (chunk + 1) / threads);
     InsertStats& s = ws.chunk_stats[chunk];
@@ -347,6 +358,7 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     }
     ws.chunk_count[chunk] = count;
     s.pixels = static_cast<size_t>(v1 - v0) * width;
+    thread_cpu_ms[chunk] += ThreadCpuMs() - cpu0;
   };
   ws.pool.Run(setup);
 
@@ -373,6 +385,7 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
   auto walk = [&](int thread) {
     const int ya = ws.slab[thread], yb = ws.slab[thread + 1];
     if (ya >= yb) return;
+    const double cpu0 = ThreadCpuMs();
     WalkContext context{o_g[0], o_g[1], o_g[2], n[0], n[1], n[2], ya, yb, mutable_grid->mutable_column(0),
                         hit_lo, hit_hi, 0, 0};
     for (int chunk = 0; chunk < threads; ++chunk) {
@@ -387,6 +400,7 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     }
     thread_hits[thread] = context.hits;
     thread_misses[thread] = context.misses;
+    thread_cpu_ms[thread] += ThreadCpuMs() - cpu0;
   };
   ws.pool.Run(walk);
 
@@ -394,6 +408,7 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     InsertStats frame;
     frame.frames = 1;
     for (int t = 0; t < threads; ++t) {
+      frame.critical_path_cpu_ms = std::max(frame.critical_path_cpu_ms, thread_cpu_ms[t]);
       frame.Add(ws.chunk_stats[t]);
       frame.hits += thread_hits[t];
       frame.misses += thread_misses[t];

@@ -35,6 +35,9 @@ struct InsertStats {
   size_t points_outside_box = 0;  // the point lies outside the box: misses only, no hit
   size_t hits = 0;                // votes +1 (points inside the box)
   size_t misses = 0;              // votes -1
+  // CPU time of the busiest thread (ms): the frame's wall time on free cores. On a loaded
+  // machine it separates the work from waiting for a core.
+  double critical_path_cpu_ms = 0.0;
 
   void Add(const InsertStats& other);
   std::string BriefReport() const;
