@@ -135,6 +135,7 @@ inline int StartIndex(double x, int n) { return static_cast<int>(std::clamp(std:
 // scalars and the x/y step is branch-free: the walk is dominated by per-column overhead.
 inline void WalkRay(const RaySetup& ray, WalkContext* c) {
   constexpr double kInf = std::numeric_limits<double>::infinity();
+  constexpr double kNearPlane = 1e-7;  // voxel units; rounding errors are below 1e-11
   const double ox = c->ox, oy = c->oy, oz = c->oz;
   const int nx = c->nx, ny = c->ny, nz = c->nz, ya = c->ya, yb = c->yb;
   const double dx = ray.p_g[0] - ox, dy = ray.p_g[1] - oy, dz = ray.p_g[2] - oz;
@@ -161,11 +162,17 @@ inline void WalkRay(const RaySetup& ray, WalkContext* c) {
     // with the exact comparisons.
     int iz_last = iz;
     if (sz != 0) {
-      const double z_limit = std::floor(oz + limit * dz);
+      const double z_at_limit = oz + limit * dz;
+      const double z_limit = std::floor(z_at_limit);
       iz_last = static_cast<int>(sz > 0 ? std::clamp(z_limit, static_cast<double>(iz), nz - 1.0)
                                         : std::clamp(z_limit, 0.0, static_cast<double>(iz)));
-      while (iz_last != iz && !(t_z(iz_last - sz) < limit)) iz_last -= sz;
-      while (iz_last != z_end && t_z(iz_last) < limit) iz_last += sz;
+      // Away from a plane, the comparisons cannot disagree with the floor (their rounding is
+      // ~1e-12 voxel); only near one do they decide.
+      const double fraction = z_at_limit - z_limit;
+      if (fraction < kNearPlane || fraction > 1.0 - kNearPlane) {
+        while (iz_last != iz && !(t_z(iz_last - sz) < limit)) iz_last -= sz;
+        while (iz_last != z_end && t_z(iz_last) < limit) iz_last += sz;
+      }
     }
     const bool ends_here = !(t_column < t_exit);
     if (iy >= ya && iy < yb) {
@@ -194,8 +201,12 @@ inline void WalkRay(const RaySetup& ray, WalkContext* c) {
       break;  // cannot happen before t_exit; a guard
     }
     if (sy > 0 ? iy >= yb : iy < ya) break;  // left this thread's rows for good
-    tx = t_x(ix);
-    ty = t_y(iy);
+    __builtin_prefetch(c->votes + (static_cast<size_t>(iy) * nx + ix) * nz + iz);
+    // Only the stepped axis gets a new crossing (the same expression as t_x / t_y).
+    const double plane = static_cast<double>(step_x ? ix + bx : iy + by);
+    const double t_new = (plane - (step_x ? ox : oy)) * (step_x ? inv_x : inv_y);
+    tx = step_x ? t_new : tx;
+    ty = step_x ? ty : t_new;
   }
 }
 
