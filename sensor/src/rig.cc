@@ -273,7 +273,7 @@ Rig KinectV1() {
   rig.projector = rig.depth_engine.chip.projector;
   rig.projector.focus_distance_m = 2.0;
   rig.projector.aperture_m = 0.0015;
-  rig.projector.brightness_e_per_s = 1.2e5;
+  rig.projector.brightness_e_per_s = 4.8e5;
   rig.T_C_P = MakePose(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.075, 0, 0));
   rig.pattern = rig.depth_engine.chip.pattern;
   rig.H_P_rec = Eigen::Matrix3d::Identity();

@@ -52,7 +52,7 @@ struct ProjectorModel {
 struct CameraOptics {
   double focus_distance_m = 1.2;  // z where the image is sharp
   double aperture_m = 0.001;      // aperture diameter (defocus); 0 = pinhole
-  double psf_sigma_px = 0.4;      // blur of the focused lens and pixel, Gaussian sigma
+  double psf_sigma_px = 0.7;      // blur of the focused lens and pixel, Gaussian sigma
   double exposure_s = 0.03;
   double gain_dn_per_e = 0.25;    // digital numbers per electron
   double full_well_e = 4000.0;    // electrons where a pixel saturates
@@ -120,7 +120,7 @@ struct DepthEngineOptions {
   int search_range_px = 64;
   int subpixel_steps = 8;    // 1/8 px
   double min_texture = 6.0;  // mean |prefiltered| in the window below this: flat -> invalid
-  double max_cost = 40.0;    // mean |difference| per pixel above this: weak -> invalid
+  double max_cost = 25.0;    // mean |difference| per pixel above this: weak -> invalid
   double uniqueness = 0.10;  // second best (>1 px away) within this fraction: ambiguous
   int prefilter_px = 9;      // local-mean removal window (odd), as the chip normalizes
   int threads = 1;

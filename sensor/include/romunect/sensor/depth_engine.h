@@ -1,0 +1,117 @@
+// The depth engine: a model of the PrimeSense chip (Konolige and Mihelich, "Technical
+// description of Kinect calibration"; libfreenect). Frames: C, the camera; images are the
+// chip's size (640 x 480); pixel centres at integer coordinates.
+//
+// RAW DEPTH (the one place it is documented; frames.h points here). The chip stores a reference
+// image of its pattern on a plane at Z_ref, seen in its stock geometry (rig.h, ChipGeometry:
+// focal length f px, baseline b m, projector at +b along x). For each pixel it finds the shift
+// s (px) along the row at which its window matches the reference: the pixel at column x
+// matches the reference at column x - s (s > 0: nearer than Z_ref). With D_ref = f b / Z_ref,
+//   raw = round(raw_offset - 8 D_ref) - round(8 s)        (1/8 px steps; raw_offset = "doff")
+// so raw = raw_offset - 8 f b / Z on the stock device, and the chip reports
+//   Z_chip = 8 f b / (raw_offset - raw)   metres.
+// raw is 11 bits, CV_16U; 2047 marks "no measurement" (reported depth 0). Raw increases with
+// depth. On modified hardware (another f, b, the pattern through H_P_rec) the true depth obeys
+// 1/Z = alpha + beta raw per pixel (exact for a pinhole camera with the projector centre on
+// the camera's x axis), while Z_chip is off; DepthCorrection turns either into metres.
+//
+// Matching: both images are prefiltered (local mean removed, divided by the local standard
+// deviation, 8 bits), each window_px x window_px window's sum of absolute differences against
+// the reference is computed for every integer shift in [min_shift, min_shift + range), the
+// best is refined to 1/8 px (equiangular fit of the neighbouring costs), and the pixel is
+// invalid when the window is flat (raw standard deviation < min_texture DN), the match weak
+// (mean difference > max_cost), ambiguous (another shift > 1 px away within `uniqueness` of the
+// best), at the end of the search range, or the raw value leaves 11 bits. Edge fattening,
+// shadows and quantization come out of this process. The fast path runs integer cost slabs per
+// band of rows on `threads` threads; results are the same bytes at any thread count.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "romunect/sensor/rig.h"
+
+namespace romunect {
+
+inline constexpr uint16_t kRawInvalid = 2047;
+
+struct DepthEngineStats {
+  int valid = 0;
+  int flat = 0;        // texture too low (dark, saturated or unlit)
+  int weak = 0;        // best cost too high
+  int ambiguous = 0;   // second best too close
+  int out_of_range = 0;  // best at the end of the search range, or raw outside 11 bits
+  int border = 0;      // window leaves the image
+  double seconds = 0.0;
+  std::string BriefReport() const;
+};
+
+struct DepthEngineOutput {
+  cv::Mat raw;      // CV_16U, 11-bit raw depth, kRawInvalid where no match
+  cv::Mat depth_m;  // CV_32F, the chip's reported depth (metres), 0 where invalid
+  cv::Mat shift_px; // CV_32F, the matched shift s in 1/8 px, NaN where invalid
+  DepthEngineStats stats;
+};
+
+// The reference image the chip stores: the pattern on a white plane at reference_distance_m in
+// the stock geometry, without noise (CV_16U, 10 bits).
+cv::Mat ChipReferenceImage(const ChipGeometry& chip);
+
+class DepthEngine {
+ public:
+  // Renders the chip's reference image once (ChipReferenceImage).
+  explicit DepthEngine(const DepthEngineOptions& options);
+  // Uses a given reference image (CV_16U, the chip camera's size).
+  DepthEngine(const DepthEngineOptions& options, const cv::Mat& reference_ir);
+
+  // One frame: ir is CV_16U of the chip camera's size. A wrong size or type is bad input from
+  // outside and throws InputError("depth engine", "ir", ...); nothing else throws.
+  void Compute(const cv::Mat& ir, DepthEngineOutput* out);
+
+  const DepthEngineOptions& options() const { return options_; }
+  const cv::Mat& reference_ir() const { return reference_ir_; }
+  // The raw value of shift s = 0 (the reference plane), unrounded: raw_offset - 8 f b / Z_ref.
+  double RawAtReference() const;
+  // Chip depth of a raw value (0 for kRawInvalid or raw >= raw_offset).
+  double ChipDepthM(int raw) const;
+  // Shift (px) of a raw value: inverse of the raw formula.
+  double ShiftOfRaw(int raw) const;
+
+  // The prefilter, public for the reference matcher in tests: CV_8U normalized image, and the
+  // raw local standard deviation (CV_32F, DN) used for the flat test.
+  static void Prefilter(const cv::Mat& ir, int window_px, cv::Mat* normalized, cv::Mat* local_sigma);
+
+ private:
+  void ComputeBand(int y_begin, int y_end, std::vector<uint16_t>* slab, DepthEngineOutput* out,
+                   DepthEngineStats* stats) const;
+
+  DepthEngineOptions options_;
+  cv::Mat reference_ir_;
+  cv::Mat reference_norm_;  // CV_8U prefiltered reference
+  cv::Mat frame_norm_, frame_sigma_;
+  int raw_at_reference_rounded_ = 0;
+};
+
+// Per-pixel conversion of the chip's output to metric depth (the calibration fits a and b).
+enum class DepthCorrectionModel {
+  kAffineInChipDepth,      // Z = a * Z_chip + b  (the paper's correction)
+  kInverseAffineInRaw,     // 1/Z = a * raw + b   (exact for a pinhole camera)
+};
+const char* DepthCorrectionModelName(DepthCorrectionModel model);
+
+struct DepthCorrection {
+  DepthCorrectionModel model = DepthCorrectionModel::kInverseAffineInRaw;
+  cv::Mat a, b;  // CV_64F, camera size; NaN where the pixel has no correction
+};
+
+// Metric depth (CV_32F, metres, 0 where invalid or uncorrected) from the engine's output.
+cv::Mat ApplyDepthCorrection(const DepthCorrection& correction, const DepthEngineOutput& output);
+
+// Least-squares fit of a and b per pixel from frames with ground-truth depth (CV_32F metres,
+// 0 = none). Pixels with fewer than min_samples valid pairs, or one distinct raw value, get NaN.
+DepthCorrection FitDepthCorrection(DepthCorrectionModel model, const std::vector<DepthEngineOutput>& outputs,
+                                   const std::vector<cv::Mat>& truth_depth_m, int min_samples = 2);
+
+}  // namespace romunect

@@ -1,0 +1,73 @@
+// IR image synthesis: from what each camera ray hit (GeometryBuffer, frame C) to the camera's
+// 10-bit IR image (CV_16U), following rig.h's optics and radiometry. Per hit: projector pixel
+// through T_C_P and the projector model; the pattern there, blurred by the projector's circle
+// of confusion at that distance and by the camera pixel's footprint; the lit mask (shadows);
+// the BRDF (IrMaterial: Lambert + Phong lobe); inverse-square fall-off; ambient IR. Then camera
+// defocus (a per-pixel blur by the circle of confusion with one sample per pixel; with lens-
+// sampled layers the average over the layers is the defocus), exposure and gain, shot and read
+// noise (seeded, counter based: the same bytes at any thread count), full well, quantization.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "romunect/sensor/geometry_buffer.h"
+#include "romunect/sensor/rig.h"
+
+namespace romunect {
+
+struct IrSynthesisOptions {
+  bool noise = true;           // shot and read noise (off: the expected image, rounded)
+  bool camera_defocus = true;  // blur by the camera's circle of confusion
+  int threads = 1;
+
+  std::string Problem() const;
+};
+
+struct IrSynthesisStats {
+  int pixels_hit = 0;        // rays that hit a surface (layer 0)
+  int pixels_lit = 0;        // ... and whose hit the projector sees
+  int pixels_saturated = 0;  // output at the top of the range
+  double mean_dn = 0.0;
+  double seconds = 0.0;
+  std::string BriefReport() const;
+};
+
+// Owns the per-rig pattern stack and per-frame buffers, reused from frame to frame.
+class IrSynthesizer {
+ public:
+  explicit IrSynthesizer(const IrSynthesisOptions& options = {});
+
+  // Writes the IR image (CV_16U, camera size, values in [0, 2^bits - 1]) into *ir. The
+  // geometry must match rig.camera's size. stats may be null.
+  void Synthesize(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, cv::Mat* ir,
+                  IrSynthesisStats* stats);
+
+  // Expected electrons per pixel of the last frame, before noise and clipping (CV_32F).
+  const cv::Mat& expected_electrons() const { return blurred_; }
+
+ private:
+  void PreparePattern(const Rig& rig);
+  void ShadeLayer(const Rig& rig, const GeometryLayer& layer, const std::vector<IrMaterial>& materials,
+                  cv::Mat* electrons) const;
+
+  IrSynthesisOptions options_;
+  // Cached per rig: the displayed image blurred at increasing sigmas (projector pixels).
+  PatternSpec cached_pattern_;
+  Eigen::Matrix3d cached_H_ = Eigen::Matrix3d::Zero();
+  ProjectorModel cached_projector_;
+  std::vector<cv::Mat> pattern_levels_;
+  std::vector<float> pattern_sigmas_;
+  // Per-frame workspace.
+  cv::Mat electrons_, layer_electrons_, blurred_;
+  std::vector<cv::Mat> camera_levels_;
+};
+
+// A fronto-parallel plane at depth_m filling the whole view, lit everywhere, one material:
+// the chip's reference scene, and a quick test scene.
+GeometryBuffer FrontoParallelPlane(const CameraModel& camera, double depth_m, const IrMaterial& material);
+
+}  // namespace romunect

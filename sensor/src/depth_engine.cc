@@ -1,0 +1,358 @@
+#include "romunect/sensor/depth_engine.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <sstream>
+
+#include <opencv2/imgproc.hpp>
+
+#include "parallel_rows.h"
+#include "romunect/sensor/check.h"
+#include "romunect/sensor/errors.h"
+#include "romunect/sensor/ir_synthesis.h"
+
+namespace romunect {
+namespace {
+
+constexpr int kBandRows = 32;          // rows per cost slab (slab ~ 16 x range x width x 2 B)
+constexpr float kSigmaFloorDn = 2.0f;  // keeps the normalization finite on flat windows
+constexpr float kNormScale = 48.0f;    // one local standard deviation = 48 levels of 8 bits
+constexpr uint8_t kOutsideReference = 255;  // difference where the reference has no column
+
+}  // namespace
+
+std::string DepthEngineStats::BriefReport() const {
+  std::ostringstream s;
+  s << "depth: " << valid << " valid, " << flat << " flat, " << weak << " weak, " << ambiguous << " ambiguous, "
+    << out_of_range << " out of range, " << border << " border, " << seconds * 1e3 << " ms";
+  return s.str();
+}
+
+cv::Mat ChipReferenceImage(const ChipGeometry& chip) {
+  ROMUNECT_CHECK_MSG(chip.Problem().empty(), chip.Problem().c_str());
+  Rig stock;
+  stock.camera = chip.camera;
+  stock.optics = CameraOptics{};
+  stock.optics.aperture_m = 0.0;
+  stock.optics.ambient_e_per_s = 0.0;
+  stock.projector = chip.projector;
+  stock.projector.aperture_m = 0.0;
+  // Bright enough for ~2/3 of the range on a dot, whatever the stored brightness.
+  const double z = chip.reference_distance_m;
+  stock.projector.brightness_e_per_s = 0.66 * stock.optics.full_well_e * z * z / stock.optics.exposure_s / 0.6;
+  stock.T_C_P = MakePose(Eigen::Matrix3d::Identity(), Eigen::Vector3d(chip.baseline_m, 0, 0));
+  stock.pattern = chip.pattern;
+  stock.depth_engine.chip = chip;
+  IrSynthesisOptions options;
+  options.noise = false;
+  IrSynthesizer synthesizer(options);
+  cv::Mat ir;
+  synthesizer.Synthesize(stock, FrontoParallelPlane(chip.camera, z, IrMaterial{1.0f, 0.0f, 50.0f}), 0, &ir, nullptr);
+  return ir;
+}
+
+void DepthEngine::Prefilter(const cv::Mat& ir, int window_px, cv::Mat* normalized, cv::Mat* local_sigma) {
+  cv::Mat f, mean, mean2;
+  ir.convertTo(f, CV_32F);
+  const cv::Size k(window_px, window_px);
+  cv::boxFilter(f, mean, CV_32F, k, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
+  cv::boxFilter(f.mul(f), mean2, CV_32F, k, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
+  local_sigma->create(ir.size(), CV_32F);
+  normalized->create(ir.size(), CV_8U);
+  for (int y = 0; y < ir.rows; ++y) {
+    const float* v = f.ptr<float>(y);
+    const float* m = mean.ptr<float>(y);
+    const float* m2 = mean2.ptr<float>(y);
+    float* s = local_sigma->ptr<float>(y);
+    uint8_t* n = normalized->ptr<uint8_t>(y);
+    for (int x = 0; x < ir.cols; ++x) {
+      const float sigma = std::sqrt(std::max(m2[x] - m[x] * m[x], 0.f));
+      s[x] = sigma;
+      const float value = 128.f + kNormScale * (v[x] - m[x]) / std::max(sigma, kSigmaFloorDn);
+      n[x] = static_cast<uint8_t>(std::clamp(std::lround(value), 0L, 255L));
+    }
+  }
+}
+
+DepthEngine::DepthEngine(const DepthEngineOptions& options)
+    : DepthEngine(options, ChipReferenceImage(options.chip)) {}
+
+DepthEngine::DepthEngine(const DepthEngineOptions& options, const cv::Mat& reference_ir) : options_(options) {
+  ROMUNECT_CHECK_MSG(options.Problem().empty(), options.Problem().c_str());
+  ROMUNECT_CHECK(reference_ir.type() == CV_16U);
+  ROMUNECT_CHECK(reference_ir.cols == options.chip.camera.width && reference_ir.rows == options.chip.camera.height);
+  reference_ir_ = reference_ir.clone();
+  cv::Mat sigma;
+  Prefilter(reference_ir_, options_.prefilter_px, &reference_norm_, &sigma);
+  raw_at_reference_rounded_ = static_cast<int>(std::lround(RawAtReference()));
+}
+
+double DepthEngine::RawAtReference() const {
+  const ChipGeometry& c = options_.chip;
+  return c.raw_offset - 8.0 * c.FocalTimesBaseline() / c.reference_distance_m;
+}
+
+double DepthEngine::ChipDepthM(int raw) const {
+  if (raw == kRawInvalid || raw >= options_.chip.raw_offset) return 0.0;
+  return 8.0 * options_.chip.FocalTimesBaseline() / (options_.chip.raw_offset - raw);
+}
+
+double DepthEngine::ShiftOfRaw(int raw) const { return (raw_at_reference_rounded_ - raw) / 8.0; }
+
+void DepthEngine::ComputeBand(int y_begin, int y_end, std::vector<uint16_t>* slab_storage, DepthEngineOutput* out,
+                              DepthEngineStats* stats) const {
+  const int W = reference_norm_.cols, H = reference_norm_.rows;
+  const int r = options_.window_px / 2;
+  const int D = options_.search_range_px;
+  const int rows = y_end - y_begin;
+  slab_storage->resize(static_cast<size_t>(rows) * D * W);
+  uint16_t* slab = slab_storage->data();
+  // Horizontal window sums of one row's absolute differences, for rows y_begin-r .. y_end+r-1.
+  const int hrows = rows + 2 * r;
+  std::vector<uint16_t> hsum(static_cast<size_t>(hrows) * W);
+  std::vector<uint8_t> ad(W);
+  std::vector<uint16_t> vsum(W);
+  std::vector<uint16_t> h3_(W);
+
+  for (int j = 0; j < D; ++j) {
+    const int s = options_.min_shift_px + j;
+    for (int h = 0; h < hrows; ++h) {
+      const int y = y_begin - r + h;
+      uint16_t* __restrict hs = &hsum[static_cast<size_t>(h) * W];
+      if (y < 0 || y >= H) {
+        std::fill(hs, hs + W, 0);
+        continue;
+      }
+      const uint8_t* obs = frame_norm_.ptr<uint8_t>(y);
+      const uint8_t* ref = reference_norm_.ptr<uint8_t>(y);
+      // Reference column x - s exists for x in [s, W + s).
+      const int x_lo = std::clamp(s, 0, W), x_hi = std::clamp(W + s, 0, W);
+      uint8_t* __restrict adp = ad.data();
+      for (int x = 0; x < x_lo; ++x) adp[x] = kOutsideReference;
+      {
+        const uint8_t* __restrict o = obs + x_lo;
+        const uint8_t* __restrict q = ref + x_lo - s;
+        uint8_t* __restrict a = adp + x_lo;
+        const int n = x_hi - x_lo;
+        for (int x = 0; x < n; ++x) {
+          const uint8_t hi = std::max(o[x], q[x]), lo = std::min(o[x], q[x]);
+          a[x] = static_cast<uint8_t>(hi - lo);
+        }
+      }
+      for (int x = x_hi; x < W; ++x) adp[x] = kOutsideReference;
+      // Window sum along the row in two separable steps of 3 (window 9) or directly.
+      uint16_t* __restrict h3 = h3_.data();
+      std::fill(hs, hs + W, 0);
+      if (r == 4) {
+        for (int x = 1; x < W - 1; ++x) h3[x] = static_cast<uint16_t>(adp[x - 1] + adp[x] + adp[x + 1]);
+        for (int x = 4; x < W - 4; ++x) hs[x] = static_cast<uint16_t>(h3[x - 3] + h3[x] + h3[x + 3]);
+      } else {
+        for (int x = r; x < W - r; ++x) {
+          uint16_t sum = 0;
+          for (int k = -r; k <= r; ++k) sum = static_cast<uint16_t>(sum + adp[x + k]);
+          hs[x] = sum;
+        }
+      }
+    }
+    // Vertical running sums down the band.
+    std::fill(vsum.begin(), vsum.end(), 0);
+    for (int h = 0; h < 2 * r + 1; ++h) {
+      const uint16_t* hs = &hsum[static_cast<size_t>(h) * W];
+      for (int x = 0; x < W; ++x) vsum[x] = static_cast<uint16_t>(vsum[x] + hs[x]);
+    }
+    for (int i = 0; i < rows; ++i) {
+      uint16_t* cost = slab + (static_cast<size_t>(i) * D + j) * W;
+      std::copy(vsum.begin(), vsum.end(), cost);
+      if (i + 1 < rows) {
+        const uint16_t* add = &hsum[static_cast<size_t>(i + 2 * r + 1) * W];
+        const uint16_t* sub = &hsum[static_cast<size_t>(i) * W];
+        for (int x = 0; x < W; ++x) vsum[x] = static_cast<uint16_t>(vsum[x] + add[x] - sub[x]);
+      }
+    }
+  }
+
+  // Decisions, vectorizable over x: best, then best outside +-1 of it.
+  std::vector<uint16_t> best(W), second(W);
+  std::vector<int16_t> best_j(W);
+  const int window_area = (2 * r + 1) * (2 * r + 1);
+  const float max_cost_sum = static_cast<float>(options_.max_cost * window_area);
+  const float min_texture = static_cast<float>(options_.min_texture);
+  const float uniqueness = static_cast<float>(options_.uniqueness);
+  for (int i = 0; i < rows; ++i) {
+    const int y = y_begin + i;
+    const uint16_t* costs = slab + static_cast<size_t>(i) * D * W;
+    std::fill(best.begin(), best.end(), std::numeric_limits<uint16_t>::max());
+    std::fill(best_j.begin(), best_j.end(), 0);
+    for (int j = 0; j < D; ++j) {
+      const uint16_t* c = costs + static_cast<size_t>(j) * W;
+      for (int x = 0; x < W; ++x) {
+        const bool better = c[x] < best[x];
+        best[x] = better ? c[x] : best[x];
+        best_j[x] = better ? static_cast<int16_t>(j) : best_j[x];
+      }
+    }
+    std::fill(second.begin(), second.end(), std::numeric_limits<uint16_t>::max());
+    for (int j = 0; j < D; ++j) {
+      const uint16_t* c = costs + static_cast<size_t>(j) * W;
+      for (int x = 0; x < W; ++x) {
+        const int dj = j - best_j[x];
+        const bool far = dj > 1 || dj < -1;
+        second[x] = (far && c[x] < second[x]) ? c[x] : second[x];
+      }
+    }
+    uint16_t* raw_row = out->raw.ptr<uint16_t>(y);
+    float* depth_row = out->depth_m.ptr<float>(y);
+    float* shift_row = out->shift_px.ptr<float>(y);
+    const float* sigma_row = frame_sigma_.ptr<float>(y);
+    for (int x = 0; x < W; ++x) {
+      raw_row[x] = kRawInvalid;
+      depth_row[x] = 0.f;
+      shift_row[x] = std::numeric_limits<float>::quiet_NaN();
+      if (y < r || y >= H - r || x < r || x >= W - r) {
+        ++stats->border;
+        continue;
+      }
+      if (sigma_row[x] < min_texture) {
+        ++stats->flat;
+        continue;
+      }
+      const int j = best_j[x];
+      const float c0 = best[x];
+      if (c0 > max_cost_sum) {
+        ++stats->weak;
+        continue;
+      }
+      if (second[x] < c0 * (1.f + uniqueness)) {
+        ++stats->ambiguous;
+        continue;
+      }
+      if (j == 0 || j == D - 1) {
+        ++stats->out_of_range;
+        continue;
+      }
+      const float cm = costs[static_cast<size_t>(j - 1) * W + x];
+      const float cp = costs[static_cast<size_t>(j + 1) * W + x];
+      const float denom = 2.f * (std::max(cm, cp) - c0);
+      const float delta = denom > 0.f ? (cm - cp) / denom : 0.f;
+      const long s8 = std::lround(8.f * (static_cast<float>(options_.min_shift_px + j) + delta));
+      const long raw = raw_at_reference_rounded_ - s8;
+      if (raw < 0 || raw >= kRawInvalid || raw >= options_.chip.raw_offset) {
+        ++stats->out_of_range;
+        continue;
+      }
+      ++stats->valid;
+      raw_row[x] = static_cast<uint16_t>(raw);
+      shift_row[x] = static_cast<float>(s8) / 8.f;
+      depth_row[x] = static_cast<float>(ChipDepthM(static_cast<int>(raw)));
+    }
+  }
+}
+
+void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
+  const auto start = std::chrono::steady_clock::now();
+  ROMUNECT_CHECK(out != nullptr);
+  const CameraModel& cam = options_.chip.camera;
+  if (ir.type() != CV_16UC1) {
+    throw InputError("depth engine", "ir", "expected a 16-bit single-channel image (CV_16U), found type " +
+                                               std::to_string(ir.type()));
+  }
+  if (ir.cols != cam.width || ir.rows != cam.height) {
+    throw InputError("depth engine", "ir",
+                     "image is " + std::to_string(ir.cols) + " x " + std::to_string(ir.rows) + ", the chip takes " +
+                         std::to_string(cam.width) + " x " + std::to_string(cam.height));
+  }
+  Prefilter(ir, options_.prefilter_px, &frame_norm_, &frame_sigma_);
+  out->raw.create(ir.size(), CV_16U);
+  out->depth_m.create(ir.size(), CV_32F);
+  out->shift_px.create(ir.size(), CV_32F);
+  const int bands = (ir.rows + kBandRows - 1) / kBandRows;
+  const int threads = std::min(options_.threads, bands);
+  std::vector<DepthEngineStats> band_stats(threads);
+  ParallelRows(threads, bands, [&](int band_begin, int band_end) {
+    // Which thread: the block that starts at band_begin.
+    int t = 0;
+    while (t + 1 < threads && bands * (t + 1) / threads <= band_begin) ++t;
+    std::vector<uint16_t> slab;
+    for (int b = band_begin; b < band_end; ++b) {
+      ComputeBand(b * kBandRows, std::min(ir.rows, (b + 1) * kBandRows), &slab, out, &band_stats[t]);
+    }
+  });
+  out->stats = DepthEngineStats{};
+  for (const DepthEngineStats& s : band_stats) {
+    out->stats.valid += s.valid;
+    out->stats.flat += s.flat;
+    out->stats.weak += s.weak;
+    out->stats.ambiguous += s.ambiguous;
+    out->stats.out_of_range += s.out_of_range;
+    out->stats.border += s.border;
+  }
+  out->stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+// ---------------------------------------------------------------- metric correction
+
+const char* DepthCorrectionModelName(DepthCorrectionModel model) {
+  return model == DepthCorrectionModel::kAffineInChipDepth ? "affine_in_chip_depth" : "inverse_affine_in_raw";
+}
+
+cv::Mat ApplyDepthCorrection(const DepthCorrection& correction, const DepthEngineOutput& output) {
+  ROMUNECT_CHECK(correction.a.size() == output.raw.size() && correction.b.size() == output.raw.size());
+  cv::Mat depth(output.raw.size(), CV_32F, cv::Scalar(0));
+  for (int y = 0; y < depth.rows; ++y) {
+    const uint16_t* raw = output.raw.ptr<uint16_t>(y);
+    const float* chip = output.depth_m.ptr<float>(y);
+    const double* a = correction.a.ptr<double>(y);
+    const double* b = correction.b.ptr<double>(y);
+    float* out = depth.ptr<float>(y);
+    for (int x = 0; x < depth.cols; ++x) {
+      if (raw[x] == kRawInvalid || !std::isfinite(a[x]) || !std::isfinite(b[x])) continue;
+      double z = 0.0;
+      if (correction.model == DepthCorrectionModel::kAffineInChipDepth) {
+        z = a[x] * chip[x] + b[x];
+      } else {
+        const double inv = a[x] * raw[x] + b[x];
+        z = inv > 0 ? 1.0 / inv : 0.0;
+      }
+      out[x] = z > 0 ? static_cast<float>(z) : 0.f;
+    }
+  }
+  return depth;
+}
+
+DepthCorrection FitDepthCorrection(DepthCorrectionModel model, const std::vector<DepthEngineOutput>& outputs,
+                                   const std::vector<cv::Mat>& truth_depth_m, int min_samples) {
+  ROMUNECT_CHECK(outputs.size() == truth_depth_m.size() && !outputs.empty());
+  const cv::Size size = outputs[0].raw.size();
+  DepthCorrection c;
+  c.model = model;
+  c.a = cv::Mat(size, CV_64F, cv::Scalar(std::numeric_limits<double>::quiet_NaN()));
+  c.b = c.a.clone();
+  for (int y = 0; y < size.height; ++y) {
+    for (int x = 0; x < size.width; ++x) {
+      // Sums of the normal equations of t = a u + b.
+      double n = 0, su = 0, st = 0, suu = 0, sut = 0;
+      for (size_t i = 0; i < outputs.size(); ++i) {
+        const uint16_t raw = outputs[i].raw.at<uint16_t>(y, x);
+        const float truth = truth_depth_m[i].at<float>(y, x);
+        if (raw == kRawInvalid || !(truth > 0)) continue;
+        const double u = model == DepthCorrectionModel::kAffineInChipDepth ? outputs[i].depth_m.at<float>(y, x)
+                                                                             : static_cast<double>(raw);
+        const double t = model == DepthCorrectionModel::kAffineInChipDepth ? truth : 1.0 / truth;
+        n += 1;
+        su += u;
+        st += t;
+        suu += u * u;
+        sut += u * t;
+      }
+      const double det = n * suu - su * su;
+      if (n < min_samples || !(det > 1e-12 * std::max(1.0, n * suu))) continue;
+      c.a.at<double>(y, x) = (n * sut - su * st) / det;
+      c.b.at<double>(y, x) = (st - c.a.at<double>(y, x) * su) / n;
+    }
+  }
+  return c;
+}
+
+}  // namespace romunect
