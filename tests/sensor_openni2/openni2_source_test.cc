@@ -104,7 +104,9 @@ TEST(VirtualDevice, PlaysAFrameDirectoryThroughOpenNI2BitForBit) {
   OpenNI2Source source(options);
   EXPECT_EQ(source.depth_unit(), DepthUnit::k100um);
   EXPECT_FALSE(source.is_recording_playback());
-  EXPECT_NE(source.Describe().find("80x60 @30 Hz, depth in 100 um, IR, 5 frames"), std::string::npos) << source.Describe();
+  EXPECT_NE(source.Describe().find("80x60 @30 Hz, depth in 100 um, IR, 5 frames; chip: zero plane 120 mm"),
+            std::string::npos) << source.Describe();
+  EXPECT_NE(source.Describe().find("emitter-camera 75 mm"), std::string::npos) << source.Describe();
   const CameraModel truth = testing::SmallCamera();
   EXPECT_EQ(source.camera().width, truth.width);
   EXPECT_NEAR(source.camera().fx, truth.fx, kFovFocalRelTolerance * truth.fx);

@@ -421,6 +421,7 @@ std::string OpenNI2Source::Describe() const {
   if (s.options.depth) d << ", depth in " << ToString(s.unit);
   if (s.options.ir) d << ", IR";
   if (s.total_frames > 0) d << ", " << s.total_frames << " frames";
+  if (s.chip.zero_plane_distance_m || s.chip.emitter_camera_distance_m) d << "; chip: " << s.chip.Describe();
   return d.str();
 }
 
