@@ -258,6 +258,10 @@ OpenNI2Source::OpenNI2Source(const OpenNI2SourceOptions& options) : impl_(std::m
 
   if (s.device.open(options.uri.empty() ? openni::ANY_DEVICE : options.uri.c_str()) != openni::STATUS_OK) {
     if (oni) throw InputError(s.name, "", "not a readable .oni recording: " + ExtendedError());
+    if (options.uri.empty()) {
+      throw InputError("OpenNI2", "", "no device found (" + ExtendedError() + "); is the sensor plugged in and its driver in " +
+                                          DriverDirectory().string() + "?");
+    }
     throw InputError(s.name, "", "no OpenNI2 device opens with this URI (" + ExtendedError() +
                                      "); devices found: " + DeviceListText());
   }
