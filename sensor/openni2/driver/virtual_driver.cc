@@ -124,6 +124,10 @@ class VirtualDevice : public oni::driver::DeviceBase {
   VirtualDevice(const ParsedVirtualDeviceUri& parsed, oni::driver::DriverServices* services)
       : dir_(parsed.dir), options_(parsed.options), services_(services) {
     manifest_ = ReadFrameDirectoryManifest(dir_);  // throws InputError
+    for (FrameRecord& r : manifest_.frames) {
+      r.raw.clear();  // a PS1080 sends neither raw shifts nor ground truth: don't decode them
+      r.gt_depth.clear();
+    }
     chip_ = ReadChipParameters(manifest_.extra_json);
     const auto& frames = manifest_.frames;
     has_depth_ = !frames.empty() && std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.depth.empty(); });
