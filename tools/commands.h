@@ -9,5 +9,6 @@ namespace romunect::tools {
 void AddInfoCommand(CLI::App& app);
 void AddFuseCommand(CLI::App& app);  // cmd_fuse.cc (fusion)
 void AddRecordCommand(CLI::App& app);  // cmd_record.cc (sensor/openni2)
+void AddCalibrateCommand(CLI::App& app);  // cmd_calibrate.cc (calib)
 
 }  // namespace romunect::tools

@@ -17,6 +17,7 @@ int main(int argc, char** argv) {
   romunect::tools::AddInfoCommand(app);
   romunect::tools::AddFuseCommand(app);
   romunect::tools::AddRecordCommand(app);
+  romunect::tools::AddCalibrateCommand(app);
 
   try {
     app.parse(argc, argv);

@@ -2,6 +2,8 @@
 
 #include <cmath>
 
+#include <opencv2/imgproc.hpp>
+
 #include "romunect/sensor/check.h"
 
 namespace romunect::calib::testing {
@@ -137,6 +139,43 @@ cv::Mat RenderPlaneRaw(const CameraModel& camera, const RawDepthTruth& truth, co
 Pose PlaneAt(double depth_m, double tilt_x_rad, double tilt_y_rad) {
   const Eigen::Matrix3d R = Rotation(tilt_x_rad, tilt_y_rad, 0.0);
   return MakePose(R, Eigen::Vector3d(0, 0, depth_m));
+}
+
+cv::Mat RenderBoardImage(const CameraModel& camera, const BoardSpec& board, const Pose& T_C_K) {
+  ROMUNECT_CHECK(!camera.HasDistortion());
+  const int px_per_square = 40;
+  const int w = (board.cols + 3) * px_per_square, h = (board.rows + 3) * px_per_square;
+  cv::Mat texture(h, w, CV_8U, cv::Scalar(255));
+  // Inner corner (0,0) at texture position (2, 2) squares; squares from 1 to cols+1.
+  for (int r = 0; r <= board.rows; ++r) {
+    for (int c = 0; c <= board.cols; ++c) {
+      if ((r + c) % 2 == 0) {
+        texture(cv::Rect((c + 1) * px_per_square, (r + 1) * px_per_square, px_per_square, px_per_square)) = 0;
+      }
+    }
+  }
+  // Texture pixel centre (i, j) -> K point: ((i + 0.5)/pps - 2) * square (edges at integers - 0.5).
+  const double s = board.square_m / px_per_square;
+  Eigen::Matrix3d A;  // texture px -> K (x, y, 1)
+  A << s, 0, (0.5 / px_per_square - 2) * board.square_m, 0, s, (0.5 / px_per_square - 2) * board.square_m, 0, 0, 1;
+  Eigen::Matrix3d P;  // K (x, y, 1) on z = 0 -> image
+  const Eigen::Matrix3d K_mat = (Eigen::Matrix3d() << camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1).finished();
+  P.col(0) = T_C_K.linear().col(0);
+  P.col(1) = T_C_K.linear().col(1);
+  P.col(2) = T_C_K.translation();
+  // Rendered at 4x and area-averaged down (anti-aliased edges); pixel u of the image covers
+  // 4u .. 4u+3 of the large one, centred at 4u + 1.5.
+  const Eigen::Matrix3d S = (Eigen::Matrix3d() << 4, 0, 1.5, 0, 4, 1.5, 0, 0, 1).finished();
+  const Eigen::Matrix3d H = S * K_mat * P * A;
+  cv::Mat H_cv(3, 3, CV_64F);
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) H_cv.at<double>(r, c) = H(r, c);
+  }
+  cv::Mat large, image;
+  cv::warpPerspective(texture, large, H_cv, cv::Size(4 * camera.width, 4 * camera.height), cv::INTER_LINEAR,
+                      cv::BORDER_CONSTANT, cv::Scalar(128));
+  cv::resize(large, image, cv::Size(camera.width, camera.height), 0, 0, cv::INTER_AREA);
+  return image;
 }
 
 }  // namespace romunect::calib::testing

@@ -67,4 +67,8 @@ Pose PlaneAt(double depth_m, double tilt_x_rad, double tilt_y_rad);
 // A downscaled camera (same field of view) for fast per-pixel tests.
 CameraModel Scaled(const CameraModel& camera, double factor);
 
+// Renders the board (a distortion-free camera, so a homography) into an 8-bit image: squares
+// of side square_m, a white border of one square, grey around; 4x supersampled.
+cv::Mat RenderBoardImage(const CameraModel& camera, const BoardSpec& board, const Pose& T_C_K);
+
 }  // namespace romunect::calib::testing

@@ -1,0 +1,140 @@
+// `romunect calibrate` run as a user would: rendered board images in a folder, frame
+// directories with T_B_H per frame, one calibration file updated step by step.
+#include <cmath>
+#include <random>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+
+#include "romunect/calib/calibration_file.h"
+#include "romunect/calib/intrinsics.h"
+#include "romunect/sensor/frame_io.h"
+#include "romunect/testing/test_support.h"
+#include "synthetic.h"
+
+namespace romunect::calib {
+namespace {
+
+namespace fs = std::filesystem;
+using romunect::testing::RunRomunect;
+using romunect::testing::ScratchDir;
+
+constexpr double kDeg = M_PI / 180.0;
+// Rendered, 4x supersampled images: corner detection is good to a few hundredths of a pixel.
+constexpr double kImageMappingPx = 0.25;
+constexpr double kHandEyeAngleRad = 0.05 * kDeg;
+constexpr double kHandEyeTranslationM = 0.3e-3;
+constexpr double kDepthGoalM = 0.1e-3;  // the paper's single-scan accuracy
+
+CameraModel PinholeCamera() {
+  CameraModel camera = testing::TruthCamera();
+  camera.distortion = {};  // the image renderer is a homography
+  return camera;
+}
+BoardSpec Board() { return {9, 6, 0.025}; }
+
+TEST(CalibrateCliTest, IntrinsicsOnAFolderOfImages) {
+  ScratchDir dir("cli");
+  const fs::path images = dir / "images";
+  fs::create_directories(images);
+  const CameraModel truth = PinholeCamera();
+  ViewPlanOptions plan;
+  plan.view_count = 12;
+  plan.distance_m = 0.3;
+  int n = 0;
+  for (const Pose& T_K_C : PlanViews(truth, Board(), plan)) {
+    char name[32];
+    std::snprintf(name, sizeof(name), "view%02d.png", n++);
+    cv::imwrite((images / name).string(), testing::RenderBoardImage(truth, Board(), T_K_C.inverse()));
+  }
+  cv::imwrite((images / "blank.png").string(), cv::Mat(truth.height, truth.width, CV_8U, cv::Scalar(128)));
+  const fs::path file = dir / "calibration.yaml";
+  const auto result = RunRomunect("calibrate intrinsics --images " + images.string() +
+                                  " --board 9x6 --square 0.025 --output " + file.string());
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  EXPECT_NE(result.output.find("rejected blank.png"), std::string::npos) << result.output;
+  EXPECT_NE(result.output.find("board found in 12 of 13 images"), std::string::npos) << result.output;
+  const Calibration calibration = LoadCalibration(file);
+  EXPECT_LE(FullImageMappingError(calibration.camera, truth).rms_px, kImageMappingPx);
+  EXPECT_GT(calibration.residuals.intrinsics_rms_px, 0.0);
+  EXPECT_LT(calibration.residuals.intrinsics_rms_px, 0.1);
+
+  // Bad input: a clear message and exit code 2, no file written.
+  const auto missing = RunRomunect("calibrate intrinsics --images " + (dir / "nothing").string() +
+                                   " --output " + (dir / "x.yaml").string());
+  EXPECT_EQ(missing.exit_code, 2);
+  EXPECT_NE(missing.output.find("not a folder"), std::string::npos) << missing.output;
+  const auto bad_board = RunRomunect("calibrate intrinsics --images " + images.string() + " --board 9by6 --output " +
+                                     (dir / "x.yaml").string());
+  EXPECT_EQ(bad_board.exit_code, 2);
+  EXPECT_NE(bad_board.output.find("--board"), std::string::npos) << bad_board.output;
+  EXPECT_FALSE(fs::exists(dir / "x.yaml"));
+}
+
+TEST(CalibrateCliTest, HandEyeThenDepthOnFrameDirectories) {
+  ScratchDir dir("cli");
+  const CameraModel camera = PinholeCamera();
+  const fs::path file = dir / "calibration.yaml";
+  Calibration start;
+  start.camera = camera;
+  start.residuals.intrinsics_rms_px = 0.05;
+  SaveCalibration(file, start);
+
+  // Hand-eye: IR images of the board (16-bit, 10 bits used) at 12 stations; raw all invalid.
+  const testing::HandEyeRig rig = testing::MakeHandEyeRig(camera, Board(), 12, 0.0, 0.5, 0.8, 3);
+  {
+    FrameDirectoryWriter writer(dir / "board", camera);
+    for (size_t i = 0; i < rig.stations.size(); ++i) {
+      Frame frame;
+      frame.index = static_cast<int>(i);
+      frame.time_s = 0.1 * i;
+      testing::RenderBoardImage(camera, Board(), rig.T_C_K_truth[i]).convertTo(frame.ir, CV_16U, 4.0);
+      frame.raw = cv::Mat(camera.height, camera.width, CV_16U, cv::Scalar(2047));
+      frame.T_B_H = rig.stations[i].T_B_H;
+      writer.Add(frame);
+    }
+    writer.Finish();
+  }
+  const auto hand_eye = RunRomunect("calibrate hand-eye --frames " + (dir / "board").string() +
+                                    " --board 9x6 --square 0.025 --output " + file.string());
+  ASSERT_EQ(hand_eye.exit_code, 0) << hand_eye.output;
+  const Calibration after_hand_eye = LoadCalibration(file);
+  EXPECT_TRUE(romunect::testing::PosesNear(after_hand_eye.T_H_C, rig.T_H_C, kHandEyeAngleRad, kHandEyeTranslationM));
+
+  // Depth: raw depth of the board's plane from 8 hand poses at 0.19 .. 0.21 m, tilted.
+  std::mt19937 rng(5);
+  const testing::RawDepthTruth truth;
+  {
+    FrameDirectoryWriter writer(dir / "plane", camera);
+    for (int i = 0; i < 8; ++i) {
+      const Pose T_C_K = testing::PlaneAt(0.19 + 0.02 * i / 7.0, 0.1 * std::sin(i), 0.1 * std::cos(i));
+      Frame frame;
+      frame.index = i;
+      frame.time_s = 0.1 * i;
+      frame.raw = testing::RenderPlaneRaw(camera, truth, T_C_K, 0.3, &rng);
+      frame.T_B_H = rig.T_B_K * T_C_K.inverse() * rig.T_H_C.inverse();
+      writer.Add(frame);
+    }
+    writer.Finish();
+  }
+  const auto depth = RunRomunect("calibrate depth --frames " + (dir / "plane").string() + " --output " + file.string());
+  ASSERT_EQ(depth.exit_code, 0) << depth.output;
+  const Calibration done = LoadCalibration(file);
+  EXPECT_EQ(done.depth.kind, DepthModelKind::kInverseDepthRaw);
+  EXPECT_LE(done.residuals.depth_rms_m, kDepthGoalM);
+  EXPECT_EQ(done.T_H_C.matrix(), after_hand_eye.T_H_C.matrix());  // earlier steps kept
+
+  // The paper's affine model is worse: without the flag the file is kept, with it replaced.
+  const auto affine = RunRomunect("calibrate depth --model affine --frames " + (dir / "plane").string() +
+                                  " --output " + file.string());
+  EXPECT_EQ(affine.exit_code, 2);
+  EXPECT_NE(affine.output.find("worse"), std::string::npos) << affine.output;
+  EXPECT_EQ(LoadCalibration(file).depth.kind, DepthModelKind::kInverseDepthRaw);
+  const auto forced = RunRomunect("calibrate depth --model affine --overwrite-worse --frames " +
+                                  (dir / "plane").string() + " --output " + file.string());
+  EXPECT_EQ(forced.exit_code, 0) << forced.output;
+  EXPECT_NE(forced.output.find("WORSE"), std::string::npos) << forced.output;
+}
+
+}  // namespace
+}  // namespace romunect::calib
