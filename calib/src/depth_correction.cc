@@ -111,21 +111,30 @@ std::string DepthCorrectionResult::BriefReport() const {
   return line;
 }
 
-cv::Mat PlaneDepth(const CameraModel& camera, const Pose& T_C_K) {
-  const cv::Mat rays = camera.RayTable();
+namespace {
+
+// PlaneDepth over a precomputed ray table (CV_32FC2 of (x_n, y_n)), so a fit over many planes
+// undistorts every pixel once.
+cv::Mat PlaneDepthFromRays(const cv::Mat& rays, const Pose& T_C_K) {
   const Eigen::Vector3d n = T_C_K.linear().col(2);
   const double n_dot_t = n.dot(T_C_K.translation());
-  cv::Mat depth_m(camera.height, camera.width, CV_32FC1);
-  for (int r = 0; r < camera.height; ++r) {
+  cv::Mat depth_m(rays.rows, rays.cols, CV_32FC1);
+  for (int r = 0; r < rays.rows; ++r) {
     const cv::Vec2f* ray = rays.ptr<cv::Vec2f>(r);
     float* out = depth_m.ptr<float>(r);
-    for (int c = 0; c < camera.width; ++c) {
+    for (int c = 0; c < rays.cols; ++c) {
       const double n_dot_ray = n.x() * ray[c][0] + n.y() * ray[c][1] + n.z();
       const double z = std::abs(n_dot_ray) > 1e-9 ? n_dot_t / n_dot_ray : 0.0;
       out[c] = z > 0.0 ? static_cast<float>(z) : 0.0f;
     }
   }
   return depth_m;
+}
+
+}  // namespace
+
+cv::Mat PlaneDepth(const CameraModel& camera, const Pose& T_C_K) {
+  return PlaneDepthFromRays(camera.RayTable(), T_C_K);
 }
 
 DepthCorrectionResult FitDepthCorrection(const CameraModel& camera, const std::vector<PlaneCapture>& captures,
@@ -141,6 +150,7 @@ DepthCorrectionResult FitDepthCorrection(const CameraModel& camera, const std::v
   const int w = camera.width, h = camera.height;
   const size_t n_px = static_cast<size_t>(w) * h;
   std::vector<cv::Mat> truth(captures.size());
+  const cv::Mat rays = camera.RayTable();
   for (size_t i = 0; i < captures.size(); ++i) {
     const std::string field = "captures[" + std::to_string(i) + "]";
     const cv::Mat& raw = captures[i].raw;
@@ -150,7 +160,7 @@ DepthCorrectionResult FitDepthCorrection(const CameraModel& camera, const std::v
                            " (the camera's size); got " + cv::typeToString(raw.type()) + " " +
                            std::to_string(raw.cols) + "x" + std::to_string(raw.rows));
     }
-    truth[i] = PlaneDepth(camera, captures[i].T_C_K);
+    truth[i] = PlaneDepthFromRays(rays, captures[i].T_C_K);
     size_t valid = 0;
     for (int r = 0; r < h; ++r) {
       for (int c = 0; c < w; ++c) {

@@ -124,6 +124,7 @@ ProjectorHomographyStep SolveProjectorHomography(const std::vector<Eigen::Vector
   if (F_cv.empty()) throw InputError(kSource, "captures", "the detected features do not define a homography");
   const Eigen::Matrix3d F = ToEigen(F_cv);
   ProjectorHomographyStep step;
+  step.F_img = F;
   double fit_sum = 0.0;
   for (size_t i = 0; i < shown.size(); ++i) {
     const Eigen::Vector2d p = Map(F, Eigen::Vector2d(shown[i].x, shown[i].y));
@@ -198,12 +199,15 @@ ProjectorHomographyResult CalibrateProjectorHomography(
     result.predicted_rms_px = step.predicted_rms_px;
     const double change_px = [&] {
       double worst = 0.0;
-      for (const Eigen::Vector2d& x : pattern_P) worst = std::max(worst, (Map(step.H_P_rec, x) - Map(H, x)).norm());
+      for (const Eigen::Vector2d& x : pattern_P) {
+        worst = std::max(worst, (PredictCamera(camera, step.F_img, step.H_P_rec, x) -
+                                 PredictCamera(camera, step.F_img, H, x)).norm());
+      }
       return worst;
     }();
     H = step.H_P_rec;
     result.H_P_rec = H;
-    // Converged when the update moves no projector pixel by more than the tolerance.
+    // Converged when the update moves no feature in the camera image by more than the tolerance.
     if (change_px < options.tolerance_px) {
       result.converged = true;
       break;

@@ -132,3 +132,21 @@ TEST(DepthCorrectionTest, TooFewPlanesAndWrongSizesAreClearErrors) {
 
 }  // namespace
 }  // namespace romunect::calib
+
+namespace romunect::calib {
+namespace {
+
+TEST(DepthCorrectionTest, ChipModelMatchesRigFormula) {
+  // rig.h: Z = 8 f b / (raw_offset - raw); the defaults are its defaults (f 580, b 0.075, 1090).
+  const double fb = 580.0 * 0.075;
+  const ChipDepthModel chip = ChipDepthModel::FromChip(fb, 1090.0);
+  for (const double raw : {100.0, 700.0, 1000.0}) {
+    EXPECT_NEAR(chip.DepthM(raw), 8.0 * fb / (1090.0 - raw), 1e-12);
+    EXPECT_NEAR(ChipDepthModel().DepthM(raw), chip.DepthM(raw), 1e-12);
+  }
+  EXPECT_EQ(chip.DepthM(2047), 0.0);  // invalid
+  EXPECT_EQ(chip.DepthM(1095), 0.0);  // beyond infinity: no depth
+}
+
+}  // namespace
+}  // namespace romunect::calib

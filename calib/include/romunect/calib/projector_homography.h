@@ -29,8 +29,8 @@ struct ProjectorCapture {
 
 struct ProjectorHomographyOptions {
   int max_captures = 5;            // loop: stop after this many captures
-  double tolerance_px = 0.1;       // loop: stop when an update moves no pattern point by more
-                                   // than this (projector px)
+  double tolerance_px = 0.05;      // loop: stop when an update moves no feature's predicted
+                                   // camera position by more than this (camera px)
   int min_points = 8;              // detected features per capture, at least
   int max_iterations = 100;        // Levenberg-Marquardt
   std::string Problem() const;
@@ -38,6 +38,7 @@ struct ProjectorHomographyOptions {
 
 struct ProjectorHomographyStep {
   Eigen::Matrix3d H_P_rec = Eigen::Matrix3d::Identity();  // normalized: H(2,2) = 1
+  Eigen::Matrix3d F_img = Eigen::Matrix3d::Identity();  // fitted: projector px -> ideal camera px
   double predicted_rms_px = 0.0;  // || F_img(H x_P) - x_C || with the fitted F_img
   double mapping_fit_rms_px = 0.0;  // how well the homography model explains the captures
   int points_used = 0;
