@@ -146,6 +146,7 @@ SettleSummary DropAndSettle(World* world, const PileOptions& options) {
   world->SetPileFrozen(false);
   world->Release();
   world->SetArmTarget(world->arm_q(), World::ArmVector::Zero());
+  world->SetSettlingWalls(true);
   const int n = world->num_objects();
   for (int i = 0; i < n; ++i) Park(w, i);
 
@@ -201,6 +202,7 @@ SettleSummary DropAndSettle(World* world, const PileOptions& options) {
     }
   }
   w.model->opt.timestep = scene_timestep_s;
+  world->SetSettlingWalls(false);
   // The settled state is these doubles; the world holds them exactly as a reload would.
   world->SetObjectQpos(world->ObjectQpos());
   summary.simulated_s = step * dt;

@@ -95,7 +95,7 @@ std::string ObjectsXml(const std::vector<ObjectSpec>& objects) {
     }
     bodies += "</body>\n";
     welds += "<weld name=\"grip_" + std::to_string(i) + "\" body1=\"suction\" body2=\"" + name +
-             "\" active=\"false\"/>\n";
+             "\" active=\"false\" solref=\"0.004 1\"/>\n";
   }
   if (objects.empty()) return "";
   // Constraint buffers sized for the pile: MuJoCo's defaults (njmax 500, nconmax 100) overflow
@@ -237,8 +237,33 @@ World::World(const WorldOptions& options) : impl_(std::make_unique<Impl>()) {
     throw InputError(source, "camera", "the sites 'camera' and 'projector' must be on the body 'hand'");
   }
   for (int g = 0; g < m->ngeom; ++g) {
-    if (m->geom_bodyid[g] == w.suction_body) w.suction_geoms.push_back(g);
+    if (m->geom_bodyid[g] != w.suction_body) continue;
+    w.suction_geoms.push_back(g);
+    w.suction_contype.push_back(m->geom_contype[g]);
+    w.suction_conaffinity.push_back(m->geom_conaffinity[g]);
   }
+
+  // The bin's walls: boxes (seen, collide by default) and planes (settling aids, off).
+  for (int g = 0; g < m->ngeom; ++g) {
+    if (m->geom_bodyid[g] != w.bin_body) continue;
+    if (m->geom_type[g] == mjGEOM_BOX) {
+      // The floor (thin in z) is left to the floor plane, always.
+      const mjtNum* size = m->geom_size + 3 * g;
+      if (size[2] < size[0] && size[2] < size[1]) continue;
+      w.bin_boxes.push_back(g);
+      w.bin_box_conaffinity.push_back(m->geom_conaffinity[g]);
+    } else if (m->geom_type[g] == mjGEOM_PLANE) {
+      mjtNum normal[3], z[3] = {0, 0, 1};
+      mju_rotVecQuat(normal, z, m->geom_quat + 4 * g);
+      if (std::abs(normal[2]) < 0.5) {
+        w.bin_wall_planes.push_back(g);
+        w.bin_wall_plane_contype.push_back(m->geom_contype[g]);
+        w.bin_wall_plane_conaffinity.push_back(m->geom_conaffinity[g]);
+      }
+    }
+  }
+  w.settling_walls = true;
+  SetSettlingWalls(false);
 
   // The rig replaces the scene's sensor sites (and the viewer's camera, through M).
   if (options.T_H_C) {
@@ -469,6 +494,21 @@ void World::SetPileFrozen(bool frozen) {
 
 bool World::pile_frozen() const { return impl_->frozen; }
 
+void World::SetSettlingWalls(bool on) {
+  Impl& w = *impl_;
+  if (on == w.settling_walls || w.bin_wall_planes.empty()) return;
+  w.settling_walls = on;
+  mjModel* m = w.model.get();
+  for (size_t k = 0; k < w.bin_wall_planes.size(); ++k) {
+    m->geom_contype[w.bin_wall_planes[k]] = on ? w.bin_wall_plane_contype[k] : 0;
+    m->geom_conaffinity[w.bin_wall_planes[k]] = on ? w.bin_wall_plane_conaffinity[k] : 0;
+  }
+  // Objects have contype 1: the boxes take them on unless the planes do.
+  for (size_t k = 0; k < w.bin_boxes.size(); ++k) {
+    m->geom_conaffinity[w.bin_boxes[k]] = on ? w.bin_box_conaffinity[k] : (w.bin_box_conaffinity[k] | 1);
+  }
+}
+
 Pose World::T_W_O(int object) const {
   ROMUNECT_CHECK(object >= 0 && object < num_objects());
   const int b = impl_->objects[object].body;
@@ -550,12 +590,21 @@ void World::Grip(int object) {
   SetLocalPose(T_S_O, data + 3, data + 6);
   data[10] = 1.0;  // torquescale
   m->eq_active[w.objects[object].weld] = 1;
+  // While it holds, the cup's own contacts are off: they would only push the welded object
+  // away from the cup (the object itself still collides with everything else).
+  for (int g : w.suction_geoms) m->geom_contype[g] = m->geom_conaffinity[g] = 0;
   w.gripped = object;
 }
 
 void World::Release() {
   Impl& w = *impl_;
-  if (w.gripped) w.model->eq_active[w.objects[*w.gripped].weld] = 0;
+  if (w.gripped) {
+    w.model->eq_active[w.objects[*w.gripped].weld] = 0;
+    for (size_t k = 0; k < w.suction_geoms.size(); ++k) {
+      w.model->geom_contype[w.suction_geoms[k]] = w.suction_contype[k];
+      w.model->geom_conaffinity[w.suction_geoms[k]] = w.suction_conaffinity[k];
+    }
+  }
   w.gripped.reset();
 }
 

@@ -50,7 +50,13 @@ struct World::Impl {
   std::array<int, kArmDof> arm_actuator{};
   int base_body = -1, hand_body = -1, bin_body = -1, suction_body = -1;
   int camera_site = -1, projector_site = -1, suction_tip_site = -1;
+  // The bin's collision aids (world.h, SetSettlingWalls): wall planes, and the bin's boxes
+  // with their compiled conaffinity.
+  std::vector<int> bin_wall_planes, bin_boxes;
+  std::vector<int> bin_wall_plane_contype, bin_wall_plane_conaffinity, bin_box_conaffinity;
+  bool settling_walls = false;
   std::vector<int> suction_geoms;
+  std::vector<int> suction_contype, suction_conaffinity;  // as compiled (Grip turns them off)
   std::vector<ObjectIds> objects;
 
   ArmVector qdot_des = ArmVector::Zero();

@@ -156,3 +156,75 @@ TEST(WorldTest, ObjectsAreGeneratedWithCollisionAndRenderGeometry) {
 
 }  // namespace
 }  // namespace romunect::sim
+
+namespace romunect::sim {
+namespace {
+
+// A 2 cm cube as a binary STL file, in millimetres.
+void WriteCubeStlMm(const std::filesystem::path& path) {
+  const Mesh cube = Box(Eigen::Vector3d::Zero(), Eigen::Vector3d(10, 10, 10));
+  std::string bytes(80, '\0');
+  auto put = [&bytes](const void* p, size_t n) { bytes.append(static_cast<const char*>(p), n); };
+  const uint32_t count = static_cast<uint32_t>(cube.triangles.size());
+  put(&count, 4);
+  for (const auto& t : cube.triangles) {
+    const float normal[3] = {0, 0, 0};
+    put(normal, 12);
+    for (int k = 0; k < 3; ++k) {
+      const float v[3] = {static_cast<float>(cube.vertices[t[k]].x()), static_cast<float>(cube.vertices[t[k]].y()),
+                          static_cast<float>(cube.vertices[t[k]].z())};
+      put(v, 12);
+    }
+    const uint16_t attr = 0;
+    put(&attr, 2);
+  }
+  testing::WriteText(path, bytes);
+}
+
+TEST(WorldTest, UserStlMeshBecomesAnObjectAtItsScale) {
+  testing::ScratchDir dir("sim_world_user_mesh");
+  WriteCubeStlMm(dir / "cube.stl");
+  WorldOptions options;
+  options.objects.push_back(MakeUserMeshObject(dir / "cube.stl", 1e-3, DarkMaterial()));
+  World world(options);
+  ASSERT_EQ(world.num_objects(), 1);
+  int render_geoms = 0;
+  for (const GeomInfo& g : world.Geoms()) {
+    if (g.object != 0) continue;
+    ++render_geoms;
+    double extent = 0.0;
+    for (const auto& v : g.mesh_G.vertices) extent = std::max(extent, v.cwiseAbs().maxCoeff());
+    EXPECT_NEAR(extent, 0.01, 1e-6);  // 10 mm half size, in metres (float STL)
+    EXPECT_NEAR(g.material.albedo, DarkMaterial().albedo, 1e-6);
+  }
+  EXPECT_EQ(render_geoms, 1);
+  EXPECT_THROW(MakeUserMeshObject(dir / "missing.stl", 1e-3, DarkMaterial()), InputError);
+  EXPECT_THROW(MakeUserMeshObject(dir / "cube.ply", 1e-3, DarkMaterial()), InputError);
+}
+
+TEST(WorldTest, SuctionGripHoldsAnObjectAndReleaseDropsIt) {
+  WorldOptions options;
+  options.objects.push_back(MakeObject(ObjectKind::kPillBox, 1));
+  World world(options);
+  World::ArmVector q;
+  q << 0.0, 0.3, 0.9, 0.0, 0.37, 0.0;
+  world.SetArmQ(q);
+  // Put the box just under the cup, touching it (the cup's 2 mm contact margin sees it).
+  const Pose T_W_tip = world.SitePose_W(ArmSite::kSuctionTip);
+  Pose T_W_O = Pose::Identity();
+  T_W_O.translation() = T_W_tip.translation() - Eigen::Vector3d(0, 0, 0.0165);  // box top 16 mm above O
+  world.SetObjectPose(0, T_W_O);
+  world.Step();
+  ASSERT_EQ(world.SuctionContact(), std::optional<int>(0));
+  world.Grip(0);
+  const Pose T_tip_O = T_W_tip.inverse() * world.T_W_O(0);
+  world.Step(500);  // 1 s: the weld holds it against gravity, to 0.1 mm (a stiff weld)
+  EXPECT_TRUE(testing::PosesNear(world.SitePose_W(ArmSite::kSuctionTip).inverse() * world.T_W_O(0), T_tip_O, 1e-3,
+                                 1e-4));
+  world.Release();
+  world.Step(100);  // 0.2 s of free fall would be 20 cm; it lands on the bin or table sooner
+  EXPECT_LT(world.T_W_O(0).translation().z(), T_W_O.translation().z() - 0.05);
+}
+
+}  // namespace
+}  // namespace romunect::sim

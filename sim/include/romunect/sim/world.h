@@ -110,6 +110,12 @@ class World {
   // unfreezing restores contacts and lets the objects move from where they were.
   void SetPileFrozen(bool frozen);
   bool pile_frozen() const;
+  // Objects collide with the bin's walls either through its box geoms (the default: what is
+  // seen), or, while a pile settles, through infinite planes on the walls' inner faces (the
+  // bin's horizontal-normal plane geoms), because MuJoCo 2.2's convex collision gives wrong
+  // depths between large thin boxes and centimetre meshes and throws parts out. The planes
+  // would push anything outside the bin, so they are on only while settling.
+  void SetSettlingWalls(bool on);
 
   // --- Objects ---
   Pose T_W_O(int object) const;

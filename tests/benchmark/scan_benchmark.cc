@@ -1,0 +1,46 @@
+// The default scan's wall time (issue 5, "Speed"): settle a 10-object pile, plan the approach,
+// then per 30 Hz frame advance the physics, update the instances, render at the romunect rig's
+// full resolution (ideal depth: the imaging stage is the sensor model's and benchmarked there).
+// Counters: per-frame milliseconds per stage and the real-time factor (simulated / wall time).
+#include <benchmark/benchmark.h>
+
+#include <chrono>
+
+#include "romunect/sim/scanner.h"
+
+namespace romunect::sim {
+namespace {
+
+void BM_DefaultScan(benchmark::State& state) {
+  for (auto _ : state) {
+    ScanOptions options;
+    options.pile.num_objects = static_cast<int>(state.range(0));
+    options.threads = 2;
+    const auto start = std::chrono::steady_clock::now();
+    Scanner scanner(options);
+    const double setup_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    Frame frame;
+    std::string error;
+    const auto frames_start = std::chrono::steady_clock::now();
+    while (scanner.Next(&frame, &error) == FrameStatus::kOk) benchmark::DoNotOptimize(frame.gt_depth_m.data);
+    const double frames_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - frames_start).count();
+    const ScanStats& s = scanner.stats();
+    const double n = s.frames;
+    state.counters["frames"] = n;
+    state.counters["settle_wall_s"] = s.settle.wall_s;
+    state.counters["settle_sim_s"] = s.settle.simulated_s;
+    state.counters["setup_s"] = setup_s - s.settle.wall_s;
+    state.counters["physics_ms_per_frame"] = 1e3 * s.physics_s / n;
+    state.counters["render_ms_per_frame"] = 1e3 * s.render_s / n;
+    state.counters["frame_ms"] = 1e3 * frames_s / n;
+    // Real time: the approach's simulated duration over the wall time of its frames.
+    state.counters["realtime_factor"] = s.simulated_s / frames_s;
+    state.counters["tracking_max_mm"] = 1e3 * s.tracking.max_position_error_m;
+  }
+}
+BENCHMARK(BM_DefaultScan)->Arg(10)->Arg(20)->Unit(benchmark::kMillisecond)->Iterations(1);
+
+}  // namespace
+}  // namespace romunect::sim
+
+BENCHMARK_MAIN();
