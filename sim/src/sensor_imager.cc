@@ -1,0 +1,88 @@
+#include "romunect/sim/sensor_imager.h"
+
+#include <sstream>
+
+#include "romunect/sensor/errors.h"
+
+namespace romunect::sim {
+
+std::string SensorImagerOptions::Problem() const {
+  std::ostringstream s;
+  if (threads < 1 || threads > 256) {
+    s << "threads = " << threads << ": expected 1..256";
+  } else if (!(sweep_near_m > 0.0 && sweep_far_m > sweep_near_m)) {
+    s << "sweep_near_m = " << sweep_near_m << ", sweep_far_m = " << sweep_far_m << ": expected 0 < near < far";
+  } else if (sweep_planes < 2) {
+    s << "sweep_planes = " << sweep_planes << ": expected at least 2";
+  }
+  return s.str();
+}
+
+namespace {
+
+DepthEngineOptions EngineOptions(const Rig& rig, int threads) {
+  DepthEngineOptions options = rig.depth_engine;
+  options.threads = threads;
+  return options;
+}
+
+}  // namespace
+
+DepthCorrection GroundTruthDepthCorrection(const Rig& rig, const SensorImagerOptions& options) {
+  IrSynthesisOptions synthesis;
+  synthesis.noise = false;
+  synthesis.threads = options.threads;
+  IrSynthesizer synthesizer(synthesis);
+  DepthEngine engine(EngineOptions(rig, options.threads));
+  std::vector<DepthEngineOutput> outputs(options.sweep_planes);
+  std::vector<cv::Mat> truth;
+  cv::Mat ir;
+  for (int i = 0; i < options.sweep_planes; ++i) {
+    const double z_m = options.sweep_near_m + (options.sweep_far_m - options.sweep_near_m) * i / (options.sweep_planes - 1);
+    synthesizer.Synthesize(rig, FrontoParallelPlane(rig.camera, z_m, IrMaterial{}), 0, &ir, nullptr);
+    engine.Compute(ir, &outputs[i]);
+    truth.emplace_back(rig.camera.height, rig.camera.width, CV_32F, cv::Scalar(static_cast<float>(z_m)));
+  }
+  return FitDepthCorrection(DepthCorrectionModel::kInverseAffineInRaw, outputs, truth);
+}
+
+SensorImager::SensorImager(const Rig& rig, const SensorImagerOptions& options)
+    : options_(options),
+      synthesizer_([&] {
+        IrSynthesisOptions synthesis;
+        synthesis.threads = options.threads;
+        return synthesis;
+      }()),
+      engine_(EngineOptions(rig, options.threads)) {
+  if (const std::string problem = options.Problem(); !problem.empty()) {
+    throw InputError("sensor imager", "options", problem);
+  }
+  if (options.correction) {
+    const DepthCorrection& c = *options.correction;
+    if (c.a.rows != rig.camera.height || c.a.cols != rig.camera.width || c.b.size() != c.a.size()) {
+      throw InputError(options.correction_source.empty() ? "sensor imager" : options.correction_source,
+                       "depth correction",
+                       "per-pixel maps of " + std::to_string(c.a.cols) + " x " + std::to_string(c.a.rows) +
+                           " do not match the rig's camera (" + std::to_string(rig.camera.width) + " x " +
+                           std::to_string(rig.camera.height) + ")");
+    }
+    correction_ = c;
+    correction_source_ = options.correction_source;
+  } else {
+    correction_ = GroundTruthDepthCorrection(rig, options);
+    std::ostringstream s;
+    s << "ground truth of the rig (" << DepthCorrectionModelName(correction_.model) << ", fitted on "
+      << options.sweep_planes << " simulated planes at " << 1e3 * options.sweep_near_m << "-"
+      << 1e3 * options.sweep_far_m << " mm; the calibration chain is not in the loop)";
+    correction_source_ = s.str();
+  }
+}
+
+void SensorImager::Image(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, Frame* frame) {
+  synthesizer_.Synthesize(rig, geometry, seed, &frame->ir, nullptr);
+  engine_.Compute(frame->ir, &output_);
+  output_.raw.copyTo(frame->raw);
+  frame->depth_m = ApplyDepthCorrection(correction_, output_);
+}
+
+}  // namespace romunect::sim

@@ -1,0 +1,61 @@
+#include "romunect/sim/sensor_imager.h"
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+namespace romunect::sim {
+namespace {
+
+// Full resolution (the depth engine's chip geometry is the rig's), but a short approach: the
+// last 2 cm of descent straight down over a 3-object pile, a handful of frames.
+TEST(SensorImagerTest, ScanFramesCarryIrRawAndMetricDepthCloseToGroundTruth) {
+  ScanOptions options;
+  options.pile.num_objects = 3;
+  options.pile.seed = 5;
+  options.approach.start_distance_m = 0.215;
+  options.approach.end_distance_m = 0.205;
+  options.approach.region_size_m = Eigen::Vector2d(0.02, 0.02);  // one pass
+  Scanner scanner(options);
+  SensorImagerOptions imager_options;
+  imager_options.threads = 2;
+  auto imager = std::make_unique<SensorImager>(options.rig, imager_options);
+  EXPECT_NE(imager->correction_source().find("ground truth"), std::string::npos);
+  scanner.SetImager(std::move(imager));
+  Frame frame;
+  std::string error;
+  int frames = 0;
+  std::vector<double> errors_m;
+  int valid = 0, compared = 0;
+  while (scanner.Next(&frame, &error) == FrameStatus::kOk && frames < 4) {
+    ++frames;
+    ASSERT_EQ(frame.ir.type(), CV_16U);
+    ASSERT_EQ(frame.raw.type(), CV_16U);
+    ASSERT_EQ(frame.depth_m.type(), CV_32F);
+    for (int v = 0; v < frame.depth_m.rows; v += 4) {
+      for (int u = 0; u < frame.depth_m.cols; u += 4) {
+        const float d = frame.depth_m.at<float>(v, u), g = frame.gt_depth_m.at<float>(v, u);
+        if (g <= 0) continue;
+        ++compared;
+        if (d <= 0) continue;
+        ++valid;
+        errors_m.push_back(std::abs(d - g));
+      }
+    }
+  }
+  ASSERT_EQ(frames, 4);
+  std::sort(errors_m.begin(), errors_m.end());
+  const double median = errors_m.empty() ? 1.0 : errors_m[errors_m.size() / 2];
+  std::cout << "valid " << static_cast<double>(valid) / compared << ", median error " << 1e3 * median << " mm\n";
+  // Single maps are sparse (the paper's motivation for fusion): the rim and tall objects lie
+  // outside the ~2 cm focused range, dark and shiny parts and shadows give no match. 28 %
+  // measured on this pile; require 20 %.
+  EXPECT_GT(static_cast<double>(valid) / compared, 0.2);
+  // The paper's single-scan accuracy is about 0.1 mm; the median error stays below 0.2 mm.
+  EXPECT_LT(median, 0.2e-3);
+}
+
+}  // namespace
+}  // namespace romunect::sim
