@@ -9,6 +9,7 @@
 #include <string>
 
 #include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
 
 #include "commands.h"
 #include "romunect/openni2/open_source.h"
@@ -23,11 +24,37 @@ volatile std::sig_atomic_t g_interrupted = 0;
 void OnInterrupt(int) { g_interrupted = 1; }
 
 struct RecordArgs {
-  std::string source, out_dir, oni, camera, pose_log, depth_unit;
+  std::string source, out_dir, oni, camera, calibration, pose_log, depth_unit;
   int frames = 0, width = 0, height = 0, fps = 0;
   double timeout_s = 2.0, pose_offset_s = 0.0;
   bool no_ir = false, list_devices = false, list_modes = false;
 };
+
+// The camera and T_H_C of a romunect calibration file (calib/calibration_file.h: OpenCV's camera
+// names and T_H_C as a 4x4 matrix), read with cv::FileStorage so `record` needs no calib code.
+void ReadCalibration(const std::string& path, CameraModel* camera, Pose* T_H_C) {
+  cv::FileStorage fs;
+  try {
+    fs.open(path, cv::FileStorage::READ);
+  } catch (const cv::Exception& e) {
+    throw InputError(path, "", std::string("not a readable calibration file: ") + e.what());
+  }
+  if (!fs.isOpened()) throw InputError(path, "", "cannot open the calibration file");
+  *camera = CameraModel::Read(fs.root(), path);
+  cv::Mat m;
+  fs["T_H_C"] >> m;
+  if (m.rows != 4 || m.cols != 4) throw InputError(path, "T_H_C", "missing or not a 4x4 matrix");
+  m.convertTo(m, CV_64F);
+  std::array<double, 16> row_major;
+  Eigen::Matrix4d matrix;
+  for (int i = 0; i < 16; ++i) {
+    row_major[i] = m.at<double>(i / 4, i % 4);
+    matrix(i / 4, i % 4) = row_major[i];
+  }
+  const std::string problem = RigidityProblem(matrix);
+  if (!problem.empty()) throw InputError(path, "T_H_C", problem);
+  *T_H_C = PoseFromRowMajor(row_major);
+}
 
 openni2::OpenNI2Source* FindDevice(FrameSource* source) {
   if (auto* logged = dynamic_cast<openni2::PoseLogSource*>(source)) source = &logged->inner();
@@ -92,7 +119,17 @@ void RunRecord(const RecordArgs& args) {
   if (args.depth_unit == "100um") device.depth_unit = openni2::DepthUnit::k100um;
   else if (args.depth_unit == "1mm") device.depth_unit = openni2::DepthUnit::k1mm;
   else if (!args.depth_unit.empty()) throw InputError("--depth-unit", "", "'" + args.depth_unit + "': expected 100um or 1mm");
+  if (!args.camera.empty() && !args.calibration.empty()) {
+    throw InputError("--camera", "", "give either --camera or --calibration (which holds a camera too)");
+  }
   if (!args.camera.empty()) device.camera = CameraModel::Load(args.camera);
+  if (!args.calibration.empty()) {
+    CameraModel camera;
+    Pose T_H_C;
+    ReadCalibration(args.calibration, &camera, &T_H_C);
+    device.camera = camera;
+    options.pose.T_H_C = T_H_C;  // with a pose log: T_W_C = T_B_H T_H_C (world = robot base)
+  }
   if (!args.oni.empty() && openni2::ClassifySource(args.source) == openni2::SourceKind::kFrameDirectory) {
     throw InputError("--oni", "", "only an OpenNI2 source (device or .oni file) can be recorded to .oni");
   }
@@ -162,6 +199,9 @@ void AddRecordCommand(CLI::App& app) {
   cmd->add_option("--depth-unit", args->depth_unit, "Depth on the wire: 100um (default when offered) or 1mm");
   cmd->add_flag("--no-ir", args->no_ir, "Do not open the IR stream");
   cmd->add_option("--camera", args->camera, "Camera model (OpenCV YAML/JSON) of the frames; default: from the fields of view");
+  cmd->add_option("--calibration", args->calibration,
+                  "romunect calibration file: its camera replaces the fields-of-view camera, and with --pose-log its "
+                  "T_H_C gives every frame T_W_C (world = robot base), so `fuse` can use the directory");
   cmd->add_option("--pose-log", args->pose_log, "CSV pose log of T_B_H (time_s,x_m,y_m,z_m,qw,qx,qy,qz)");
   cmd->add_option("--pose-offset", args->pose_offset_s, "Seconds added to frame times to get pose-log times");
   cmd->add_flag("--list-devices", args->list_devices, "List the OpenNI2 devices and exit");

@@ -85,6 +85,39 @@ TEST(CliRecord, ADeviceThatStopsKeepsTheFramesSoFarAndFails) {
   EXPECT_NE(doc["recording"]["incomplete"].get<std::string>().find("no frame for 0.5 s"), std::string::npos);
 }
 
+TEST(CliRecord, PoseLogAndCalibrationGiveFusableFrames) {
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 3, 33);  // at 0, 1/30, 2/30 s
+  testing::WriteText(out / "poses.csv", "time_s,x_m,y_m,z_m,qw,qx,qy,qz\n0,0.5,0,0.4,0,1,0,0\n0.1,0.5,0,0.3,0,1,0,0\n");
+  const CameraModel camera = testing::SmallCamera();
+  const Pose T_H_C = MakePose(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.01, 0.02, 0.1));
+  {
+    cv::FileStorage fs((out / "calib.yml").string(), cv::FileStorage::WRITE);
+    fs << "format" << "romunect-calibration" << "version" << 1;
+    camera.Write(fs);
+    cv::Mat m(4, 4, CV_64F);
+    for (int i = 0; i < 16; ++i) m.at<double>(i / 4, i % 4) = T_H_C.matrix()(i / 4, i % 4);
+    fs << "T_H_C" << m;
+  }
+  VirtualDeviceOptions step;
+  step.pace = VirtualDeviceOptions::Pace::kStep;
+  const auto r = RunRomunect("record " + Quote(VirtualDeviceUri(dir.path(), step)) + " " + (out / "rec").string() +
+                             " --pose-log " + (out / "poses.csv").string() + " --calibration " + (out / "calib.yml").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  FrameDirectorySource rec(out / "rec");
+  EXPECT_EQ(rec.camera(), camera);  // the calibration's camera, distortion included, not the FOV pinhole
+  ASSERT_EQ(rec.manifest().frames.size(), 3u);
+  for (int i = 0; i < 3; ++i) {
+    const FrameRecord& f = rec.manifest().frames[i];
+    ASSERT_TRUE(f.T_B_H && f.T_W_C);
+    // Straight-line log: z falls 0.1 m per 0.1 s; the frames' clock starts at the first frame.
+    constexpr double kTextAndSlerpTolerance = 1e-12;  // JSON round trip and slerp of equal rotations
+    EXPECT_NEAR(f.T_B_H->translation().z(), 0.4 - f.time_s, kTextAndSlerpTolerance);
+    EXPECT_TRUE(testing::PosesNear(*f.T_W_C, *f.T_B_H * T_H_C, kTextAndSlerpTolerance, kTextAndSlerpTolerance));
+  }
+}
+
 TEST(CliRecord, BadInputGivesClearMessages) {
   ScratchDir out("out");
   auto r = RunRomunect("record /no/such/dir " + (out / "x").string());
