@@ -1,12 +1,14 @@
-// The default scan's wall time (issue 5, "Speed"): settle a 10-object pile, plan the approach,
-// then per 30 Hz frame advance the physics, update the instances, render at the romunect rig's
-// full resolution (ideal depth: the imaging stage is the sensor model's and benchmarked there).
-// Counters: per-frame milliseconds per stage and the real-time factor (simulated / wall time).
+// The default scan's wall time (issue 5, "Speed"): settle a pile (range(0) objects), plan the
+// approach, then per 30 Hz frame advance the physics, update the instances, render at the
+// romunect rig's full resolution, and (range(1) = 1) image it: IR synthesis, depth engine and
+// ground-truth depth correction (SensorImager). Counters: per-frame milliseconds per stage
+// and the real-time factor (simulated approach time / wall time of its frames).
 #include <benchmark/benchmark.h>
 
 #include <chrono>
 
 #include "romunect/sim/scanner.h"
+#include "romunect/sim/sensor_imager.h"
 
 namespace romunect::sim {
 namespace {
@@ -18,6 +20,11 @@ void BM_DefaultScan(benchmark::State& state) {
     options.threads = 2;
     const auto start = std::chrono::steady_clock::now();
     Scanner scanner(options);
+    if (state.range(1) == 1) {
+      SensorImagerOptions imager;
+      imager.threads = 2;
+      scanner.SetImager(std::make_unique<SensorImager>(options.rig, imager));
+    }
     const double setup_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     Frame frame;
     std::string error;
@@ -32,13 +39,19 @@ void BM_DefaultScan(benchmark::State& state) {
     state.counters["setup_s"] = setup_s - s.settle.wall_s;
     state.counters["physics_ms_per_frame"] = 1e3 * s.physics_s / n;
     state.counters["render_ms_per_frame"] = 1e3 * s.render_s / n;
+    state.counters["imaging_ms_per_frame"] = 1e3 * s.imaging_s / n;
     state.counters["frame_ms"] = 1e3 * frames_s / n;
     // Real time: the approach's simulated duration over the wall time of its frames.
     state.counters["realtime_factor"] = s.simulated_s / frames_s;
     state.counters["tracking_max_mm"] = 1e3 * s.tracking.max_position_error_m;
   }
 }
-BENCHMARK(BM_DefaultScan)->Arg(10)->Arg(20)->Unit(benchmark::kMillisecond)->Iterations(1);
+BENCHMARK(BM_DefaultScan)
+    ->Args({10, 0})
+    ->Args({10, 1})
+    ->Args({20, 0})
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(1);
 
 }  // namespace
 }  // namespace romunect::sim
