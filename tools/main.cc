@@ -14,6 +14,7 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   app.fallthrough(false);
 
+  romunect::tools::AddScanCommand(app);
   romunect::tools::AddInfoCommand(app);
   romunect::tools::AddFuseCommand(app);
   romunect::tools::AddRecordCommand(app);

@@ -1,0 +1,265 @@
+// romunect scan: the main job. A MuJoCo arm approaches a bin with a settled random pile at
+// 0.3 m/s, the simulated sensor delivers 30 Hz frames, each frame is fused as it arrives, then
+// the robot picks from the fused height map. Wiring only: sim/ (Scanner, pick), the sensor model
+// (imaging), fusion/ (grid, metrics, outputs) and the report (scan_report.h).
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <ctime>
+#include <filesystem>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "commands.h"
+#include "romunect/fusion/frame_inserter.h"
+#include "romunect/fusion/metrics.h"
+#include "romunect/fusion/outputs.h"
+#include "romunect/fusion/voting_grid.h"
+#include "romunect/calib/calibration_file.h"
+#include "romunect/sensor/errors.h"
+#include "romunect/sensor/frame_io.h"
+#include "romunect/sensor/rig.h"
+#include "romunect/sim/pick.h"
+#include "romunect/sim/scanner.h"
+#include "romunect/sim/sensor_imager.h"
+#include "scan_report.h"
+
+namespace romunect::tools {
+namespace {
+namespace fs = std::filesystem;
+
+struct ScanArguments {
+  std::string scene, saved_scene, rig = "romunect", calibration, out;
+  uint32_t seed = 1;
+  int objects = 12;
+  int threads = 2;
+  int samples = 1;
+  double voxel_m = 0.25e-3;
+  bool ideal_depth = false;
+};
+
+double Seconds(std::chrono::steady_clock::time_point since) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count();
+}
+
+std::string DefaultRunDir() {
+  const std::time_t now = std::time(nullptr);
+  char name[64];
+  std::strftime(name, sizeof(name), "runs/scan-%Y%m%d-%H%M%S", std::localtime(&now));
+  return name;
+}
+
+// The calibration file's depth model as the sensor model's correction (same two models).
+DepthCorrection CorrectionFromCalibration(const calib::Calibration& calibration, const std::string& file) {
+  DepthCorrection correction;
+  switch (calibration.depth.kind) {
+    case calib::DepthModelKind::kInverseDepthRaw:
+      correction.model = DepthCorrectionModel::kInverseAffineInRaw;
+      break;
+    case calib::DepthModelKind::kAffineDepth:
+      correction.model = DepthCorrectionModel::kAffineInChipDepth;
+      break;
+    case calib::DepthModelKind::kNone:
+      throw InputError(file, "depth_model.kind", "is none; scanning needs a depth model (run the depth step)");
+  }
+  calibration.depth.a.convertTo(correction.a, CV_64F);
+  calibration.depth.b.convertTo(correction.b, CV_64F);
+  return correction;
+}
+
+Rig ResolveRig(const std::string& rig) {
+  if (rig == "romunect" || rig == "kinect-v1") return RigPreset(rig);
+  return LoadRig(rig);
+}
+
+// The fusion box: the paper's 150 x 80 mm region centred on the bin, from just under its floor
+// to above its rim.
+fusion::GridOptions FusionBox(const sim::World& world, double voxel_m) {
+  fusion::GridOptions box;
+  const Eigen::Vector3d floor_W = world.T_W_Bin().translation();
+  box.min_W = floor_W + Eigen::Vector3d(-0.075, -0.040, -0.004);
+  box.max_W = floor_W + Eigen::Vector3d(0.075, 0.040, 0.060);
+  box.voxel_m = voxel_m;
+  return box;
+}
+
+void RunScan(const ScanArguments& args) {
+  const auto t_start = std::chrono::steady_clock::now();
+  // Validate every argument before any work or any file.
+  if (args.objects < 1 || args.objects > 60) {
+    throw InputError("--objects", "", std::to_string(args.objects) + " is outside 1..60");
+  }
+  if (args.threads < 1 || args.threads > 64) {
+    throw InputError("--threads", "", std::to_string(args.threads) + " is outside 1..64");
+  }
+  if (args.samples != 1 && args.samples != 4) {
+    throw InputError("--samples", "", std::to_string(args.samples) + " is not 1 or 4");
+  }
+  if (!(args.voxel_m >= 0.05e-3 && args.voxel_m <= 5e-3)) {
+    throw InputError("--voxel", "", "expected 0.00005 .. 0.005 metres");
+  }
+  for (const std::string* file : {&args.scene, &args.saved_scene, &args.calibration}) {
+    if (!file->empty() && !fs::exists(*file)) throw InputError(*file, "", "file not found");
+  }
+  const fs::path run_dir = args.out.empty() ? fs::path(DefaultRunDir()) : fs::path(args.out);
+  if (fs::exists(run_dir / "report.json")) {
+    throw InputError(run_dir.string(), "", "holds a finished scan (report.json); choose another --out");
+  }
+  // The run is built in <run>.incomplete and renamed at the very end, so a folder under the
+  // final name is always complete.
+  const fs::path work_dir = run_dir.string() + ".incomplete";
+  if (fs::exists(work_dir)) fs::remove_all(work_dir);
+
+  ScanReport report;
+  report.started_at = std::time(nullptr);
+  sim::ScanOptions options;
+  options.scene_file = args.scene;
+  options.saved_scene = args.saved_scene;
+  options.rig = ResolveRig(args.rig);
+  options.pile.num_objects = args.objects;
+  options.pile.seed = args.seed;
+  options.seed = args.seed;
+  options.threads = args.threads;
+  options.samples_per_pixel = args.samples;
+  // A calibration replaces the simulator's truth wherever the real system would use it: the
+  // projector's pre-warp, the depth correction, the camera model and the hand-eye pose that
+  // fusion uses. The simulated hardware itself stays the rig.
+  std::optional<calib::Calibration> calibration;
+  if (!args.calibration.empty()) {
+    calibration = calib::LoadCalibration(args.calibration);
+    if (calibration->camera.width != options.rig.camera.width ||
+        calibration->camera.height != options.rig.camera.height) {
+      throw InputError(args.calibration, "image_width/image_height", "do not match the rig's camera");
+    }
+    options.rig.H_P_rec = calibration->H_P_rec;
+  }
+  if (const std::string problem = options.Problem(); !problem.empty()) {
+    throw InputError("romunect scan", "options", problem);
+  }
+
+  std::fprintf(stderr, "scan: loading the scene, dropping %d objects (seed %u) and settling the pile...\n",
+               args.objects, args.seed);
+  sim::Scanner scanner(options);
+  std::fprintf(stderr, "scan: %s\n", scanner.stats().settle.BriefReport().c_str());
+
+  // Imaging: the sensor model (IR synthesis, depth engine) and the depth correction.
+  std::unique_ptr<sim::SensorImager> imager;
+  if (!args.ideal_depth) {
+    sim::SensorImagerOptions imager_options;
+    imager_options.threads = args.threads;
+    if (calibration) {
+      imager_options.correction = CorrectionFromCalibration(*calibration, args.calibration);
+      imager_options.correction_source = "calibration file " + args.calibration;
+    }
+    std::fprintf(stderr, "scan: preparing the depth correction (%s)...\n",
+                 args.calibration.empty() ? "ground truth of the rig" : args.calibration.c_str());
+    imager = std::make_unique<sim::SensorImager>(options.rig, imager_options);
+    report.depth_correction = imager->correction_source();
+    scanner.SetImager(std::move(imager));
+  } else {
+    report.depth_correction = "none: ideal depth (ground truth), --ideal-depth";
+  }
+
+  fs::create_directories(work_dir);
+  // What fusion believes: the calibrated camera and hand-eye pose, or the simulator's truth.
+  const CameraModel camera = calibration ? calibration->camera : scanner.camera();
+  const Pose T_W_B = scanner.world().T_W_B();
+  FrameDirectoryWriter writer(work_dir / "frames", camera);
+  fusion::VotingGrid grid(FusionBox(scanner.world(), args.voxel_m));
+  fusion::FrameInserter inserter(&grid, fusion::InserterOptions{args.threads});
+  fusion::InsertStats insert_stats;
+
+  const int total = scanner.frame_count();
+  std::fprintf(stderr, "scan: approach of %d frames (%.2f s at %.0f Hz), fusing into %d x %d x %d voxels of %.2f mm\n",
+               total, scanner.plan().duration_s(), options.rig.frame_rate_hz, grid.nx(), grid.ny(), grid.nz(),
+               grid.voxel_m() * 1e3);
+  const auto t_loop = std::chrono::steady_clock::now();
+  Frame frame;
+  std::string error;
+  for (;;) {
+    const FrameStatus status = scanner.Next(&frame, &error);
+    if (status == FrameStatus::kEndOfStream) break;
+    if (status == FrameStatus::kBadFrame) {
+      report.bad_frames.push_back(error);
+      continue;
+    }
+    if (calibration) frame.T_W_C = T_W_B * *frame.T_B_H * calibration->T_H_C;
+    auto t = std::chrono::steady_clock::now();
+    writer.Add(frame);
+    report.write_s += Seconds(t);
+
+    t = std::chrono::steady_clock::now();
+    inserter.Insert(camera, frame.depth_m, *frame.T_W_C, &insert_stats);
+    report.insert_ms.push_back(1e3 * Seconds(t));
+    t = std::chrono::steady_clock::now();
+    const cv::Mat height = fusion::ExtractHeightMap(grid);
+    report.extract_each_ms.push_back(1e3 * Seconds(t));
+    report.completeness_per_frame.push_back(fusion::Completeness(height));
+    report.valid_fraction_per_frame.push_back(static_cast<double>(cv::countNonZero(frame.depth_m)) /
+                                              frame.depth_m.total());
+    report.sample_depths.Offer(frame);
+
+    std::fprintf(stderr, "\rscan: frame %3d/%d  valid %5.1f %%  fused completeness %5.1f %%", frame.index + 1, total,
+                 100.0 * report.valid_fraction_per_frame.back(), 100.0 * report.completeness_per_frame.back());
+  }
+  std::fprintf(stderr, "\n");
+  report.loop_wall_s = Seconds(t_loop);
+  writer.Finish();
+
+  auto t = std::chrono::steady_clock::now();
+  report.height_m = fusion::ExtractHeightMap(grid);
+  report.extract_ms = 1e3 * Seconds(t);
+  report.geometry = grid.geometry();
+  const sim::HeightMapLayout layout{report.geometry.min_x_m, report.geometry.min_y_m, report.geometry.voxel_m,
+                                    report.geometry.nx, report.geometry.ny};
+  report.gt_height_m = sim::GroundTruthHeightMap(scanner.world(), layout);
+  report.metrics = fusion::CompareHeightMaps(report.height_m, report.gt_height_m);
+  report.overview = sim::OverviewPicture(scanner.world());
+
+  std::fprintf(stderr, "scan: picking from the fused height map...\n");
+  report.pick = sim::Pick(&scanner.world(), report.height_m, layout);
+  std::fprintf(stderr, "scan: %s\n", report.pick.BriefReport().c_str());
+
+  report.scan_stats = scanner.stats();
+  report.insert_stats = insert_stats;
+  report.scan_description = scanner.Describe();
+  report.rig_name = options.rig.name;
+  report.seed = args.seed;
+  report.objects = args.objects;
+  report.threads = args.threads;
+  report.samples = args.samples;
+  report.peak_rss_mb = fusion::PeakRssMb();
+  report.total_wall_s = Seconds(t_start);
+  WriteScanOutputs(work_dir, report);
+
+  // Complete: move the run under its final name.
+  if (fs::exists(run_dir)) fs::remove_all(run_dir);
+  fs::create_directories(run_dir.parent_path().empty() ? fs::path(".") : run_dir.parent_path());
+  fs::rename(work_dir, run_dir);
+  std::printf("%s", ScanSummary(report, run_dir).c_str());
+}
+
+}  // namespace
+
+void AddScanCommand(CLI::App& app) {
+  auto* cmd = app.add_subcommand(
+      "scan", "The main job: a simulated arm scans a bin while approaching, fuses every frame, then picks");
+  auto args = std::make_shared<ScanArguments>();
+  cmd->add_option("--scene", args->scene, "MJCF scene with the arm and a bin (default: scenes/default/scene.xml)");
+  cmd->add_option("--saved-scene", args->saved_scene, "A settled scene saved by an earlier run (scene.json): no settling");
+  cmd->add_option("--seed", args->seed, "Seed of the pile and of the sensor noise")->capture_default_str();
+  cmd->add_option("--objects", args->objects, "Objects in the random pile")->capture_default_str();
+  cmd->add_option("--rig", args->rig, "Rig preset (romunect, kinect-v1) or rig JSON file")->capture_default_str();
+  cmd->add_option("--calibration", args->calibration,
+                  "Calibration file from `romunect calibrate` (default: the rig's ground truth)");
+  cmd->add_option("--out", args->out, "Run folder (default: runs/scan-<date>-<time>)");
+  cmd->add_option("--threads", args->threads, "Threads for rendering, imaging and fusion")->capture_default_str();
+  cmd->add_option("--samples", args->samples, "Render samples per pixel: 1, or 4 (thin lens)")->capture_default_str();
+  cmd->add_option("--voxel", args->voxel_m, "Fusion voxel size, metres")->capture_default_str();
+  cmd->add_flag("--ideal-depth", args->ideal_depth, "Fuse ground-truth depth instead of the sensor's (debugging)");
+  cmd->callback([args] { RunScan(*args); });
+}
+
+}  // namespace romunect::tools

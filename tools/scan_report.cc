@@ -1,0 +1,280 @@
+#include "scan_report.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "romunect/fusion/outputs.h"
+#include "romunect/sensor/image_io.h"
+
+namespace romunect::tools {
+namespace {
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+// The paper's table 1 reports completeness after 1, 20 and 50 frames.
+constexpr int kTableFrames[] = {1, 20, 50};
+
+std::string Format(const char* format, double value) {
+  char buffer[96];
+  std::snprintf(buffer, sizeof(buffer), format, value);
+  return buffer;
+}
+
+json CompletenessAfter(const std::vector<double>& curve, int frames) {
+  if (static_cast<int>(curve.size()) < frames) return nullptr;
+  return curve[frames - 1];
+}
+
+// A depth map (CV_32F, metres, 0 or NaN = none) colour-mapped over [lo, hi]; no value is white,
+// as in the paper's figure 2. `flip` puts row 0 at the bottom (height maps: +y up).
+cv::Mat ColourMap(const cv::Mat& depth, double lo, double hi, bool flip) {
+  cv::Mat levels(depth.size(), CV_8UC1), valid(depth.size(), CV_8UC1);
+  for (int r = 0; r < depth.rows; ++r) {
+    const int src = flip ? depth.rows - 1 - r : r;
+    for (int c = 0; c < depth.cols; ++c) {
+      const float z = depth.at<float>(src, c);
+      const bool ok = std::isfinite(z) && z != 0.0f;
+      valid.at<uint8_t>(r, c) = ok;
+      levels.at<uint8_t>(r, c) = ok ? cv::saturate_cast<uint8_t>(255.0 * (z - lo) / (hi - lo)) : 0;
+    }
+  }
+  cv::Mat coloured;
+  cv::applyColorMap(levels, coloured, cv::COLORMAP_TURBO);
+  coloured.setTo(cv::Scalar(255, 255, 255), valid == 0);
+  return coloured;
+}
+
+void Range(const cv::Mat& m, double* lo, double* hi) {
+  *lo = std::numeric_limits<double>::infinity();
+  *hi = -*lo;
+  for (int r = 0; r < m.rows; ++r) {
+    for (int c = 0; c < m.cols; ++c) {
+      const float z = m.at<float>(r, c);
+      if (!std::isfinite(z) || z == 0.0f) continue;
+      *lo = std::min<double>(*lo, z);
+      *hi = std::max<double>(*hi, z);
+    }
+  }
+  if (!(*lo <= *hi)) *lo = *hi = 0.0;
+  if (*hi - *lo < 1e-6) *hi = *lo + 1e-6;
+}
+
+// One captioned panel, scaled to `height_px` rows.
+cv::Mat Panel(const cv::Mat& coloured, int height_px, const std::string& caption) {
+  cv::Mat scaled;
+  const double s = static_cast<double>(height_px) / coloured.rows;
+  cv::resize(coloured, scaled, cv::Size(), s, s, s < 1.0 ? cv::INTER_AREA : cv::INTER_NEAREST);
+  cv::Mat panel(scaled.rows + 30, scaled.cols, CV_8UC3, cv::Scalar(255, 255, 255));
+  scaled.copyTo(panel(cv::Rect(0, 30, scaled.cols, scaled.rows)));
+  cv::putText(panel, caption, cv::Point(4, 20), cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  return panel;
+}
+
+// Figure 2 of the paper: two single depth maps (camera views) and the fused height map.
+cv::Mat Figure2(const ScanReport& r) {
+  const int height_px = 300;
+  std::vector<cv::Mat> panels;
+  for (const auto& [depth, index] : {std::pair{&r.sample_depths.first_m, r.sample_depths.first_index},
+                                     std::pair{&r.sample_depths.last_m, r.sample_depths.last_index}}) {
+    if (depth->empty()) continue;
+    double lo, hi;
+    Range(*depth, &lo, &hi);
+    panels.push_back(Panel(ColourMap(*depth, lo, hi, false), height_px,
+                           "frame " + std::to_string(index) + ": " +
+                               Format("%.1f %% valid", 100.0 * cv::countNonZero(*depth) / depth->total())));
+  }
+  double lo, hi;
+  Range(r.height_m, &lo, &hi);
+  panels.push_back(Panel(ColourMap(r.height_m, lo, hi, true), height_px,
+                         "fused, " + std::to_string(r.completeness_per_frame.size()) + " frames: " +
+                             Format("%.1f %% complete", 100.0 * fusion::Completeness(r.height_m))));
+  for (cv::Mat& p : panels) cv::copyMakeBorder(p, p, 0, 0, 0, 12, cv::BORDER_CONSTANT, cv::Scalar(255, 255, 255));
+  cv::Mat figure;
+  cv::hconcat(panels, figure);
+  return figure;
+}
+
+// Signed error of the fused map against ground truth, +-2 mm mapped to blue..red.
+cv::Mat ErrorPicture(const cv::Mat& fused_m, const cv::Mat& gt_m) {
+  cv::Mat error(fused_m.size(), CV_32F, cv::Scalar(std::numeric_limits<float>::quiet_NaN()));
+  for (int r = 0; r < fused_m.rows; ++r) {
+    for (int c = 0; c < fused_m.cols; ++c) {
+      const float f = fused_m.at<float>(r, c), g = gt_m.at<float>(r, c);
+      if (std::isfinite(f) && std::isfinite(g)) error.at<float>(r, c) = f - g;
+    }
+  }
+  return Panel(ColourMap(error, -2e-3, 2e-3, true), 320, "fused - ground truth, -2 mm (blue) .. +2 mm (red)");
+}
+
+std::string Base64(const std::vector<uchar>& bytes) {
+  static const char* table = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  std::string out;
+  out.reserve((bytes.size() + 2) / 3 * 4);
+  for (size_t i = 0; i < bytes.size(); i += 3) {
+    const uint32_t n = (uint32_t{bytes[i]} << 16) | (i + 1 < bytes.size() ? uint32_t{bytes[i + 1]} << 8 : 0) |
+                       (i + 2 < bytes.size() ? uint32_t{bytes[i + 2]} : 0);
+    out += table[(n >> 18) & 63];
+    out += table[(n >> 12) & 63];
+    out += i + 1 < bytes.size() ? table[(n >> 6) & 63] : '=';
+    out += i + 2 < bytes.size() ? table[n & 63] : '=';
+  }
+  return out;
+}
+
+std::string InlinePng(const fs::path& file) {
+  const cv::Mat image = cv::imread(file.string(), cv::IMREAD_COLOR);
+  if (image.empty()) return "";
+  std::vector<uchar> png;
+  cv::imencode(".png", image, png);
+  return "<img src=\"data:image/png;base64," + Base64(png) + "\" alt=\"" + file.filename().string() + "\">";
+}
+
+std::string Html(const ScanReport& r, const fs::path& dir) {
+  const json j = json::parse(ScanReportJson(r));
+  std::ostringstream h;
+  auto cell = [](const json& v, const char* format, double scale = 1.0) {
+    return v.is_null() ? std::string("&ndash;") : Format(format, scale * v.get<double>());
+  };
+  h << "<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>romunect scan</title><style>"
+       "body{font-family:sans-serif;margin:2em;max-width:1300px}table{border-collapse:collapse;margin:1em 0}"
+       "td,th{border:1px solid #bbb;padding:4px 10px;text-align:right}th{background:#eee}"
+       "img{max-width:100%;border:1px solid #ddd;margin:4px 0}</style></head><body>";
+  h << "<h1>romunect scan</h1><p>" << r.scan_description << "<br>rig <b>" << r.rig_name << "</b>, seed "
+    << r.seed << ", " << r.objects << " objects, " << r.threads << " threads, " << r.samples
+    << " sample(s) per pixel.<br>Depth correction: " << r.depth_correction << "</p>";
+  h << "<h2>Completeness (the paper's table 1)</h2><table><tr><th>frames</th>";
+  for (int n : kTableFrames) h << "<th>" << n << "</th>";
+  h << "<th>all (" << r.completeness_per_frame.size() << ")</th></tr><tr><th>completeness [%]</th>";
+  for (int n : kTableFrames) h << "<td>" << cell(CompletenessAfter(r.completeness_per_frame, n), "%.2f", 100.0) << "</td>";
+  h << "<td>" << Format("%.2f", 100.0 * r.metrics.completeness) << "</td></tr></table>";
+  h << InlinePng(dir / "completeness.png");
+  h << "<h2>Accuracy against ground truth</h2><table><tr><th>RMSE [mm]</th><th>MAE [mm]</th><th>within 1 mm</th>"
+       "<th>cells compared</th></tr><tr><td>"
+    << Format("%.3f", r.metrics.rmse_mm) << "</td><td>" << Format("%.3f", r.metrics.mae_mm) << "</td><td>"
+    << Format("%.1f %%", 100.0 * r.metrics.within_1mm) << "</td><td>" << r.metrics.compared_cells
+    << "</td></tr></table>";
+  h << "<h2>Depth maps</h2>" << InlinePng(dir / "figure2.png") << InlinePng(dir / "fused_depth.png")
+    << InlinePng(dir / "error.png");
+  h << "<h2>Pick</h2><p>" << r.pick.BriefReport() << "</p>" << InlinePng(dir / "overview.png");
+  h << "<h2>Timings</h2><table><tr><th>stage</th><th>seconds</th></tr>";
+  for (const auto& [stage, seconds] : j["timings_s"].items()) {
+    h << "<tr><td style=\"text-align:left\">" << stage << "</td><td>" << Format("%.3f", seconds.get<double>())
+      << "</td></tr>";
+  }
+  h << "</table><p>Simulated approach " << Format("%.2f s", j["realtime"]["simulated_s"].get<double>())
+    << ", scan loop " << Format("%.2f s", j["realtime"]["loop_wall_s"].get<double>()) << " of wall time: "
+    << Format("%.2fx real time", j["realtime"]["factor"].get<double>()) << ".</p>";
+  h << "<h2>report.json</h2><pre>" << j.dump(1) << "</pre></body></html>\n";
+  return h.str();
+}
+
+}  // namespace
+
+std::string ScanReportJson(const ScanReport& r) {
+  json j;
+  j["format"] = "romunect-scan-report";
+  j["version"] = 1;
+  char started[32];
+  std::strftime(started, sizeof(started), "%Y-%m-%dT%H:%M:%SZ", std::gmtime(&r.started_at));
+  j["started_at"] = started;
+  j["scan"] = r.scan_description;
+  j["rig"] = r.rig_name;
+  j["seed"] = r.seed;
+  j["objects"] = r.objects;
+  j["threads"] = r.threads;
+  j["samples_per_pixel"] = r.samples;
+  j["depth_correction"] = r.depth_correction;
+  j["frames"] = r.completeness_per_frame.size();
+  j["bad_frames"] = r.bad_frames;
+  json table = json::object();
+  for (int n : kTableFrames) table["after_" + std::to_string(n)] = CompletenessAfter(r.completeness_per_frame, n);
+  j["table1_completeness"] = table;
+  j["completeness_per_frame"] = r.completeness_per_frame;
+  j["valid_fraction_per_frame"] = r.valid_fraction_per_frame;
+  j["accuracy"] = {{"completeness", r.metrics.completeness}, {"rmse_mm", r.metrics.rmse_mm},
+                   {"mae_mm", r.metrics.mae_mm},           {"within_1mm", r.metrics.within_1mm},
+                   {"cells", r.metrics.cells},             {"compared_cells", r.metrics.compared_cells}};
+  json pick = {{"grasp_found", r.pick.grasp_found}, {"contact", r.pick.contact}, {"object", r.pick.object},
+               {"success", r.pick.success},         {"failure", r.pick.failure}};
+  if (r.pick.grasp_found) {
+    const auto& g = r.pick.grasp;
+    pick["grasp_point_W"] = {g.p_W.x(), g.p_W.y(), g.p_W.z()};
+    pick["grasp_normal_W"] = {g.normal_W.x(), g.normal_W.y(), g.normal_W.z()};
+    pick["grasp_plane_rms_mm"] = 1e3 * g.rms_m;
+  }
+  j["pick"] = pick;
+  const sim::ScanStats& s = r.scan_stats;
+  double fusion_s = 0.0;
+  for (double ms : r.insert_ms) fusion_s += ms / 1e3;
+  for (double ms : r.extract_each_ms) fusion_s += ms / 1e3;
+  j["timings_s"] = {{"settle_wall", s.settle.wall_s},
+                    {"setup", s.setup_s},
+                    {"physics", s.physics_s},
+                    {"rendering", s.render_s},
+                    {"imaging (IR synthesis + depth engine)", s.imaging_s},
+                    {"fusion (insert + extract per frame)", fusion_s},
+                    {"frame directory writing", r.write_s},
+                    {"picking", r.pick.wall_s},
+                    {"total", r.total_wall_s}};
+  j["realtime"] = {{"simulated_s", s.simulated_s},
+                   {"loop_wall_s", r.loop_wall_s},
+                   {"factor", r.loop_wall_s > 0 ? s.simulated_s / r.loop_wall_s : 0.0}};
+  j["fusion"] = {{"voxel_m", r.geometry.voxel_m},
+                 {"grid", {r.geometry.nx, r.geometry.ny, r.geometry.nz}},
+                 {"insert_ms", {{"median", fusion::Quantile(r.insert_ms, 0.5)},
+                                {"p90", fusion::Quantile(r.insert_ms, 0.9)},
+                                {"max", fusion::Quantile(r.insert_ms, 1.0)}}},
+                 {"extract_ms", r.extract_ms},
+                 {"stats", r.insert_stats.BriefReport()}};
+  j["settle"] = s.settle.BriefReport();
+  j["tracking"] = {{"max_position_error_mm", 1e3 * s.tracking.max_position_error_m},
+                   {"rms_position_error_mm", 1e3 * s.tracking.rms_position_error_m},
+                   {"max_angle_error_deg", s.tracking.max_angle_error_rad * 180.0 / M_PI}};
+  j["peak_rss_mb"] = r.peak_rss_mb;
+  j["outputs"] = {"frames/", "fused_depth.exr", "fused_depth.png", "fused_points.ply", "gt_height.exr",
+                  "figure2.png", "error.png", "overview.png", "completeness.png", "report.html"};
+  return j.dump(1) + "\n";
+}
+
+void WriteScanOutputs(const fs::path& dir, const ScanReport& r) {
+  fusion::WriteHeightMapExr(dir / "fused_depth.exr", r.height_m);
+  fusion::WriteHeightMapPicture(dir / "fused_depth.png", r.height_m, r.geometry);
+  fusion::WriteHeightMapPly(dir / "fused_points.ply", r.height_m, r.geometry);
+  fusion::WriteHeightMapExr(dir / "gt_height.exr", r.gt_height_m);
+  fusion::WriteCompletenessPlot(dir / "completeness.png", r.completeness_per_frame);
+  WritePicture(dir / "figure2.png", Figure2(r));
+  WritePicture(dir / "error.png", ErrorPicture(r.height_m, r.gt_height_m));
+  if (!r.overview.empty()) WritePicture(dir / "overview.png", r.overview);
+  WriteTextAtomically(dir / "report.json", ScanReportJson(r));
+  WriteTextAtomically(dir / "report.html", Html(r, dir));
+}
+
+std::string ScanSummary(const ScanReport& r, const fs::path& run_dir) {
+  std::ostringstream s;
+  s << "completeness after 1 / 20 / 50 frames:";
+  for (int n : kTableFrames) {
+    const json v = CompletenessAfter(r.completeness_per_frame, n);
+    s << (v.is_null() ? std::string(" -") : Format(" %.1f %%", 100.0 * v.get<double>()));
+  }
+  s << "   (all " << r.completeness_per_frame.size() << " frames: " << Format("%.1f %%", 100.0 * r.metrics.completeness)
+    << ")\n";
+  s << "accuracy vs ground truth: RMSE " << Format("%.3f", r.metrics.rmse_mm) << " mm, MAE "
+    << Format("%.3f", r.metrics.mae_mm) << " mm, " << Format("%.1f %%", 100.0 * r.metrics.within_1mm)
+    << " within 1 mm\n";
+  s << "pick: " << r.pick.BriefReport() << "\n";
+  const double simulated = r.scan_stats.simulated_s;
+  s << "time: scan loop " << Format("%.2f s", r.loop_wall_s) << " for " << Format("%.2f s", simulated)
+    << " simulated (" << Format("%.2fx real time", r.loop_wall_s > 0 ? simulated / r.loop_wall_s : 0.0)
+    << "), total " << Format("%.1f s", r.total_wall_s) << "\n";
+  s << "wrote " << run_dir.string() << "/ (report.html, report.json, figure2.png, fused_depth.*, frames/)\n";
+  return s.str();
+}
+
+}  // namespace romunect::tools

@@ -1,0 +1,67 @@
+// What `romunect scan` reports and writes into its run folder (besides frames/, written as the
+// scan goes): fused_depth.exr/.png, fused_points.ply, gt_height.exr, figure2.png (two single
+// depth maps beside the fused one, like the paper's figure 2), overview.png, completeness.png,
+// report.json and report.html (self-contained: pictures inlined, no network).
+#pragma once
+
+#include <ctime>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "romunect/fusion/frame_inserter.h"
+#include "romunect/fusion/metrics.h"
+#include "romunect/fusion/voting_grid.h"
+#include "romunect/sensor/frame.h"
+#include "romunect/sim/pick.h"
+#include "romunect/sim/scanner.h"
+
+namespace romunect::tools {
+
+// Keeps the first and the latest single depth maps of the scan for figure 2.
+struct SampleDepths {
+  cv::Mat first_m, last_m;
+  int first_index = -1, last_index = -1;
+  void Offer(const Frame& frame) {
+    if (first_index < 0) {
+      first_m = frame.depth_m.clone();
+      first_index = frame.index;
+    } else {
+      frame.depth_m.copyTo(last_m);
+      last_index = frame.index;
+    }
+  }
+};
+
+struct ScanReport {
+  std::time_t started_at = 0;
+  std::string scan_description, rig_name, depth_correction;
+  uint32_t seed = 0;
+  int objects = 0, threads = 0, samples = 0;
+  std::vector<std::string> bad_frames;
+
+  std::vector<double> insert_ms, extract_each_ms;
+  std::vector<double> completeness_per_frame, valid_fraction_per_frame;
+  SampleDepths sample_depths;
+  double write_s = 0.0, loop_wall_s = 0.0, extract_ms = 0.0, total_wall_s = 0.0, peak_rss_mb = 0.0;
+
+  cv::Mat height_m, gt_height_m, overview;
+  fusion::HeightMapGeometry geometry;
+  fusion::HeightMapMetrics metrics;
+  fusion::InsertStats insert_stats;
+  sim::ScanStats scan_stats;
+  sim::PickResult pick;
+};
+
+// Writes every output file of the run into dir (each atomically).
+void WriteScanOutputs(const std::filesystem::path& dir, const ScanReport& report);
+
+// The report as JSON text.
+std::string ScanReportJson(const ScanReport& report);
+
+// A few lines for the terminal: the paper's table 1, accuracy, pick, timings, where files are.
+std::string ScanSummary(const ScanReport& report, const std::filesystem::path& run_dir);
+
+}  // namespace romunect::tools
