@@ -9,6 +9,7 @@ namespace romunect::tools {
 void AddInfoCommand(CLI::App& app);
 void AddFuseCommand(CLI::App& app);  // cmd_fuse.cc (fusion)
 void AddRecordCommand(CLI::App& app);  // cmd_record.cc (sensor/openni2)
+void AddRenderCommand(CLI::App& app);  // cmd_render.cc (sensor/embree)
 void AddCalibrateCommand(CLI::App& app);  // cmd_calibrate.cc (calib)
 void AddScanCommand(CLI::App& app);  // cmd_scan.cc (the main job: sim/, fusion/)
 

@@ -18,6 +18,7 @@ int main(int argc, char** argv) {
   romunect::tools::AddInfoCommand(app);
   romunect::tools::AddFuseCommand(app);
   romunect::tools::AddRecordCommand(app);
+  romunect::tools::AddRenderCommand(app);
   romunect::tools::AddCalibrateCommand(app);
 
   try {

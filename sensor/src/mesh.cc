@@ -344,7 +344,14 @@ TriangleMesh MakeBuiltinTarget(const std::string& name, double distance_m, doubl
   }
   if (name == "plane") return MakePlaneTarget(distance_m, size_m);
   if (name == "tilted-plane") return MakeTiltedPlaneTarget(distance_m, size_m, M_PI / 6.0);
-  if (name == "step") return MakeStepTarget(distance_m, 0.1 * size_m, size_m);
+  if (name == "step") {
+    // Near half on +x, the side of both presets' projectors, so its shadow shows.
+    TriangleMesh step;
+    step.Append(MakeStepTarget(distance_m, 0.1 * size_m, size_m),
+                MakePose(Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitZ()).toRotationMatrix(),
+                         Eigen::Vector3d::Zero()));
+    return step;
+  }
   if (name == "box") return MakeBoxOnPlaneTarget(distance_m, size_m, size_m / 3.0, 0.1 * size_m);
   if (name == "sphere") return MakeSphereTarget(distance_m, 0.25 * size_m, 5);
   std::string names;

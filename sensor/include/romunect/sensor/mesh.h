@@ -68,8 +68,8 @@ TriangleMesh MakeIcosphere(const Eigen::Vector3d& centre_O, double radius_m, int
 // Names of the built-in targets: "plane", "tilted-plane", "step", "box", "sphere".
 std::vector<std::string> BuiltinTargetNames();
 // The named target at distance_m with a footprint of size_m, default proportions (tilt 30
-// degrees, step size_m / 10, box size_m / 3 wide and size_m / 10 high, sphere radius
-// size_m / 4). Throws InputError(source, "target", ...) for an unknown name.
+// degrees, step size_m / 10 with its near half on +x, box size_m / 3 wide and size_m / 10
+// high, sphere radius size_m / 4). Throws InputError(source, "target", ...) for an unknown name.
 TriangleMesh MakeBuiltinTarget(const std::string& name, double distance_m, double size_m,
                                const std::string& source = "target");
 

@@ -1,0 +1,78 @@
+// `romunect render` end to end, as a user runs it: both presets to frame directories with
+// pictures, and bad input that must end with a clear message and a non-zero exit.
+#include <filesystem>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "romunect/sensor/frame_io.h"
+#include "romunect/testing/test_support.h"
+
+namespace romunect {
+namespace {
+
+using testing::RunRomunect;
+using testing::ScratchDir;
+namespace fs = std::filesystem;
+
+// Ground truth comes from float hit distances (the renderer's plane test tolerance).
+constexpr double kPlaneDepthTolM = 1e-5;
+
+TEST(CliRenderTest, RendersBothPresetsIntoFrameDirectoriesWithPictures) {
+  ScratchDir dir("render");
+  for (const std::string rig : {"romunect", "kinect-v1"}) {
+    const fs::path out = dir / rig;
+    const double distance_m = rig == "romunect" ? 0.2 : 1.0;
+    const auto result = RunRomunect("render " + out.string() + " --rig " + rig +
+                                    " --target plane --distance " + std::to_string(distance_m));
+    ASSERT_EQ(result.exit_code, 0) << result.output;
+    EXPECT_NE(result.output.find("valid depth"), std::string::npos) << result.output;
+    const FrameDirectoryManifest manifest = ReadFrameDirectoryManifest(out);
+    ASSERT_EQ(manifest.frames.size(), 1u);
+    const Frame frame = LoadFrame(out, manifest, 0);
+    ASSERT_FALSE(frame.ir.empty());
+    ASSERT_FALSE(frame.raw.empty());
+    ASSERT_FALSE(frame.depth_m.empty());
+    ASSERT_FALSE(frame.gt_depth_m.empty());
+    double lo, hi;
+    cv::minMaxLoc(frame.gt_depth_m, &lo, &hi);
+    EXPECT_NEAR(lo, distance_m, kPlaneDepthTolM);
+    EXPECT_NEAR(hi, distance_m, kPlaneDepthTolM);
+    cv::minMaxLoc(frame.raw, &lo, &hi);
+    EXPECT_LE(hi, 2047.0);  // 11-bit raw, 2047 = invalid
+    // A textured plane in focus: most pixels get a depth.
+    EXPECT_GT(cv::countNonZero(frame.depth_m), frame.depth_m.total() / 2) << rig;
+    for (const char* picture : {"ir.png", "depth.png", "gt_depth.png", "error.png"}) {
+      EXPECT_TRUE(fs::exists(out / "pictures" / picture)) << picture;
+    }
+  }
+}
+
+// Runs `arguments`, expects a non-zero exit and every part of `parts` in the message.
+void ExpectFailure(const std::string& arguments, const std::vector<std::string>& parts) {
+  const auto result = RunRomunect(arguments);
+  EXPECT_NE(result.exit_code, 0) << arguments << "\n" << result.output;
+  for (const auto& part : parts) {
+    EXPECT_NE(result.output.find(part), std::string::npos) << arguments << "\n" << result.output;
+  }
+}
+
+TEST(CliRenderTest, BadInputEndsWithAMessageNamingTheFieldAndANonZeroExit) {
+  ScratchDir dir("bad");
+  const std::string out = (dir / "out").string();
+  ExpectFailure("render " + out + " --target donut", {"--target", "donut"});
+  ExpectFailure("render " + out + " --samples 3", {"--samples", "must be 1 or 4"});
+  ExpectFailure("render " + out + " --rig nosuchpreset", {"nosuchpreset"});
+  ExpectFailure("render " + out + " --rig " + (dir / "missing.json").string(), {"missing.json"});
+  testing::WriteText(dir / "nan.obj", "v 0 0 nan\nv 1 0 0.2\nv 0 1 0.2\nf 1 2 3\n");
+  ExpectFailure("render " + out + " --mesh " + (dir / "nan.obj").string(), {"nan.obj", "vertices[0]"});
+  testing::WriteText(dir / "empty.stl", "solid empty\nendsolid empty\n");
+  ExpectFailure("render " + out + " --mesh " + (dir / "empty.stl").string(), {"empty.stl", "empty"});
+  EXPECT_FALSE(fs::exists(dir / "out" / "frames.json"));  // nothing half-written
+  // An existing frame directory is never overwritten.
+  ASSERT_EQ(RunRomunect("render " + out + " --target plane").exit_code, 0);
+  ExpectFailure("render " + out + " --target plane", {"frames.json"});
+}
+
+}  // namespace
+}  // namespace romunect
