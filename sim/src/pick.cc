@@ -127,9 +127,10 @@ std::optional<GraspPoint> ChooseGraspPoint(const cv::Mat& height_m, const Height
 std::string PickResult::BriefReport() const {
   char s[300];
   if (!grasp_found) return "pick: no grasp point (no patch flat and complete enough for the cup)";
-  std::snprintf(s, sizeof s, "pick %s: grasp at (%.1f, %.1f, %.1f) mm, tilt %.1f deg, object %d; %.2f s simulated%s%s",
+  std::snprintf(s, sizeof s, "pick %s: grasp at (%.1f, %.1f, %.1f) mm, tilt %.1f deg, object %d (%s); %.2f s simulated%s%s",
                 success ? "succeeded" : "FAILED", 1e3 * grasp.p_W.x(), 1e3 * grasp.p_W.y(), 1e3 * grasp.p_W.z(),
-                std::acos(std::min(1.0, grasp.normal_W.z())) * 180 / M_PI, object, simulated_s,
+                std::acos(std::min(1.0, grasp.normal_W.z())) * 180 / M_PI, object,
+                object_kind.empty() ? "none" : object_kind.c_str(), simulated_s,
                 failure.empty() ? "" : ": ", failure.c_str());
   return s;
 }
@@ -177,6 +178,7 @@ PickResult Pick(World* world, const cv::Mat& height_m, const HeightMapLayout& la
   }
   result.contact = true;
   result.object = *touched;
+  result.object_kind = ToString(world->options().objects[*touched].kind);
   world->Grip(*touched);
   world->SetArmTarget(world->arm_q(), World::ArmVector::Zero());
   world->Step(50);  // let the weld take hold

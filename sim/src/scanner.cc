@@ -195,7 +195,8 @@ FrameStatus Scanner::Next(Frame* frame, std::string* error) {
   World& world = *s.world;
   UpdatePoses(world, s.handles, &s.T_W_G, &s.scene);
   const Pose T_W_C = world.T_W_C();
-  s.renderer.Render(s.scene, s.options.rig.camera, T_W_C, world.T_C_P(), s.render_options, &s.geometry);
+  // The rig is the optics' truth (a saved scene may carry another projector site).
+  s.renderer.Render(s.scene, s.options.rig.camera, T_W_C, s.options.rig.T_C_P, s.render_options, &s.geometry);
   *frame = Frame{};
   frame->index = s.next;
   frame->time_s = t;

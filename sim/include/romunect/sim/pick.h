@@ -48,6 +48,7 @@ struct PickResult {
   GraspPoint grasp;
   bool contact = false;     // the cup touched an object
   int object = -1;          // the object gripped (index in the world), -1 when none
+  std::string object_kind;  // its kind (objects.h ToString), "" when none
   bool success = false;     // the gripped object ended above the bin's rim, held by the cup
   double simulated_s = 0.0;
   double wall_s = 0.0;
