@@ -143,6 +143,10 @@ IrMaterial MaterialOfGeom(const mjModel* m, int g) {
   return mat;
 }
 
+// MuJoCo's default warning handler also appends to MUJOCO_LOG.TXT in the working folder;
+// warnings (a full contact buffer, say) go to stderr only. Installed once, process-wide.
+void WarnToStderr(const char* message) { std::fprintf(stderr, "MuJoCo warning: %s\n", message); }
+
 }  // namespace
 
 std::filesystem::path ScenesDir() { return ROMUNECT_SCENES_DIR; }
@@ -185,6 +189,11 @@ void World::Impl::SetScratchQ(const ArmVector& q) const {
 }
 
 World::World(const WorldOptions& options) : impl_(std::make_unique<Impl>()) {
+  static const bool handler_installed = [] {
+    mju_user_warning = WarnToStderr;
+    return true;
+  }();
+  (void)handler_installed;
   Impl& w = *impl_;
   w.options = options;
   std::filesystem::path scene = options.scene_file.empty() ? DefaultSceneFile() : options.scene_file;
