@@ -257,9 +257,11 @@ cv::Mat OverviewPicture(const World& world, int width_px, int height_px) {
   ROMUNECT_CHECK(width_px > 0 && height_px > 0);
   std::vector<int> handles;
   const embree::RayScene scene = MirrorWorld(world, /*with_arm=*/true, &handles);
+  // Frames the whole arm and the bin: aimed between base and bin, 30 cm up, seen from the
+  // front right and above.
   const Eigen::Vector3d bin = world.T_W_Bin().translation();
-  const Eigen::Vector3d target = 0.5 * (bin + world.SitePose_W(ArmSite::kHand).translation());
-  const Eigen::Vector3d eye = bin + Eigen::Vector3d(0.55, -1.1, 0.75);
+  const Eigen::Vector3d target = 0.5 * (bin + world.T_W_B().translation()) + Eigen::Vector3d(0.05, 0, 0.3);
+  const Eigen::Vector3d eye = target + Eigen::Vector3d(0.9, -1.3, 0.55);
   const Pose T_W_C = LookAt(eye, target, Eigen::Vector3d::UnitZ());
   CameraModel camera;
   camera.width = width_px;
