@@ -32,8 +32,17 @@ struct CommonArgs {
   bool maps_as_exr = false;
 };
 
-// The existing calibration at `path` to update, or a fresh one.
-Calibration Existing(const fs::path& path) { return fs::exists(path) ? LoadCalibration(path) : Calibration{}; }
+// The existing calibration at `path` to update, or a fresh one. An unreadable file is an
+// error, unless the user asked to overwrite: then it is replaced (Save says so).
+Calibration Existing(const fs::path& path, bool overwrite) {
+  if (!fs::exists(path)) return {};
+  try {
+    return LoadCalibration(path);
+  } catch (const InputError&) {
+    if (!overwrite) throw;
+    return {};
+  }
+}
 
 void Save(const CommonArgs& args, const Calibration& calibration) {
   const SaveReport report =
@@ -59,7 +68,7 @@ void RunIntrinsics(const std::string& images, const std::string& board_text, dou
     std::printf("  %-32s %.3f px\n", detected.views[i].name.c_str(), result.per_view_rms_px[i]);
   }
   std::printf("%s\n", result.BriefReport().c_str());
-  Calibration calibration = Existing(args.output);
+  Calibration calibration = Existing(args.output, args.overwrite_worse);
   calibration.camera = result.camera;
   calibration.date.clear();
   calibration.residuals.intrinsics_rms_px = result.rms_px;

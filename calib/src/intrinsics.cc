@@ -1,6 +1,7 @@
 #include "romunect/calib/intrinsics.h"
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <random>

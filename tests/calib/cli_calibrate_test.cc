@@ -69,6 +69,18 @@ TEST(CalibrateCliTest, IntrinsicsOnAFolderOfImages) {
   EXPECT_EQ(bad_board.exit_code, 2);
   EXPECT_NE(bad_board.output.find("--board"), std::string::npos) << bad_board.output;
   EXPECT_FALSE(fs::exists(dir / "x.yaml"));
+
+  // A malformed existing file is kept unless the user asks to overwrite it (and is told).
+  romunect::testing::WriteText(dir / "broken.yaml", "%YAML:1.0\nformat: nonsense\n");
+  const auto kept = RunRomunect("calibrate intrinsics --images " + images.string() + " --output " +
+                                (dir / "broken.yaml").string());
+  EXPECT_EQ(kept.exit_code, 2);
+  EXPECT_NE(kept.output.find("broken.yaml: format"), std::string::npos) << kept.output;
+  const auto replaced = RunRomunect("calibrate intrinsics --overwrite-worse --images " + images.string() +
+                                    " --output " + (dir / "broken.yaml").string());
+  EXPECT_EQ(replaced.exit_code, 0) << replaced.output;
+  EXPECT_NE(replaced.output.find("does not load"), std::string::npos) << replaced.output;
+  EXPECT_NO_THROW(LoadCalibration(dir / "broken.yaml"));
 }
 
 TEST(CalibrateCliTest, HandEyeThenDepthOnFrameDirectories) {
