@@ -234,7 +234,7 @@ void DepthEngine::ComputeBand(int y_begin, int y_end, std::vector<uint16_t>* sla
       }
       const float cm = costs[static_cast<size_t>(j - 1) * W + x];
       const float cp = costs[static_cast<size_t>(j + 1) * W + x];
-      const float denom = 2.f * (std::max(cm, cp) - c0);
+      const float denom = 2.f * (cm + cp - 2.f * c0);
       const float delta = denom > 0.f ? (cm - cp) / denom : 0.f;
       const long s8 = std::lround(8.f * (static_cast<float>(options_.min_shift_px + j) + delta));
       const long raw = raw_at_reference_rounded_ - s8;

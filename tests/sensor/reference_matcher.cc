@@ -39,7 +39,7 @@ uint16_t ReferenceMatchRaw(const DepthEngine& engine, const cv::Mat& n_obs, cons
   if (second < c0 * (1.f + static_cast<float>(o.uniqueness))) return kRawInvalid;
   if (best_j == 0 || best_j == o.search_range_px - 1) return kRawInvalid;
   const float cm = static_cast<float>(cost[best_j - 1]), cp = static_cast<float>(cost[best_j + 1]);
-  const float denom = 2.f * (std::max(cm, cp) - c0);
+  const float denom = 2.f * (cm + cp - 2.f * c0);
   const float delta = denom > 0.f ? (cm - cp) / denom : 0.f;
   const long s8 = std::lround(8.f * (static_cast<float>(o.min_shift_px + best_j) + delta));
   const long raw = std::lround(engine.RawAtReference()) - s8;

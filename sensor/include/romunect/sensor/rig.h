@@ -121,7 +121,7 @@ struct DepthEngineOptions {
   int subpixel_steps = 8;    // 1/8 px
   double min_texture = 6.0;  // mean |prefiltered| in the window below this: flat -> invalid
   double max_cost = 25.0;    // mean |difference| per pixel above this: weak -> invalid
-  double uniqueness = 0.10;  // second best (>1 px away) within this fraction: ambiguous
+  double uniqueness = 0.20;  // second best (>1 px away) within this fraction: ambiguous
   int prefilter_px = 9;      // local-mean removal window (odd), as the chip normalizes
   int threads = 1;
 
