@@ -12,6 +12,8 @@
 #include <string>
 #include <vector>
 
+#include <unistd.h>
+
 #include "commands.h"
 #include "romunect/fusion/frame_inserter.h"
 #include "romunect/fusion/metrics.h"
@@ -175,6 +177,7 @@ void RunScan(const ScanArguments& args) {
   std::fprintf(stderr, "scan: approach of %d frames (%.2f s at %.0f Hz), fusing into %d x %d x %d voxels of %.2f mm\n",
                total, scanner.plan().duration_s(), options.rig.frame_rate_hz, grid.nx(), grid.ny(), grid.nz(),
                grid.voxel_m() * 1e3);
+  const bool interactive = isatty(fileno(stderr));
   const auto t_loop = std::chrono::steady_clock::now();
   Frame frame;
   std::string error;
@@ -199,12 +202,16 @@ void RunScan(const ScanArguments& args) {
     report.completeness_per_frame.push_back(fusion::Completeness(height));
     report.valid_fraction_per_frame.push_back(static_cast<double>(cv::countNonZero(frame.depth_m)) /
                                               frame.depth_m.total());
-    report.sample_depths.Offer(frame);
+    report.sample_depths.Offer(frame, report.valid_fraction_per_frame.back());
 
-    std::fprintf(stderr, "\rscan: frame %3d/%d  valid %5.1f %%  fused completeness %5.1f %%", frame.index + 1, total,
-                 100.0 * report.valid_fraction_per_frame.back(), 100.0 * report.completeness_per_frame.back());
+    // One updating line on a terminal; a line every 10 frames in a log.
+    if (interactive || (frame.index + 1) % 10 == 0 || frame.index + 1 == total) {
+      std::fprintf(stderr, "%sscan: frame %3d/%d  valid %5.1f %%  fused completeness %5.1f %%  (%.1f s)%s",
+                   interactive ? "\r" : "", frame.index + 1, total, 100.0 * report.valid_fraction_per_frame.back(),
+                   100.0 * report.completeness_per_frame.back(), Seconds(t_loop), interactive ? "" : "\n");
+    }
   }
-  std::fprintf(stderr, "\n");
+  if (interactive) std::fprintf(stderr, "\n");
   report.loop_wall_s = Seconds(t_loop);
   writer.Finish();
 

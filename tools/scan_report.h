@@ -20,15 +20,18 @@
 
 namespace romunect::tools {
 
-// Keeps the first and the latest single depth maps of the scan for figure 2.
+// Keeps two single depth maps of the scan for figure 2: the first one with a useful share of
+// valid pixels (far frames lie outside the focused depth range and hold almost nothing) and the
+// latest one.
 struct SampleDepths {
+  static constexpr double kMinValidFraction = 0.05;
   cv::Mat first_m, last_m;
   int first_index = -1, last_index = -1;
-  void Offer(const Frame& frame) {
-    if (first_index < 0) {
+  void Offer(const Frame& frame, double valid_fraction) {
+    if (first_index < 0 && valid_fraction >= kMinValidFraction) {
       first_m = frame.depth_m.clone();
       first_index = frame.index;
-    } else {
+    } else if (first_index >= 0) {
       frame.depth_m.copyTo(last_m);
       last_index = frame.index;
     }
