@@ -2,12 +2,14 @@
 
 #include <dlfcn.h>
 
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstring>
 #include <mutex>
 #include <sstream>
 #include <thread>
+#include <vector>
 
 #include <OpenNI.h>
 #include <PS1080.h>
