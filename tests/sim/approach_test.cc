@@ -80,3 +80,21 @@ TEST(ApproachTest, UnreachableApproachIsAClearError) {
 
 }  // namespace
 }  // namespace romunect::sim
+
+namespace romunect::sim {
+namespace {
+
+TEST(ApproachTest, OptionsProblemNamesFieldValueAndRule) {
+  EXPECT_EQ(ApproachOptions{}.Problem(), "");
+  ApproachOptions bad;
+  bad.end_distance_m = 0.5;  // above the start
+  EXPECT_NE(bad.Problem().find("end_distance_m"), std::string::npos) << bad.Problem();
+  bad = ApproachOptions{};
+  bad.speed_m_s = -1;
+  EXPECT_NE(bad.Problem().find("speed_m_s"), std::string::npos) << bad.Problem();
+  World world(WorldOptions{});
+  EXPECT_THROW(PlanApproach(world, RigPreset("romunect").camera, bad), InputError);
+}
+
+}  // namespace
+}  // namespace romunect::sim

@@ -109,3 +109,19 @@ TEST(PickTest, SmallScanFusesCompletelyAndAccuratelyAndPicksAnObjectOut) {
 
 }  // namespace
 }  // namespace romunect::sim
+
+namespace romunect::sim {
+namespace {
+
+TEST(PickTest, OptionsProblemNamesFieldValueAndRule) {
+  EXPECT_EQ(PickOptions{}.Problem(), "");
+  PickOptions bad;
+  bad.cup_radius_m = 0;
+  EXPECT_NE(bad.Problem().find("cup_radius_m"), std::string::npos) << bad.Problem();
+  bad = PickOptions{};
+  bad.min_valid_fraction = 1.5;
+  EXPECT_NE(bad.Problem().find("min_valid_fraction"), std::string::npos) << bad.Problem();
+}
+
+}  // namespace
+}  // namespace romunect::sim

@@ -82,3 +82,24 @@ TEST(PileTest, BadSavedSceneNamesTheField) {
 
 }  // namespace
 }  // namespace romunect::sim
+
+namespace romunect::sim {
+namespace {
+
+TEST(PileTest, OptionsProblemNamesFieldValueAndRule) {
+  EXPECT_EQ(PileOptions{}.Problem(), "");
+  PileOptions bad;
+  bad.num_objects = -1;
+  EXPECT_NE(bad.Problem().find("num_objects = -1"), std::string::npos) << bad.Problem();
+  bad = PileOptions{};
+  bad.kinds = {ObjectKind::kUserMesh};
+  EXPECT_NE(bad.Problem().find("kinds"), std::string::npos) << bad.Problem();
+  bad = PileOptions{};
+  bad.timestep_s = 0.0;
+  EXPECT_NE(bad.Problem().find("timestep_s"), std::string::npos) << bad.Problem();
+  EXPECT_EQ(ObjectKindFromString("gear", "test"), ObjectKind::kGear);
+  EXPECT_THROW(ObjectKindFromString("spoon", "test"), InputError);
+}
+
+}  // namespace
+}  // namespace romunect::sim
