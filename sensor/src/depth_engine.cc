@@ -20,8 +20,18 @@ constexpr int kBandRows = 32;          // rows per cost slab (slab ~ 16 x range 
 constexpr float kSigmaFloorDn = 2.0f;  // keeps the normalization finite on flat windows
 constexpr float kNormScale = 48.0f;    // one local standard deviation = 48 levels of 8 bits
 constexpr uint8_t kOutsideReference = 255;  // difference where the reference has no column
+// Window costs fit signed 16 bits (21 x 21 x 255 would not: window_px <= 11 is checked).
+constexpr int16_t kMaxCost = 32767;
 
 }  // namespace
+
+// The cost slabs run on AVX2 where the CPU has it (twice the lanes), chosen at load time; the
+// results are the same bytes either way (integer arithmetic, same order).
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(__SANITIZE_ADDRESS__)
+#define ROMUNECT_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define ROMUNECT_SIMD_CLONES
+#endif
 
 std::string DepthEngineStats::BriefReport() const {
   std::ostringstream s;
@@ -71,7 +81,7 @@ void DepthEngine::Prefilter(const cv::Mat& ir, int window_px, cv::Mat* normalize
       const float sigma = std::sqrt(std::max(m2[x] - m[x] * m[x], 0.f));
       s[x] = sigma;
       const float value = 128.f + kNormScale * (v[x] - m[x]) / std::max(sigma, kSigmaFloorDn);
-      n[x] = static_cast<uint8_t>(std::clamp(std::lround(value), 0L, 255L));
+      n[x] = static_cast<uint8_t>(std::clamp(value, 0.f, 255.f) + 0.5f);  // round half up
     }
   }
 }
@@ -87,6 +97,8 @@ DepthEngine::DepthEngine(const DepthEngineOptions& options, const cv::Mat& refer
   cv::Mat sigma;
   Prefilter(reference_ir_, options_.prefilter_px, &reference_norm_, &sigma);
   raw_at_reference_rounded_ = static_cast<int>(std::lround(RawAtReference()));
+  chip_depth_lut_.resize(kRawInvalid + 1);
+  for (int raw = 0; raw <= kRawInvalid; ++raw) chip_depth_lut_[raw] = static_cast<float>(ChipDepthM(raw));
 }
 
 double DepthEngine::RawAtReference() const {
@@ -101,26 +113,25 @@ double DepthEngine::ChipDepthM(int raw) const {
 
 double DepthEngine::ShiftOfRaw(int raw) const { return (raw_at_reference_rounded_ - raw) / 8.0; }
 
-void DepthEngine::ComputeBand(int y_begin, int y_end, std::vector<uint16_t>* slab_storage, DepthEngineOutput* out,
+ROMUNECT_SIMD_CLONES void DepthEngine::ComputeBand(int y_begin, int y_end, std::vector<int16_t>* slab_storage, DepthEngineOutput* out,
                               DepthEngineStats* stats) const {
   const int W = reference_norm_.cols, H = reference_norm_.rows;
   const int r = options_.window_px / 2;
   const int D = options_.search_range_px;
   const int rows = y_end - y_begin;
   slab_storage->resize(static_cast<size_t>(rows) * D * W);
-  uint16_t* slab = slab_storage->data();
+  int16_t* slab = slab_storage->data();
   // Horizontal window sums of one row's absolute differences, for rows y_begin-r .. y_end+r-1.
   const int hrows = rows + 2 * r;
-  std::vector<uint16_t> hsum(static_cast<size_t>(hrows) * W);
+  std::vector<int16_t> hsum(static_cast<size_t>(hrows) * W);
   std::vector<uint8_t> ad(W);
-  std::vector<uint16_t> vsum(W);
-  std::vector<uint16_t> h3_(W);
+  std::vector<int16_t> h3_(W);
 
   for (int j = 0; j < D; ++j) {
     const int s = options_.min_shift_px + j;
     for (int h = 0; h < hrows; ++h) {
       const int y = y_begin - r + h;
-      uint16_t* __restrict hs = &hsum[static_cast<size_t>(h) * W];
+      int16_t* __restrict hs = &hsum[static_cast<size_t>(h) * W];
       if (y < 0 || y >= H) {
         std::fill(hs, hs + W, 0);
         continue;
@@ -143,63 +154,69 @@ void DepthEngine::ComputeBand(int y_begin, int y_end, std::vector<uint16_t>* sla
       }
       for (int x = x_hi; x < W; ++x) adp[x] = kOutsideReference;
       // Window sum along the row in two separable steps of 3 (window 9) or directly.
-      uint16_t* __restrict h3 = h3_.data();
-      std::fill(hs, hs + W, 0);
+      int16_t* __restrict h3 = h3_.data();
+      std::fill(hs, hs + r, 0);
+      std::fill(hs + W - r, hs + W, 0);
       if (r == 4) {
-        for (int x = 1; x < W - 1; ++x) h3[x] = static_cast<uint16_t>(adp[x - 1] + adp[x] + adp[x + 1]);
-        for (int x = 4; x < W - 4; ++x) hs[x] = static_cast<uint16_t>(h3[x - 3] + h3[x] + h3[x + 3]);
+        for (int x = 1; x < W - 1; ++x) h3[x] = static_cast<int16_t>(adp[x - 1] + adp[x] + adp[x + 1]);
+        for (int x = 4; x < W - 4; ++x) hs[x] = static_cast<int16_t>(h3[x - 3] + h3[x] + h3[x + 3]);
       } else {
         for (int x = r; x < W - r; ++x) {
-          uint16_t sum = 0;
-          for (int k = -r; k <= r; ++k) sum = static_cast<uint16_t>(sum + adp[x + k]);
+          int16_t sum = 0;
+          for (int k = -r; k <= r; ++k) sum = static_cast<int16_t>(sum + adp[x + k]);
           hs[x] = sum;
         }
       }
     }
-    // Vertical running sums down the band.
-    std::fill(vsum.begin(), vsum.end(), 0);
+    // Vertical running sums down the band, straight into the slab.
+    int16_t* __restrict first = slab + static_cast<size_t>(j) * W;
+    std::fill(first, first + W, 0);
     for (int h = 0; h < 2 * r + 1; ++h) {
-      const uint16_t* hs = &hsum[static_cast<size_t>(h) * W];
-      for (int x = 0; x < W; ++x) vsum[x] = static_cast<uint16_t>(vsum[x] + hs[x]);
+      const int16_t* __restrict hs = &hsum[static_cast<size_t>(h) * W];
+      for (int x = 0; x < W; ++x) first[x] = static_cast<int16_t>(first[x] + hs[x]);
     }
-    for (int i = 0; i < rows; ++i) {
-      uint16_t* cost = slab + (static_cast<size_t>(i) * D + j) * W;
-      std::copy(vsum.begin(), vsum.end(), cost);
-      if (i + 1 < rows) {
-        const uint16_t* add = &hsum[static_cast<size_t>(i + 2 * r + 1) * W];
-        const uint16_t* sub = &hsum[static_cast<size_t>(i) * W];
-        for (int x = 0; x < W; ++x) vsum[x] = static_cast<uint16_t>(vsum[x] + add[x] - sub[x]);
-      }
+    for (int i = 1; i < rows; ++i) {
+      const int16_t* __restrict prev = slab + (static_cast<size_t>(i - 1) * D + j) * W;
+      int16_t* __restrict cost = slab + (static_cast<size_t>(i) * D + j) * W;
+      const int16_t* __restrict add = &hsum[static_cast<size_t>(i + 2 * r) * W];
+      const int16_t* __restrict sub = &hsum[static_cast<size_t>(i - 1) * W];
+      for (int x = 0; x < W; ++x) cost[x] = static_cast<int16_t>(prev[x] + add[x] - sub[x]);
     }
   }
 
   // Decisions, vectorizable over x: best, then best outside +-1 of it.
-  std::vector<uint16_t> best(W), second(W);
-  std::vector<int16_t> best_j(W);
+  std::vector<int16_t> best(W), second(W), best_j(W);
   const int window_area = (2 * r + 1) * (2 * r + 1);
   const float max_cost_sum = static_cast<float>(options_.max_cost * window_area);
   const float min_texture = static_cast<float>(options_.min_texture);
   const float uniqueness = static_cast<float>(options_.uniqueness);
   for (int i = 0; i < rows; ++i) {
     const int y = y_begin + i;
-    const uint16_t* costs = slab + static_cast<size_t>(i) * D * W;
-    std::fill(best.begin(), best.end(), std::numeric_limits<uint16_t>::max());
-    std::fill(best_j.begin(), best_j.end(), 0);
+    const int16_t* costs = slab + static_cast<size_t>(i) * D * W;
+    int16_t* __restrict bc = best.data();
+    int16_t* __restrict bj = best_j.data();
+    int16_t* __restrict sc = second.data();
+    std::fill(bc, bc + W, kMaxCost);
+    std::fill(bj, bj + W, 0);
     for (int j = 0; j < D; ++j) {
-      const uint16_t* c = costs + static_cast<size_t>(j) * W;
+      const int16_t* __restrict c = costs + static_cast<size_t>(j) * W;
+      const int16_t jj = static_cast<int16_t>(j);
       for (int x = 0; x < W; ++x) {
-        const bool better = c[x] < best[x];
-        best[x] = better ? c[x] : best[x];
-        best_j[x] = better ? static_cast<int16_t>(j) : best_j[x];
+        const bool better = c[x] < bc[x];
+        bc[x] = better ? c[x] : bc[x];
+        bj[x] = better ? jj : bj[x];
       }
     }
-    std::fill(second.begin(), second.end(), std::numeric_limits<uint16_t>::max());
+    std::fill(sc, sc + W, kMaxCost);
     for (int j = 0; j < D; ++j) {
-      const uint16_t* c = costs + static_cast<size_t>(j) * W;
+      const int16_t* __restrict c = costs + static_cast<size_t>(j) * W;
+      const int16_t jp1 = static_cast<int16_t>(j + 1);
       for (int x = 0; x < W; ++x) {
-        const int dj = j - best_j[x];
-        const bool far = dj > 1 || dj < -1;
-        second[x] = (far && c[x] < second[x]) ? c[x] : second[x];
+        // |j - best_j| > 1 in signed 16 bits, so that it vectorizes (SSE2 has signed compares).
+        const int16_t t = static_cast<int16_t>(jp1 - bj[x]);
+        const int16_t near_mask = static_cast<int16_t>(-((t >= 0) & (t < 3)));
+        const int16_t candidate = static_cast<int16_t>(c[x] | (near_mask & kMaxCost));
+        sc[x] = std::min(candidate, sc[x]);
       }
     }
     uint16_t* raw_row = out->raw.ptr<uint16_t>(y);
@@ -236,7 +253,7 @@ void DepthEngine::ComputeBand(int y_begin, int y_end, std::vector<uint16_t>* sla
       const float cp = costs[static_cast<size_t>(j + 1) * W + x];
       const float denom = 2.f * (cm + cp - 2.f * c0);
       const float delta = denom > 0.f ? (cm - cp) / denom : 0.f;
-      const long s8 = std::lround(8.f * (static_cast<float>(options_.min_shift_px + j) + delta));
+      const long s8 = static_cast<long>(std::floor(8.f * (static_cast<float>(options_.min_shift_px + j) + delta) + 0.5f));
       const long raw = raw_at_reference_rounded_ - s8;
       if (raw < 0 || raw >= kRawInvalid || raw >= options_.chip.raw_offset) {
         ++stats->out_of_range;
@@ -245,7 +262,7 @@ void DepthEngine::ComputeBand(int y_begin, int y_end, std::vector<uint16_t>* sla
       ++stats->valid;
       raw_row[x] = static_cast<uint16_t>(raw);
       shift_row[x] = static_cast<float>(s8) / 8.f;
-      depth_row[x] = static_cast<float>(ChipDepthM(static_cast<int>(raw)));
+      depth_row[x] = chip_depth_lut_[raw];
     }
   }
 }
@@ -274,7 +291,7 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
     // Which thread: the block that starts at band_begin.
     int t = 0;
     while (t + 1 < threads && bands * (t + 1) / threads <= band_begin) ++t;
-    std::vector<uint16_t> slab;
+    std::vector<int16_t> slab;
     for (int b = band_begin; b < band_end; ++b) {
       ComputeBand(b * kBandRows, std::min(ir.rows, (b + 1) * kBandRows), &slab, out, &band_stats[t]);
     }

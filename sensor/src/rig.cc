@@ -185,8 +185,8 @@ std::string ChipGeometry::Problem() const {
 
 std::string DepthEngineOptions::Problem() const {
   if (std::string p = chip.Problem(); !p.empty()) return "chip." + p;
-  if (window_px < 3 || window_px > 21 || window_px % 2 == 0) {
-    return Bad("window_px", "must be odd, in [3, 21]", window_px);
+  if (window_px < 3 || window_px > 11 || window_px % 2 == 0) {
+    return Bad("window_px", "must be odd, in [3, 11] (costs fit 16 bits)", window_px);
   }
   if (search_range_px < 4 || search_range_px > 256) {
     return Bad("search_range_px", "must be in [4, 256]", search_range_px);

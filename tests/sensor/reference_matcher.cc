@@ -41,7 +41,7 @@ uint16_t ReferenceMatchRaw(const DepthEngine& engine, const cv::Mat& n_obs, cons
   const float cm = static_cast<float>(cost[best_j - 1]), cp = static_cast<float>(cost[best_j + 1]);
   const float denom = 2.f * (cm + cp - 2.f * c0);
   const float delta = denom > 0.f ? (cm - cp) / denom : 0.f;
-  const long s8 = std::lround(8.f * (static_cast<float>(o.min_shift_px + best_j) + delta));
+  const long s8 = static_cast<long>(std::floor(8.f * (static_cast<float>(o.min_shift_px + best_j) + delta) + 0.5f));
   const long raw = std::lround(engine.RawAtReference()) - s8;
   if (raw < 0 || raw >= kRawInvalid || raw >= o.chip.raw_offset) return kRawInvalid;
   return static_cast<uint16_t>(raw);

@@ -18,12 +18,13 @@
 // Matching: both images are prefiltered (local mean removed, divided by the local standard
 // deviation, 8 bits), each window_px x window_px window's sum of absolute differences against
 // the reference is computed for every integer shift in [min_shift, min_shift + range), the
-// best is refined to 1/8 px (equiangular fit of the neighbouring costs), and the pixel is
+// best is refined to 1/8 px (parabola through the neighbouring costs), and the pixel is
 // invalid when the window is flat (raw standard deviation < min_texture DN), the match weak
 // (mean difference > max_cost), ambiguous (another shift > 1 px away within `uniqueness` of the
 // best), at the end of the search range, or the raw value leaves 11 bits. Edge fattening,
-// shadows and quantization come out of this process. The fast path runs integer cost slabs per
-// band of rows on `threads` threads; results are the same bytes at any thread count.
+// shadows and quantization come out of this process. The fast path runs signed 16-bit cost
+// slabs per band of 32 rows (AVX2 where available) on `threads` threads; results are the same
+// bytes at any thread count and instruction set.
 #pragma once
 
 #include <string>
@@ -84,7 +85,7 @@ class DepthEngine {
   static void Prefilter(const cv::Mat& ir, int window_px, cv::Mat* normalized, cv::Mat* local_sigma);
 
  private:
-  void ComputeBand(int y_begin, int y_end, std::vector<uint16_t>* slab, DepthEngineOutput* out,
+  void ComputeBand(int y_begin, int y_end, std::vector<int16_t>* slab, DepthEngineOutput* out,
                    DepthEngineStats* stats) const;
 
   DepthEngineOptions options_;
@@ -92,6 +93,7 @@ class DepthEngine {
   cv::Mat reference_norm_;  // CV_8U prefiltered reference
   cv::Mat frame_norm_, frame_sigma_;
   int raw_at_reference_rounded_ = 0;
+  std::vector<float> chip_depth_lut_;  // ChipDepthM per raw value
 };
 
 // Per-pixel conversion of the chip's output to metric depth (the calibration fits a and b).
