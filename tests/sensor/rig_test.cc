@@ -149,3 +149,25 @@ TEST(RigFileTest, MissingAndMalformedFilesAreNamed) {
 
 }  // namespace
 }  // namespace romunect
+
+namespace romunect {
+namespace {
+
+TEST(RigFileTest, ShippedRigFilesAreThePresets) {
+  for (const char* name : {"romunect", "kinect-v1"}) {
+    const std::filesystem::path path =
+        std::filesystem::path(ROMUNECT_SOURCE_DIR) / "scenes" / "rigs" / (std::string(name) + ".json");
+    const Rig file = LoadRig(path);
+    const Rig preset = RigPreset(name);
+    EXPECT_EQ(file.camera, preset.camera) << name;
+    EXPECT_EQ(file.optics, preset.optics) << name;
+    EXPECT_EQ(file.projector, preset.projector) << name;
+    EXPECT_EQ(file.pattern, preset.pattern) << name;
+    EXPECT_EQ(file.depth_engine, preset.depth_engine) << name;
+    EXPECT_TRUE(file.T_C_P.matrix() == preset.T_C_P.matrix()) << name;
+    EXPECT_TRUE(file.H_P_rec == preset.H_P_rec) << name;
+  }
+}
+
+}  // namespace
+}  // namespace romunect
