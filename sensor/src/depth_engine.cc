@@ -126,6 +126,7 @@ ROMUNECT_SIMD_CLONES void DepthEngine::ComputeBand(int y_begin, int y_end, std::
   std::vector<int16_t> hsum(static_cast<size_t>(hrows) * W);
   std::vector<uint8_t> ad(W);
   std::vector<int16_t> h3_(W);
+  std::vector<int16_t> band_best(static_cast<size_t>(rows) * W, kMaxCost), band_best_j(static_cast<size_t>(rows) * W, 0);
 
   for (int j = 0; j < D; ++j) {
     const int s = options_.min_shift_px + j;
@@ -182,10 +183,22 @@ ROMUNECT_SIMD_CLONES void DepthEngine::ComputeBand(int y_begin, int y_end, std::
       const int16_t* __restrict sub = &hsum[static_cast<size_t>(i - 1) * W];
       for (int x = 0; x < W; ++x) cost[x] = static_cast<int16_t>(prev[x] + add[x] - sub[x]);
     }
+    // The best shift so far, per pixel of the band, while the rows are hot in cache.
+    const int16_t jj = static_cast<int16_t>(j);
+    for (int i = 0; i < rows; ++i) {
+      const int16_t* __restrict c = slab + (static_cast<size_t>(i) * D + j) * W;
+      int16_t* __restrict bc = &band_best[static_cast<size_t>(i) * W];
+      int16_t* __restrict bj = &band_best_j[static_cast<size_t>(i) * W];
+      for (int x = 0; x < W; ++x) {
+        const bool better = c[x] < bc[x];
+        bc[x] = better ? c[x] : bc[x];
+        bj[x] = better ? jj : bj[x];
+      }
+    }
   }
 
   // Decisions, vectorizable over x: best, then best outside +-1 of it.
-  std::vector<int16_t> best(W), second(W), best_j(W);
+  std::vector<int16_t> second(W);
   const int window_area = (2 * r + 1) * (2 * r + 1);
   const float max_cost_sum = static_cast<float>(options_.max_cost * window_area);
   const float min_texture = static_cast<float>(options_.min_texture);
@@ -193,20 +206,9 @@ ROMUNECT_SIMD_CLONES void DepthEngine::ComputeBand(int y_begin, int y_end, std::
   for (int i = 0; i < rows; ++i) {
     const int y = y_begin + i;
     const int16_t* costs = slab + static_cast<size_t>(i) * D * W;
-    int16_t* __restrict bc = best.data();
-    int16_t* __restrict bj = best_j.data();
+    const int16_t* __restrict bc = &band_best[static_cast<size_t>(i) * W];
+    const int16_t* __restrict bj = &band_best_j[static_cast<size_t>(i) * W];
     int16_t* __restrict sc = second.data();
-    std::fill(bc, bc + W, kMaxCost);
-    std::fill(bj, bj + W, 0);
-    for (int j = 0; j < D; ++j) {
-      const int16_t* __restrict c = costs + static_cast<size_t>(j) * W;
-      const int16_t jj = static_cast<int16_t>(j);
-      for (int x = 0; x < W; ++x) {
-        const bool better = c[x] < bc[x];
-        bc[x] = better ? c[x] : bc[x];
-        bj[x] = better ? jj : bj[x];
-      }
-    }
     std::fill(sc, sc + W, kMaxCost);
     for (int j = 0; j < D; ++j) {
       const int16_t* __restrict c = costs + static_cast<size_t>(j) * W;
@@ -235,8 +237,8 @@ ROMUNECT_SIMD_CLONES void DepthEngine::ComputeBand(int y_begin, int y_end, std::
         ++stats->flat;
         continue;
       }
-      const int j = best_j[x];
-      const float c0 = best[x];
+      const int j = bj[x];
+      const float c0 = bc[x];
       if (c0 > max_cost_sum) {
         ++stats->weak;
         continue;

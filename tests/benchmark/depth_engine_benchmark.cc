@@ -91,6 +91,26 @@ void BM_DepthEngine(benchmark::State& state) {
 }
 BENCHMARK(BM_DepthEngine)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 
+// IR synthesis of the same frame (the step before the engine in a full frame).
+void BM_IrSynthesis(benchmark::State& state) {
+  static const GeometryBuffer* geometry = [] {
+    const Rig& rig = ThePair().rig;
+    testing::AnalyticScene scene = testing::AnalyticScene::TiltedPlane(0.2, 0.12);
+    scene.spheres.push_back({Eigen::Vector3d(0.004, -0.002, 0.205), 0.008, 0, 2});
+    return new GeometryBuffer(testing::RenderAnalytic(scene, rig.camera, rig.T_C_P.translation()));
+  }();
+  IrSynthesisOptions options;
+  options.threads = static_cast<int>(state.range(0));
+  IrSynthesizer synth(options);
+  cv::Mat ir;
+  uint64_t seed = 0;
+  for (auto _ : state) {
+    synth.Synthesize(ThePair().rig, *geometry, ++seed, &ir, nullptr);
+    benchmark::DoNotOptimize(ir.data);
+  }
+}
+BENCHMARK(BM_IrSynthesis)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
+
 // OpenCV wants 8-bit rectified images; the conversion is part of their cost.
 cv::Mat To8Bit(const cv::Mat& ir) {
   cv::Mat out;
