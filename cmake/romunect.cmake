@@ -16,10 +16,10 @@ function(romunect_add_library name)
   target_link_libraries(romunect_${name} PUBLIC ${ARG_PUBLIC_DEPS} PRIVATE ${ARG_PRIVATE_DEPS})
 endfunction()
 
-# romunect_add_test(<name> SOURCES ... [DEPS ...] [LABELS ...] [TIMEOUT s])
+# romunect_add_test(<name> SOURCES ... [DEPS ...] [LABELS ...] [TIMEOUT s] [ENVIRONMENT VAR=value])
 # One gtest executable per call; every TEST becomes its own CTest entry.
 function(romunect_add_test name)
-  cmake_parse_arguments(ARG "" "TIMEOUT" "SOURCES;DEPS;LABELS" ${ARGN})
+  cmake_parse_arguments(ARG "" "TIMEOUT" "SOURCES;DEPS;LABELS;ENVIRONMENT" ${ARGN})
   add_executable(${name} ${ARG_SOURCES})
   target_compile_options(${name} PRIVATE ${ROMUNECT_WARNINGS})
   target_link_libraries(${name} PRIVATE ${ARG_DEPS} romunect::test_support GTest::gmock GTest::gtest_main)
@@ -30,9 +30,13 @@ function(romunect_add_test name)
   if(ARG_LABELS)
     set(labels ${ARG_LABELS})
   endif()
+  set(properties LABELS "${labels}" TIMEOUT ${ARG_TIMEOUT})
+  if(ARG_ENVIRONMENT)
+    list(APPEND properties ENVIRONMENT "${ARG_ENVIRONMENT}")
+  endif()
   gtest_discover_tests(${name}
     WORKING_DIRECTORY ${PROJECT_BINARY_DIR}
-    PROPERTIES LABELS "${labels}" TIMEOUT ${ARG_TIMEOUT}
+    PROPERTIES ${properties}
     DISCOVERY_TIMEOUT 60)
 endfunction()
 
