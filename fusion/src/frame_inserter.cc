@@ -6,11 +6,17 @@
 #include <cmath>
 #include <condition_variable>
 #include <cstdint>
+#include <cstdlib>
 #include <limits>
 #include <mutex>
+#include <new>
 #include <sstream>
 #include <thread>
 #include <vector>
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/errors.h"
@@ -106,8 +112,35 @@ struct RaySetup {
   bool ends_inside;        // the point is in the grid: the last voxel gets a hit
 };
 
-inline void ApplyMisses(Vote* v, int n) {
-  for (int k = 0; k < n; ++k) v[k] = static_cast<Vote>(std::max(v[k] - 1, int{kVoteMin}));
+// Misses for votes [lo, end) of a column of nz votes (saturating at kVoteMin). Runs are short
+// (a handful to a few dozen voxels) and of every length, so the compiler's vectorized loop spends
+// its time in scalar prologue and epilogue; here full 8-lane blocks and one masked last block.
+// The masked block may cover votes of the same column outside the run: it rewrites them with
+// their own value, and the column belongs to this thread (threads own rows), so that is safe.
+inline void ApplyMissRun(Vote* column, int lo, int end, int nz) {
+#if defined(__SSE2__)
+  if (nz >= 8 && nz <= 32760) {  // lane indices must fit signed 16 bits
+    const __m128i floor_v = _mm_set1_epi16(kVoteMin);
+    int k = lo;
+    for (; k + 8 <= end; k += 8) {
+      __m128i* p = reinterpret_cast<__m128i*>(column + k);
+      const __m128i v = _mm_loadu_si128(p);
+      _mm_storeu_si128(p, _mm_max_epi16(_mm_sub_epi16(v, _mm_set1_epi16(1)), floor_v));
+    }
+    if (k < end) {
+      const int s = std::max(end - 8, 0);  // [s, s + 8) lies in the column since nz >= 8
+      const __m128i lane = _mm_add_epi16(_mm_set1_epi16(static_cast<int16_t>(s)), _mm_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7));
+      const __m128i active = _mm_and_si128(_mm_cmpgt_epi16(lane, _mm_set1_epi16(static_cast<int16_t>(k - 1))),
+                                           _mm_cmplt_epi16(lane, _mm_set1_epi16(static_cast<int16_t>(end))));
+      __m128i* p = reinterpret_cast<__m128i*>(column + s);
+      const __m128i v = _mm_loadu_si128(p);
+      // Active lanes are -1: v - 1 >= -32768 cannot wrap; inactive lanes keep v >= kVoteMin.
+      _mm_storeu_si128(p, _mm_max_epi16(_mm_add_epi16(v, active), floor_v));
+    }
+    return;
+  }
+#endif
+  for (int k = lo; k < end; ++k) column[k] = static_cast<Vote>(std::max(column[k] - 1, int{kVoteMin}));
 }
 
 double ThreadCpuMs() {
@@ -180,14 +213,14 @@ inline void WalkRay(const RaySetup& ray, WalkContext* c) {
       Vote* column = c->votes + column_index * nz;
       const int lo = std::min(iz, iz_last), hi = std::max(iz, iz_last);
       if (ends_here && ray.ends_inside) {  // the last voxel gets the hit, the rest misses
-        ApplyMisses(column + lo + (sz < 0), hi - lo);
+        ApplyMissRun(column, lo + (sz < 0), lo + (sz < 0) + hi - lo, nz);
         ApplyHit(column + iz_last);
         c->misses += hi - lo;
         ++c->hits;
         c->hit_lo[column_index] = std::min<uint16_t>(c->hit_lo[column_index], static_cast<uint16_t>(iz_last));
         c->hit_hi[column_index] = std::max<uint16_t>(c->hit_hi[column_index], static_cast<uint16_t>(iz_last));
       } else {
-        ApplyMisses(column + lo, hi - lo + 1);
+        ApplyMissRun(column, lo, hi + 1, nz);
         c->misses += hi - lo + 1;
       }
     }
@@ -248,7 +281,12 @@ struct FrameInserter::Workspace {
   bool has_camera = false;
   CameraModel camera;
   std::vector<double> ray_C;      // 3 per pixel: camera.Ray(u, v), z = 1
-  std::vector<RaySetup> rays;     // one slot per pixel; chunk c's rays start at its first pixel
+  // One slot per pixel; chunk c's rays start at its first pixel. malloc'd, not zero-filled:
+  // only the slots valid pixels use ever become resident (17 MB at 640 x 480 otherwise).
+  struct Free {
+    void operator()(void* p) const { std::free(p); }
+  };
+  std::unique_ptr<RaySetup[], Free> rays;
   std::vector<size_t> chunk_count;     // rays set up by chunk c
   std::vector<InsertStats> chunk_stats;
   std::vector<uint32_t> row_weight;    // threads x ny: rays per row, for balancing slabs
@@ -280,7 +318,8 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     ws.camera = camera;
     ws.has_camera = true;
     ws.ray_C.resize(3 * pixels);
-    ws.rays.resize(pixels);
+    ws.rays.reset(static_cast<RaySetup*>(std::malloc(pixels * sizeof(RaySetup))));
+    if (ws.rays == nullptr) throw std::bad_alloc();
     for (int v = 0; v < height; ++v) {
       for (int u = 0; u < width; ++u) {
         const Eigen::Vector3d r = camera.Ray(Eigen::Vector2d(u, v));

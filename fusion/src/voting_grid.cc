@@ -2,11 +2,16 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <sstream>
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #include "romunect/sensor/errors.h"
 
@@ -26,6 +31,28 @@ size_t PhysicalMemoryBytes() {
   const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGESIZE);
   if (pages <= 0 || page <= 0) return std::numeric_limits<size_t>::max();
   return static_cast<size_t>(pages) * static_cast<size_t>(page);
+}
+
+// max(votes[lo..hi]), lo <= hi; 8 lanes at a time (the last block may overlap the previous one,
+// which a maximum does not mind).
+int MaxVote(const Vote* votes, int lo, int hi) {
+  int k = lo;
+  int best = std::numeric_limits<Vote>::min();
+#if defined(__SSE2__)
+  if (hi - lo + 1 >= 8) {
+    __m128i m = _mm_loadu_si128(reinterpret_cast<const __m128i*>(votes + lo));
+    for (k = lo + 8; k + 8 <= hi + 1; k += 8) {
+      m = _mm_max_epi16(m, _mm_loadu_si128(reinterpret_cast<const __m128i*>(votes + k)));
+    }
+    if (k <= hi) m = _mm_max_epi16(m, _mm_loadu_si128(reinterpret_cast<const __m128i*>(votes + hi - 7)));
+    m = _mm_max_epi16(m, _mm_srli_si128(m, 8));
+    m = _mm_max_epi16(m, _mm_srli_si128(m, 4));
+    m = _mm_max_epi16(m, _mm_srli_si128(m, 2));
+    return static_cast<int16_t>(_mm_cvtsi128_si32(m) & 0xffff);
+  }
+#endif
+  for (; k <= hi; ++k) best = std::max(best, int{votes[k]});
+  return best;
 }
 
 }  // namespace
@@ -144,15 +171,12 @@ cv::Mat ExtractHeightMap(const VotingGrid& grid) {
       row[ix] = nan;
       if (lo > hi) continue;
       const Vote* votes = grid.column(ix, iy);
-      int best_k = -1;
-      Vote best = 0;  // only positive votes win
-      for (int k = lo; k <= hi; ++k) {
-        if (votes[k] > best || (best_k >= 0 && votes[k] == best)) {  // >= upward: ties to higher z
-          best = votes[k];
-          best_k = k;
-        }
-      }
-      if (best_k >= 0) row[ix] = static_cast<float>(z0 + (best_k + 0.5) * voxel);
+      // The highest vote, then the highest z holding it (ties go to the higher z).
+      const int best = MaxVote(votes, lo, hi);
+      if (best <= 0) continue;  // only positive votes win
+      int best_k = hi;
+      while (votes[best_k] != best) --best_k;
+      row[ix] = static_cast<float>(z0 + (best_k + 0.5) * voxel);
     }
   }
   return height;

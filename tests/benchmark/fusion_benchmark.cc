@@ -3,7 +3,8 @@
 // tests/fusion, and, when built with ROMUNECT_BENCH_PEERS, Open3D's ScalableTSDFVolume and
 // OctoMap. Prints one table and writes JSON (--json PATH, default in the build folder), then runs
 // the Google Benchmark cases (insert one frame, extract) unless --no_gbench. --no_reference and
-// --no_peers leave those rows out; --octomap_budget_s caps OctoMap's time (it runs >= 1 frame).
+// --no_peers leave those rows out; --octomap_budget_s caps OctoMap's time (it runs >= 1 frame);
+// --frames N renders a shorter approach and --threads N keeps only that row of ours (callgrind).
 //
 // Times: wall and process CPU time per frame, medians. The machine is shared: say its load when
 // quoting numbers. Memory: growth of resident memory while the method's state is alive (the
@@ -56,8 +57,16 @@ double CpuMs() {
 }
 double Median(std::vector<double> v) { return Quantile(std::move(v), 0.5); }
 
+int g_frames = 50;  // --frames N: a shorter approach (e.g. for callgrind)
+
+AnalyticBinOptions WorkloadOptions() {
+  AnalyticBinOptions options;
+  options.frames = g_frames;
+  return options;
+}
+
 struct Workload {
-  AnalyticBin bin{AnalyticBinOptions{}};
+  AnalyticBin bin{WorkloadOptions()};
   std::vector<Frame> frames;
   GridOptions grid;
   cv::Mat gt;  // exact height map at the grid's cells
@@ -349,6 +358,7 @@ int main(int argc, char** argv) {
   std::string json_path = FUSION_BENCHMARK_JSON;
   bool gbench = true, reference = true, peers = true;
   double octomap_budget_s = 60.0;
+  int only_threads = 0;  // --threads N: only our row with N threads
   std::vector<char*> rest{argv[0]};
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -360,6 +370,10 @@ int main(int argc, char** argv) {
       peers = false;
     } else if (a == "--no_reference") {
       reference = false;
+    } else if (a == "--frames" && i + 1 < argc) {
+      romunect::fusion::g_frames = std::stoi(argv[++i]);
+    } else if (a == "--threads" && i + 1 < argc) {
+      only_threads = std::stoi(argv[++i]);
     } else if (a == "--octomap_budget_s" && i + 1 < argc) {
       octomap_budget_s = std::stod(argv[++i]);
     } else {
@@ -370,8 +384,9 @@ int main(int argc, char** argv) {
   (void)peers;
   using namespace romunect::fusion;
   std::vector<Row> rows;
-  rows.push_back(RunOurs(1));
-  rows.push_back(RunOurs(2));
+  for (const int threads : {1, 2}) {
+    if (only_threads == 0 || only_threads == threads) rows.push_back(RunOurs(threads));
+  }
   if (reference) rows.push_back(RunReference());
 #ifdef ROMUNECT_BENCH_PEERS
   if (peers) {

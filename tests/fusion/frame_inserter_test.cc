@@ -215,5 +215,57 @@ TEST(FrameInserterTest, CountsInvalidPixelsAndSkipsThem) {
   EXPECT_EQ(stats.hits, stats.rays - 1);
 }
 
+// Votes saturate at +-32767 (voting_grid.h): a 40 x 30 camera looking down into a 2 x 2 x 8 box
+// of coarse voxels sends ~300 rays per column per frame, so within 200 frames the top voxels
+// reach -32767 and the surface voxels +32767 and keep receiving votes. Saturation is where the
+// order of votes could matter; the fast path must still equal the reference vote for vote, with
+// SIMD runs of every length (nz = 8 and nz = 11: runs crossing 8-lane blocks and column ends).
+TEST(FrameInserterTest, SaturatedVotesMatchReference) {
+  for (const int nz : {8, 11}) {
+    GridOptions options;
+    options.min_W = Eigen::Vector3d(0.0, 0.0, 0.0);
+    options.max_W = Eigen::Vector3d(0.002, 0.002, 0.001 * nz);
+    options.voxel_m = 0.001;
+    CameraModel camera = testing::SmallCamera();
+    camera.width = 40;
+    camera.height = 30;
+    camera.cx = 19.5;
+    camera.cy = 14.5;
+    camera.fx = camera.fy = 400.0;  // 40 px span 2 mm at 20 mm
+    const Pose T_W_C = MakePose(Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix(),
+                                Eigen::Vector3d(0.001, 0.001, 0.020));
+    for (const int threads : {1, 2}) {
+      VotingGrid grid(options);
+      ReferenceGrid ref = MakeReference(grid);
+      FrameInserter inserter(&grid, InserterOptions{threads});
+      InsertStats stats;
+      ReferenceCounts counts;
+      std::mt19937 rng(5);
+      // Depths put the points at z in [0.5, nz - 0.5] mm: some columns hit at every level.
+      std::uniform_real_distribution<double> depth(0.020 - 0.001 * (nz - 0.5), 0.0195);
+      for (int frame = 0; frame < 200; ++frame) {
+        cv::Mat d(camera.height, camera.width, CV_32F);
+        // Most pixels on one plane (the surface saturates positive), the rest scattered.
+        for (auto it = d.begin<float>(); it != d.end<float>(); ++it) {
+          *it = static_cast<float>(rng() % 4 != 0 ? 0.020 - 0.0042 : depth(rng));
+        }
+        inserter.Insert(camera, d, T_W_C, &stats);
+        reference::ReferenceInsert(camera, d, T_W_C, &ref, &counts);
+      }
+      EXPECT_TRUE(VotesEqual(grid, ref)) << "nz " << nz << ", threads " << threads;
+      EXPECT_TRUE(ImagesBitEqual(ExtractHeightMap(grid), reference::ReferenceExtract(ref)));
+      EXPECT_EQ(stats.hits, counts.hits);
+      EXPECT_EQ(stats.misses, counts.misses);
+      int saturated_low = 0, saturated_high = 0;
+      for (const int16_t v : ref.votes) {
+        saturated_low += v == -32767;
+        saturated_high += v == 32767;
+      }
+      EXPECT_GT(saturated_low, 0) << "the workload must saturate misses";
+      EXPECT_GT(saturated_high, 0) << "the workload must saturate hits";
+    }
+  }
+}
+
 }  // namespace
 }  // namespace romunect::fusion

@@ -1,11 +1,16 @@
 #include "romunect/fusion/voting_grid.h"
 
+#include <algorithm>
 #include <cmath>
+#include <cstdlib>
+#include <random>
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include "reference_fusion.h"
 #include "romunect/sensor/errors.h"
+#include "romunect/testing/test_support.h"
 
 namespace romunect::fusion {
 namespace {
@@ -83,6 +88,39 @@ TEST(VotingGridTest, ExtractionKeepsHighestPositiveVoteAndBreaksTiesUpward) {
   EXPECT_TRUE(std::isnan(height.at<float>(0, 2)));
   grid.Clear();
   EXPECT_TRUE(std::isnan(ExtractHeightMap(grid).at<float>(0, 0)));
+}
+
+// Extraction (8-lane maximum, then the highest z holding it) against the reference's obvious
+// full-column loop, on random small votes (many ties) in columns of 1 to 40 voxels whose hit
+// range spans from one voxel to the whole column.
+TEST(VotingGridTest, ExtractionMatchesReferenceOnRandomVotes) {
+  std::mt19937 rng(3);
+  for (const int nz : {1, 7, 8, 9, 16, 23, 40}) {
+    GridOptions options;
+    options.min_W = Eigen::Vector3d(0, 0, 0);
+    options.max_W = Eigen::Vector3d(0.030, 0.020, 0.001 * nz);
+    options.voxel_m = 0.001;
+    VotingGrid grid(options);
+    reference::ReferenceGrid ref(options.min_W, options.voxel_m, grid.nx(), grid.ny(), grid.nz());
+    std::uniform_int_distribution<int> vote(-3, 3), index(0, nz - 1);
+    for (int iy = 0; iy < grid.ny(); ++iy) {
+      for (int ix = 0; ix < grid.nx(); ++ix) {
+        const size_t c = grid.ColumnIndex(ix, iy);
+        // Positive votes only inside [lo, hi], as insertion guarantees (hits set the range).
+        int lo = index(rng), hi = index(rng);
+        if (lo > hi) std::swap(lo, hi);
+        if (rng() % 8 == 0) continue;  // some columns never hit
+        grid.mutable_hit_lo()[c] = static_cast<uint16_t>(lo);
+        grid.mutable_hit_hi()[c] = static_cast<uint16_t>(hi);
+        for (int iz = 0; iz < nz; ++iz) {
+          const int v = (iz >= lo && iz <= hi) ? vote(rng) : -std::abs(vote(rng));
+          grid.mutable_column(c)[iz] = static_cast<Vote>(v);
+          ref.at(ix, iy, iz) = static_cast<int16_t>(v);
+        }
+      }
+    }
+    EXPECT_TRUE(testing::ImagesBitEqual(ExtractHeightMap(grid), reference::ReferenceExtract(ref))) << "nz " << nz;
+  }
 }
 
 }  // namespace
