@@ -280,7 +280,7 @@ struct FrameInserter::Workspace {
   WorkerPool pool;
   bool has_camera = false;
   CameraModel camera;
-  std::vector<double> ray_C;      // 3 per pixel: camera.Ray(u, v), z = 1
+  std::vector<double> ray_C;      // 2 per pixel: camera.Ray(u, v) x, y (its z is exactly 1)
   // One slot per pixel; chunk c's rays start at its first pixel. malloc'd, not zero-filled:
   // only the slots valid pixels use ever become resident (17 MB at 640 x 480 otherwise).
   struct Free {
@@ -317,16 +317,16 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
   if (!ws.has_camera || !(ws.camera == camera)) {
     ws.camera = camera;
     ws.has_camera = true;
-    ws.ray_C.resize(3 * pixels);
+    ws.ray_C.resize(2 * pixels);
     ws.rays.reset(static_cast<RaySetup*>(std::malloc(pixels * sizeof(RaySetup))));
     if (ws.rays == nullptr) throw std::bad_alloc();
     for (int v = 0; v < height; ++v) {
       for (int u = 0; u < width; ++u) {
         const Eigen::Vector3d r = camera.Ray(Eigen::Vector2d(u, v));
-        double* out = &ws.ray_C[3 * (static_cast<size_t>(v) * width + u)];
+        ROMUNECT_CHECK(r.z() == 1.0);  // CameraModel::Ray's contract; the walk relies on it
+        double* out = &ws.ray_C[2 * (static_cast<size_t>(v) * width + u)];
         out[0] = r.x();
         out[1] = r.y();
-        out[2] = r.z();
       }
     }
   }
@@ -367,12 +367,13 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
         }
         ++s.rays;
         const double d = depth;
-        const double* r = &ws.ray_C[3 * (static_cast<size_t>(v) * width + u)];
+        const double* r = &ws.ray_C[2 * (static_cast<size_t>(v) * width + u)];
         RaySetup& ray = out[count];
         double dg[3];
         bool inside = true;
         for (int a = 0; a < 3; ++a) {
-          const double dir = R(a, 0) * r[0] + R(a, 1) * r[1] + R(a, 2) * r[2];
+          // R(a, 2) * ray z with z = 1 is R(a, 2) exactly: the reference's double expression.
+          const double dir = R(a, 0) * r[0] + R(a, 1) * r[1] + R(a, 2);
           const double p_W = o_W[a] + d * dir;
           ray.p_g[a] = (p_W - min_W[a]) / voxel;
           dg[a] = ray.p_g[a] - o_g[a];
