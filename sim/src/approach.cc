@@ -79,6 +79,11 @@ std::string ApproachOptions::Problem() const {
   if (!(corner_smoothing_s >= 0)) return "corner_smoothing_s = " + Num(corner_smoothing_s) + ": must be >= 0";
   if (!(joint_speed_rad_s > 0)) return "joint_speed_rad_s = " + Num(joint_speed_rad_s) + ": must be > 0";
   if (!(hold_before_s >= 0)) return "hold_before_s = " + Num(hold_before_s) + ": must be >= 0";
+  if (!(focused_far_m >= 0)) return "focused_far_m = " + Num(focused_far_m) + ": must be >= 0 (0: one level)";
+  if (focused_far_m > 0 && !(focused_near_m > 0 && focused_near_m < focused_far_m)) {
+    return "focused_near_m = " + Num(focused_near_m) + ": must be in (0, focused_far_m = " + Num(focused_far_m) + ")";
+  }
+  if (!(surface_height_m >= 0)) return "surface_height_m = " + Num(surface_height_m) + ": must be >= 0";
   return "";
 }
 
@@ -95,9 +100,28 @@ ApproachPlan PlanApproach(const World& world, const CameraModel& camera, const A
   R_Bin_C.col(1) = Eigen::Vector3d::UnitY();
   R_Bin_C.col(2) = -Eigen::Vector3d::UnitZ();
 
-  // Passes: the footprint at the working distance, with overlap, tiles the region.
-  const double foot_x = options.end_distance_m * camera.width / camera.fx * (1.0 - options.pass_overlap);
-  const double foot_y = options.end_distance_m * camera.height / camera.fy * (1.0 - options.pass_overlap);
+  // Stand-off levels (camera heights above the bin floor), highest first.
+  if (options.focused_far_m > 0) {
+    const double top = options.surface_height_m > 0 ? options.surface_height_m : world.bin_inner_size_m().z();
+    // Range centres evenly from the top down to the floor, one level more than the range
+    // widths the height needs: top and floor both lie mid-range, where matching is best.
+    const double width = options.focused_far_m - options.focused_near_m;
+    const double mid = 0.5 * (options.focused_near_m + options.focused_far_m);
+    const int n = static_cast<int>(std::ceil(top / width - 1e-9)) + 1;
+    for (int i = 0; i < n; ++i) plan.levels_m.push_back(mid + top * (n - 1 - i) / (n - 1));
+    if (options.start_distance_m < plan.levels_m.front()) {
+      throw InputError("approach", "start_distance_m",
+                       Num(options.start_distance_m) + " m is below the first stand-off level " +
+                           Num(plan.levels_m.front()) + " m");
+    }
+  } else {
+    plan.levels_m = {options.end_distance_m};
+  }
+
+  // Passes: the footprint at the lowest level, with overlap, tiles the region.
+  const double low = plan.levels_m.back();
+  const double foot_x = low * camera.width / camera.fx * (1.0 - options.pass_overlap);
+  const double foot_y = low * camera.height / camera.fy * (1.0 - options.pass_overlap);
   plan.passes_x = std::max(1, static_cast<int>(std::ceil(options.region_size_m.x() / foot_x - 1e-9)));
   plan.passes_y = std::max(1, static_cast<int>(std::ceil(options.region_size_m.y() / foot_y - 1e-9)));
   std::vector<Eigen::Vector2d> centres;
@@ -108,18 +132,29 @@ ApproachPlan PlanApproach(const World& world, const CameraModel& camera, const A
                            options.region_size_m.y() * ((j + 0.5) / plan.passes_y - 0.5));
     }
   }
-  // Descend linearly in the lateral path length (straight down when there is one pass).
-  std::vector<double> lateral{0.0};
-  for (size_t i = 1; i < centres.size(); ++i) lateral.push_back(lateral.back() + (centres[i] - centres[i - 1]).norm());
   std::vector<Eigen::Vector3d> polyline;
-  for (size_t i = 0; i < centres.size(); ++i) {
-    const double a = lateral.back() > 0 ? lateral[i] / lateral.back() : 0.0;
-    polyline.emplace_back(centres[i].x(), centres[i].y(),
-                          options.start_distance_m + a * (options.end_distance_m - options.start_distance_m));
-  }
-  if (centres.size() == 1) {
-    polyline.push_back(polyline[0]);
-    polyline.back().z() = options.end_distance_m;
+  if (options.focused_far_m > 0) {
+    // Straight down to the first level, then the serpentine at each level, back and forth.
+    polyline.emplace_back(centres[0].x(), centres[0].y(), options.start_distance_m);
+    for (size_t l = 0; l < plan.levels_m.size(); ++l) {
+      for (size_t i = 0; i < centres.size(); ++i) {
+        const Eigen::Vector2d& c = centres[l % 2 == 0 ? i : centres.size() - 1 - i];
+        polyline.emplace_back(c.x(), c.y(), plan.levels_m[l]);
+      }
+    }
+  } else {
+    // Descend linearly in the lateral path length (straight down when there is one pass).
+    std::vector<double> lateral{0.0};
+    for (size_t i = 1; i < centres.size(); ++i) lateral.push_back(lateral.back() + (centres[i] - centres[i - 1]).norm());
+    for (size_t i = 0; i < centres.size(); ++i) {
+      const double a = lateral.back() > 0 ? lateral[i] / lateral.back() : 0.0;
+      polyline.emplace_back(centres[i].x(), centres[i].y(),
+                            options.start_distance_m + a * (options.end_distance_m - options.start_distance_m));
+    }
+    if (centres.size() == 1) {
+      polyline.push_back(polyline[0]);
+      polyline.back().z() = options.end_distance_m;
+    }
   }
   for (size_t i = 1; i < polyline.size(); ++i) plan.length_m += (polyline[i] - polyline[i - 1]).norm();
   std::vector<Eigen::Vector3d> p_Bin = TimeParameterize(polyline, options.speed_m_s, options.acceleration_m_s2,

@@ -101,6 +101,18 @@ std::string ScanStats::BriefReport() const {
   return std::string(s) + "; " + settle.BriefReport();
 }
 
+DepthRange MeasurableDepthRange(const Rig& rig, double usable_fraction) {
+  ROMUNECT_CHECK(usable_fraction > 0 && usable_fraction <= 1);
+  const double fb = rig.camera.fx * std::abs(rig.T_C_P.translation().x());  // px m
+  ROMUNECT_CHECK(fb > 0 && rig.optics.focus_distance_m > 0);
+  const double half = 0.5 * usable_fraction * rig.depth_engine.search_range_px / fb;  // 1/m
+  const double inv_focus = 1.0 / rig.optics.focus_distance_m;
+  DepthRange range;
+  range.near_m = 1.0 / (inv_focus + half);
+  range.far_m = half < inv_focus ? 1.0 / (inv_focus - half) : 10.0 * rig.optics.focus_distance_m;
+  return range;
+}
+
 struct Scanner::Impl {
   ScanOptions options;
   std::unique_ptr<World> world;
@@ -148,8 +160,13 @@ Scanner::Scanner(const ScanOptions& options) : impl_(std::make_unique<Impl>()) {
   }
   World& world = *s.world;
   world.SetPileFrozen(true);  // scanning is kinematic for the pile
-  s.plan = PlanApproach(world, options.rig.camera, options.approach, options.ik);
-  s.executor = std::make_unique<ApproachExecutor>(&world, s.plan, options.approach);
+  if (options.levels_from_rig && s.options.approach.focused_far_m == 0) {
+    const DepthRange range = MeasurableDepthRange(options.rig);
+    s.options.approach.focused_near_m = range.near_m;
+    s.options.approach.focused_far_m = range.far_m;
+  }
+  s.plan = PlanApproach(world, options.rig.camera, s.options.approach, options.ik);
+  s.executor = std::make_unique<ApproachExecutor>(&world, s.plan, s.options.approach);
   s.stats.move_to_start_s = s.executor->MoveToStart();
   s.count = static_cast<int>(std::floor(s.plan.duration_s() * options.rig.frame_rate_hz + 1e-9)) + 1;
   s.scene = MirrorWorld(world, /*with_arm=*/true, &s.handles);

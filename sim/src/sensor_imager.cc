@@ -10,8 +10,13 @@ std::string SensorImagerOptions::Problem() const {
   std::ostringstream s;
   if (threads < 1 || threads > 256) {
     s << "threads = " << threads << ": expected 1..256";
-  } else if (!(sweep_near_m > 0.0 && sweep_far_m > sweep_near_m)) {
-    s << "sweep_near_m = " << sweep_near_m << ", sweep_far_m = " << sweep_far_m << ": expected 0 < near < far";
+  } else if (!(sweep_near_m == 0.0 && sweep_far_m == 0.0) && !(sweep_near_m > 0.0 && sweep_far_m > sweep_near_m)) {
+    s << "sweep_near_m = " << sweep_near_m << ", sweep_far_m = " << sweep_far_m
+      << ": expected 0 < near < far (or both 0: the rig's range)";
+  } else if (!(sweep_fraction > 0.0 && sweep_fraction <= 1.0)) {
+    s << "sweep_fraction = " << sweep_fraction << ": expected (0, 1]";
+  } else if (!(keep_fraction > 0.0 && keep_fraction <= 1.0)) {
+    s << "keep_fraction = " << keep_fraction << ": expected (0, 1]";
   } else if (sweep_planes < 2) {
     s << "sweep_planes = " << sweep_planes << ": expected at least 2";
   }
@@ -28,6 +33,11 @@ DepthEngineOptions EngineOptions(const Rig& rig, int threads) {
 
 }  // namespace
 
+DepthRange SweepRange(const Rig& rig, const SensorImagerOptions& options) {
+  if (options.sweep_far_m > 0) return {options.sweep_near_m, options.sweep_far_m};
+  return MeasurableDepthRange(rig, options.sweep_fraction);
+}
+
 DepthCorrection GroundTruthDepthCorrection(const Rig& rig, const SensorImagerOptions& options) {
   IrSynthesisOptions synthesis;
   synthesis.noise = false;
@@ -37,8 +47,9 @@ DepthCorrection GroundTruthDepthCorrection(const Rig& rig, const SensorImagerOpt
   std::vector<DepthEngineOutput> outputs(options.sweep_planes);
   std::vector<cv::Mat> truth;
   cv::Mat ir;
+  const DepthRange sweep = SweepRange(rig, options);
   for (int i = 0; i < options.sweep_planes; ++i) {
-    const double z_m = options.sweep_near_m + (options.sweep_far_m - options.sweep_near_m) * i / (options.sweep_planes - 1);
+    const double z_m = sweep.near_m + (sweep.far_m - sweep.near_m) * i / (options.sweep_planes - 1);
     synthesizer.Synthesize(rig, FrontoParallelPlane(rig.camera, z_m, IrMaterial{}), 0, &ir, nullptr);
     engine.Compute(ir, &outputs[i]);
     truth.emplace_back(rig.camera.height, rig.camera.width, CV_32F, cv::Scalar(static_cast<float>(z_m)));
@@ -53,7 +64,8 @@ SensorImager::SensorImager(const Rig& rig, const SensorImagerOptions& options)
         synthesis.threads = options.threads;
         return synthesis;
       }()),
-      engine_(EngineOptions(rig, options.threads)) {
+      engine_(EngineOptions(rig, options.threads)),
+      keep_(options.keep_fraction < 1.0 ? MeasurableDepthRange(rig, options.keep_fraction) : DepthRange{0.0, 1e30}) {
   if (const std::string problem = options.Problem(); !problem.empty()) {
     throw InputError("sensor imager", "options", problem);
   }
@@ -71,9 +83,10 @@ SensorImager::SensorImager(const Rig& rig, const SensorImagerOptions& options)
   } else {
     correction_ = GroundTruthDepthCorrection(rig, options);
     std::ostringstream s;
+    const DepthRange sweep = SweepRange(rig, options);
     s << "ground truth of the rig (" << DepthCorrectionModelName(correction_.model) << ", fitted on "
-      << options.sweep_planes << " simulated planes at " << 1e3 * options.sweep_near_m << "-"
-      << 1e3 * options.sweep_far_m << " mm; the calibration chain is not in the loop)";
+      << options.sweep_planes << " simulated planes at " << 1e3 * sweep.near_m << "-" << 1e3 * sweep.far_m
+      << " mm; the calibration chain is not in the loop)";
     correction_source_ = s.str();
   }
 }
@@ -83,6 +96,9 @@ void SensorImager::Image(const Rig& rig, const GeometryBuffer& geometry, uint64_
   engine_.Compute(frame->ir, &output_);
   output_.raw.copyTo(frame->raw);
   frame->depth_m = ApplyDepthCorrection(correction_, output_);
+  // Outside the matchable range a depth is a clamped match, not a measurement.
+  cv::Mat outside = (frame->depth_m < keep_.near_m) | (frame->depth_m > keep_.far_m);
+  frame->depth_m.setTo(0.0f, outside);
 }
 
 }  // namespace romunect::sim

@@ -6,6 +6,7 @@
 
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/rig.h"
+#include "romunect/sim/scanner.h"
 
 namespace romunect::sim {
 namespace {
@@ -40,6 +41,43 @@ TEST(ApproachTest, PlanDescendsFromStartToWorkingDistanceWithPassesCoveringTheRe
     const PoseError e = ComparePoses(world.ForwardKinematics(plan.q[k], ArmSite::kCamera), plan.T_W_C[k]);
     EXPECT_LT(e.translation_m, kPlanToleranceM);
   }
+}
+
+// The stand-off levels from the rig's focused range: every height from the bin floor to the
+// rim lies inside some level's range, floor and rim mid-range; the default scan keeps the
+// paper's 50 frames within 2-4 s at 30 Hz, descending to the first level at 0.3 m/s.
+TEST(ApproachTest, StandOffLevelsCoverFloorToRimWithTheFocusedRange) {
+  World world(WorldOptions{});
+  const Rig rig = RigPreset("romunect");
+  const DepthRange range = MeasurableDepthRange(rig);
+  ApproachOptions options;
+  options.focused_near_m = range.near_m;
+  options.focused_far_m = range.far_m;
+  const ApproachPlan plan = PlanApproach(world, rig.camera, options);
+  const double top = world.bin_inner_size_m().z(), mid = 0.5 * (range.near_m + range.far_m);
+  ASSERT_GE(plan.levels_m.size(), 2u);  // 35 mm of pile vs a ~2 cm range
+  EXPECT_NEAR(plan.levels_m.front(), top + mid, 1e-9);
+  EXPECT_NEAR(plan.levels_m.back(), mid, 1e-9);
+  for (double h = 0.0; h <= top; h += 0.5e-3) {
+    bool seen = false;
+    for (double level : plan.levels_m) seen |= level - h >= range.near_m && level - h <= range.far_m;
+    EXPECT_TRUE(seen) << "height " << h;
+  }
+  // The plan's camera heights stay between the start and the lowest level; the passes run at
+  // the levels (the serpentine's lateral legs are flat).
+  const Pose T_Bin_W = world.T_W_Bin().inverse();
+  int at_levels = 0;
+  for (const Pose& T_W_C : plan.T_W_C) {
+    const double z = (T_Bin_W * T_W_C.translation()).z();
+    EXPECT_GT(z, plan.levels_m.back() - kPlanToleranceM);
+    EXPECT_LT(z, options.start_distance_m + kPlanToleranceM);
+    for (double level : plan.levels_m) at_levels += std::abs(z - level) < 1e-4;
+  }
+  EXPECT_GT(at_levels, static_cast<int>(plan.T_W_C.size()) / 2);  // most time is spent measuring
+  const double frames = std::floor(plan.duration_s() * rig.frame_rate_hz) + 1;
+  EXPECT_GE(frames, 50);
+  EXPECT_GE(plan.duration_s(), 2.0);
+  EXPECT_LE(plan.duration_s(), 4.0);
 }
 
 TEST(ApproachTest, ExecutedApproachTracksThePlanAtThirtyCentimetresPerSecond) {

@@ -29,6 +29,17 @@ struct ApproachOptions {
   double corner_smoothing_s = 0.1;  // box filter over the path's corners (0: sharp corners)
   double joint_speed_rad_s = 1.0;  // peak joint speed of the move to the start
   double hold_before_s = 0.3;      // still time at the start, for the servos to settle
+  // Stand-off levels (used when focused_far_m > 0): the sensor measures only depths (along
+  // its axis) in [focused_near_m, focused_far_m] (see MeasurableDepthRange). The camera then
+  // descends straight down to the highest level and passes over the region there, then at
+  // each lower level (serpentine, back and forth). The levels put the middle of the focused
+  // range evenly from the top of the pile (bin floor + surface_height_m; 0: the bin's inner
+  // height, the rim) down to the floor, with one level more than the range widths that height
+  // needs, so the floor and the top both lie mid-range, where the rig matches best.
+  // end_distance_m is unused then.
+  double focused_near_m = 0.0;
+  double focused_far_m = 0.0;
+  double surface_height_m = 0.0;
 
   std::string Problem() const;  // "" when valid; otherwise "field = value: rule"
 };
@@ -37,7 +48,8 @@ struct ApproachPlan {
   double timestep_s = 0.0;               // one sample per physics step
   std::vector<Pose> T_W_C;               // planned camera poses, one per step
   std::vector<World::ArmVector> q;       // joint angles that reach them (IK)
-  int passes_x = 1, passes_y = 1;        // lateral passes over the region
+  int passes_x = 1, passes_y = 1;        // lateral passes over the region (per level)
+  std::vector<double> levels_m;          // camera heights above the bin floor of the passes
   double length_m = 0.0;                 // path length
   double duration_s() const { return T_W_C.empty() ? 0.0 : (T_W_C.size() - 1) * timestep_s; }
 };

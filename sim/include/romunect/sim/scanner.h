@@ -33,6 +33,16 @@ class FrameImager {
   virtual void Image(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, Frame* frame) = 0;
 };
 
+// The depths (along the camera axis, m) where the rig measures: the depth engine searches
+// search_range_px shifts centred on the zero-shift plane (the projector's pre-warp plane, the
+// camera's focus distance), and a shift of s px is 1/Z - 1/Z_focus = s / (fx * baseline). Only
+// usable_fraction of the search window counts: best matches at its border are clamped, not
+// found. For the romunect rig about 191-210 mm (the paper's ~2 cm focused range).
+struct DepthRange {
+  double near_m = 0.0, far_m = 0.0;
+};
+DepthRange MeasurableDepthRange(const Rig& rig, double usable_fraction = 0.8);
+
 struct ScanOptions {
   std::filesystem::path scene_file;   // MJCF with the arm and a bin; empty: the default scene
   std::filesystem::path saved_scene;  // a SaveSettledScene() file: its pile, no settling
@@ -41,6 +51,9 @@ struct ScanOptions {
   Rig rig = RigPreset("romunect");
   std::optional<Pose> T_H_C;          // hand-eye; default: the scene's camera site
   ApproachOptions approach;
+  // Fill approach.focused_near_m/far_m from MeasurableDepthRange(rig) when they are 0, so the
+  // passes run at stand-off levels where the rig measures.
+  bool levels_from_rig = true;
   IkOptions ik;
   int samples_per_pixel = 1;          // renderer: 1 (pinhole) or 4 (thin lens, defocus)
   int threads = 2;                    // renderer threads

@@ -22,10 +22,16 @@ struct SensorImagerOptions {
   // ground truth from a plane sweep.
   std::optional<DepthCorrection> correction;
   std::string correction_source;  // what `correction` came from, for reports
-  // Ground-truth plane sweep: planes from near to far around the working distance.
-  double sweep_near_m = 0.160;
-  double sweep_far_m = 0.240;
+  // Ground-truth plane sweep: planes from near to far; both 0: the rig's matchable range
+  // (MeasurableDepthRange with sweep_fraction of the search window). Planes outside it give
+  // no or false matches, which bent the fit and put gross outliers into the maps.
+  double sweep_near_m = 0.0;
+  double sweep_far_m = 0.0;
+  double sweep_fraction = 0.9;
   int sweep_planes = 17;
+  // Depths outside MeasurableDepthRange(rig, keep_fraction) are dropped (set to 0): matches at
+  // the border of the shift search are clamped there, not found. 1: keep all.
+  double keep_fraction = 0.95;
   std::string Problem() const;
 };
 
@@ -49,6 +55,7 @@ class SensorImager : public FrameImager {
   DepthEngine engine_;
   DepthCorrection correction_;
   std::string correction_source_;
+  DepthRange keep_;           // depths kept (m)
   DepthEngineOutput output_;  // reused every frame
 };
 
@@ -56,5 +63,7 @@ class SensorImager : public FrameImager {
 // at known depths are imaged through the rig and the depth engine, and each pixel's model is
 // fitted to the true depths. Noise-free imaging, so the fit shows the model, not the noise.
 DepthCorrection GroundTruthDepthCorrection(const Rig& rig, const SensorImagerOptions& options);
+// The depths the ground-truth sweep spans (the options' or the rig's matchable range).
+DepthRange SweepRange(const Rig& rig, const SensorImagerOptions& options);
 
 }  // namespace romunect::sim
