@@ -73,8 +73,8 @@ void RunIntrinsics(const std::string& images, const std::string& board_text, dou
   calibration.date.clear();
   calibration.residuals.intrinsics_rms_px = result.rms_px;
   calibration.residuals.intrinsics_holdout_rms_px = result.holdout_rms_px;
-  if (calibration.depth.kind != DepthModelKind::kNone &&
-      (calibration.depth.a.cols != result.camera.width || calibration.depth.a.rows != result.camera.height)) {
+  if (calibration.depth &&
+      (calibration.depth->a.cols != result.camera.width || calibration.depth->a.rows != result.camera.height)) {
     throw InputError(args.output, "depth_model", "its maps do not match the new image size; write elsewhere");
   }
   Save(args, calibration);
@@ -141,7 +141,9 @@ void RunDepth(const std::string& frames, const std::string& model, const CommonA
     const Pose T_C_K = (*frame.T_B_H * calibration.T_H_C).inverse() * calibration.T_B_K;
     captures.push_back({frame.raw, T_C_K});
   }
-  const DepthCorrectionResult result = FitDepthCorrection(calibration.camera, captures);
+  DepthCorrectionOptions options;
+  options.chip = calibration.chip;  // the chip whose raw the file's correction reads
+  const DepthCorrectionResult result = FitDepthCorrection(calibration.camera, captures, options);
   std::printf("%s\n", result.BriefReport().c_str());
   if (model == "exact") {
     calibration.depth = result.inverse;

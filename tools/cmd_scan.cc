@@ -53,24 +53,6 @@ std::string DefaultRunDir() {
   return name;
 }
 
-// The calibration file's depth model as the sensor model's correction (same two models).
-DepthCorrection CorrectionFromCalibration(const calib::Calibration& calibration, const std::string& file) {
-  DepthCorrection correction;
-  switch (calibration.depth.kind) {
-    case calib::DepthModelKind::kInverseDepthRaw:
-      correction.model = DepthCorrectionModel::kInverseAffineInRaw;
-      break;
-    case calib::DepthModelKind::kAffineDepth:
-      correction.model = DepthCorrectionModel::kAffineInChipDepth;
-      break;
-    case calib::DepthModelKind::kNone:
-      throw InputError(file, "depth_model.kind", "is none; scanning needs a depth model (run the depth step)");
-  }
-  calibration.depth.a.convertTo(correction.a, CV_64F);
-  calibration.depth.b.convertTo(correction.b, CV_64F);
-  return correction;
-}
-
 Rig ResolveRig(const std::string& rig) {
   if (rig == "romunect" || rig == "kinect-v1") return RigPreset(rig);
   return LoadRig(rig);
@@ -152,7 +134,10 @@ void RunScan(const ScanArguments& args) {
     sim::SensorImagerOptions imager_options;
     imager_options.threads = args.threads;
     if (calibration) {
-      imager_options.correction = CorrectionFromCalibration(*calibration, args.calibration);
+      if (!calibration->depth) {
+        throw InputError(args.calibration, "depth_model.kind", "is none; scanning needs a depth model (run the depth step)");
+      }
+      imager_options.correction = calibration->depth;
       imager_options.correction_source = "calibration file " + args.calibration;
     }
     std::fprintf(stderr, "scan: preparing the depth correction (%s)...\n",

@@ -6,6 +6,7 @@
 
 #include <opencv2/core/persistence.hpp>
 
+#include "romunect/sensor/check.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/image_io.h"
 
@@ -164,11 +165,17 @@ SaveReport SaveCalibration(const fs::path& path, Calibration calibration, const 
   }
   if (calibration.date.empty()) calibration.date = NowUtc();
   const Calibration& c = calibration;
-  const bool has_maps = c.depth.kind != DepthModelKind::kNone;
+  const bool has_maps = c.depth.has_value();
+  cv::Mat a32, b32;  // the file's maps are CV_32F
+  if (has_maps) {
+    ROMUNECT_CHECK(c.depth->a.size() == c.depth->b.size() && !c.depth->a.empty());
+    c.depth->a.convertTo(a32, CV_32F);
+    c.depth->b.convertTo(b32, CV_32F);
+  }
   const std::string stem = path.stem().string();
   if (has_maps && options.maps_as_exr) {
-    WriteDepthExr(path.parent_path() / (stem + "_depth_a.exr"), c.depth.a);
-    WriteDepthExr(path.parent_path() / (stem + "_depth_b.exr"), c.depth.b);
+    WriteDepthExr(path.parent_path() / (stem + "_depth_a.exr"), a32);
+    WriteDepthExr(path.parent_path() / (stem + "_depth_b.exr"), b32);
   }
   WriteAtomically(path, [&](const fs::path& tmp) {
     // FileStorage picks the format from the name: keep ".yaml" on the temporary.
@@ -190,17 +197,17 @@ SaveReport SaveCalibration(const fs::path& path, Calibration calibration, const 
       fs << "T_H_C" << PoseToMat(c.T_H_C);
       fs << "T_B_K" << PoseToMat(c.T_B_K);
       fs << "depth_model" << "{";
-      fs << "kind" << DepthModelKindName(c.depth.kind);
-      fs << "chip_c0_per_m" << c.depth.chip.c0_per_m;
-      fs << "chip_c1_per_m" << c.depth.chip.c1_per_m;
-      fs << "chip_invalid_raw" << c.depth.chip.invalid_raw;
+      fs << "kind" << (has_maps ? DepthCorrectionModelName(c.depth->model) : "none");
+      fs << "chip_focal_px" << c.chip.camera.fx;
+      fs << "chip_baseline_m" << c.chip.baseline_m;
+      fs << "chip_raw_offset" << c.chip.raw_offset;
       if (has_maps) {
         if (options.maps_as_exr) {
           fs << "a_exr" << stem + "_depth_a.exr";
           fs << "b_exr" << stem + "_depth_b.exr";
         } else {
-          fs << "a" << c.depth.a;
-          fs << "b" << c.depth.b;
+          fs << "a" << a32;
+          fs << "b" << b32;
         }
       }
       fs << "}";
@@ -244,22 +251,28 @@ Calibration LoadCalibration(const fs::path& path) {
   const cv::FileNode depth = root["depth_model"];
   if (depth.empty() || !depth.isMap()) throw InputError(source, "depth_model", "missing or not a map");
   const std::string kind = ReadString(depth, "kind", source, "depth_model.kind");
-  if (kind == "none") {
-    c.depth.kind = DepthModelKind::kNone;
-  } else if (kind == "affine_depth") {
-    c.depth.kind = DepthModelKind::kAffineDepth;
-  } else if (kind == "inverse_depth_raw") {
-    c.depth.kind = DepthModelKind::kInverseDepthRaw;
-  } else {
-    throw InputError(source, "depth_model.kind", "'" + kind + "'; must be none, affine_depth or inverse_depth_raw");
+  const char* affine_name = DepthCorrectionModelName(DepthCorrectionModel::kAffineInChipDepth);
+  const char* inverse_name = DepthCorrectionModelName(DepthCorrectionModel::kInverseAffineInRaw);
+  if (kind == affine_name) {
+    c.depth = DepthCorrection{DepthCorrectionModel::kAffineInChipDepth, {}, {}};
+  } else if (kind == inverse_name) {
+    c.depth = DepthCorrection{DepthCorrectionModel::kInverseAffineInRaw, {}, {}};
+  } else if (kind != "none") {
+    throw InputError(source, "depth_model.kind",
+                     "'" + kind + "'; must be none, " + affine_name + " or " + inverse_name);
   }
-  c.depth.chip.c0_per_m = ReadReal(depth, "chip_c0_per_m", source, "depth_model.chip_c0_per_m");
-  c.depth.chip.c1_per_m = ReadReal(depth, "chip_c1_per_m", source, "depth_model.chip_c1_per_m");
-  if (c.depth.chip.c1_per_m == 0.0) throw InputError(source, "depth_model.chip_c1_per_m", "must not be 0");
-  c.depth.chip.invalid_raw = static_cast<int>(ReadReal(depth, "chip_invalid_raw", source, "depth_model.chip_invalid_raw"));
-  if (c.depth.kind != DepthModelKind::kNone) {
-    c.depth.a = ReadMap(depth, "a", path, c.camera);
-    c.depth.b = ReadMap(depth, "b", path, c.camera);
+  const double focal_px = ReadReal(depth, "chip_focal_px", source, "depth_model.chip_focal_px");
+  if (!(focal_px > 0.0)) throw InputError(source, "depth_model.chip_focal_px", "must be > 0");
+  c.chip.camera.fx = c.chip.camera.fy = focal_px;
+  c.chip.baseline_m = ReadReal(depth, "chip_baseline_m", source, "depth_model.chip_baseline_m");
+  if (!(c.chip.baseline_m > 0.0)) throw InputError(source, "depth_model.chip_baseline_m", "must be > 0");
+  c.chip.raw_offset = ReadReal(depth, "chip_raw_offset", source, "depth_model.chip_raw_offset");
+  if (!(c.chip.raw_offset > 0.0 && c.chip.raw_offset < kRawInvalid)) {
+    throw InputError(source, "depth_model.chip_raw_offset", "must be in (0, " + std::to_string(kRawInvalid) + ")");
+  }
+  if (c.depth) {
+    ReadMap(depth, "a", path, c.camera).convertTo(c.depth->a, CV_64F);
+    ReadMap(depth, "b", path, c.camera).convertTo(c.depth->b, CV_64F);
   }
   const cv::FileNode residuals = root["residuals"];
   if (residuals.empty() || !residuals.isMap()) throw InputError(source, "residuals", "missing or not a map");

@@ -14,89 +14,24 @@ namespace {
 constexpr const char* kSource = "depth correction";
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
-// Weighted least squares of y = a x + b, accumulated sample by sample. x is shifted by the
-// first sample so raw values near 700 keep the normal equations well conditioned.
-struct LineFit {
-  double x0 = 0.0;
-  double w = 0, wx = 0, wy = 0, wxx = 0, wxy = 0;
-  void Add(double x, double y, double weight) {
-    if (w == 0.0) x0 = x;
-    x -= x0;
-    w += weight;
-    wx += weight * x;
-    wy += weight * y;
-    wxx += weight * x * x;
-    wxy += weight * x * y;
-  }
-  bool Solve(double* a, double* b) const {
-    const double det = w * wxx - wx * wx;
-    if (!(w > 0.0) || !(std::abs(det) > 1e-12 * w * w * std::max(1.0, wxx / w))) return false;
-    *a = (w * wxy - wx * wy) / det;
-    *b = (wy - *a * wx) / w - *a * x0;
-    return std::isfinite(*a) && std::isfinite(*b);
-  }
-};
+// Float rounding of a fitted map (the calibration file stores CV_32F), kept as CV_64F.
+cv::Mat RoundToFloat(const cv::Mat& m) {
+  cv::Mat f, d;
+  m.convertTo(f, CV_32F);
+  f.convertTo(d, CV_64F);
+  return d;
+}
 
 }  // namespace
 
-double ChipDepthModel::DepthM(double raw) const {
-  if (raw == invalid_raw) return 0.0;
-  const double inv = c0_per_m + c1_per_m * raw;
-  return inv > 0.0 ? 1.0 / inv : 0.0;
-}
-
-ChipDepthModel ChipDepthModel::FromChip(double focal_times_baseline_px_m, double raw_offset) {
-  ChipDepthModel chip;
-  chip.c0_per_m = raw_offset / (8.0 * focal_times_baseline_px_m);
-  chip.c1_per_m = -1.0 / (8.0 * focal_times_baseline_px_m);
-  return chip;
-}
-
-const char* DepthModelKindName(DepthModelKind kind) {
-  switch (kind) {
-    case DepthModelKind::kNone: return "none";
-    case DepthModelKind::kAffineDepth: return "affine_depth";
-    case DepthModelKind::kInverseDepthRaw: return "inverse_depth_raw";
-  }
-  return "none";
-}
-
-double DepthModel::ApplyPixel(int row, int col, double raw) const {
-  if (raw == chip.invalid_raw) return 0.0;
-  if (kind == DepthModelKind::kNone) return chip.DepthM(raw);
-  const double pa = a.at<float>(row, col), pb = b.at<float>(row, col);
-  if (!std::isfinite(pa) || !std::isfinite(pb)) return 0.0;
-  if (kind == DepthModelKind::kInverseDepthRaw) {
-    const double inv = pa * raw + pb;
-    return inv > 0.0 ? 1.0 / inv : 0.0;
-  }
-  const double d = chip.DepthM(raw);
-  if (d <= 0.0) return 0.0;
-  const double z = pa * d + pb;
-  return z > 0.0 ? z : 0.0;
-}
-
-cv::Mat DepthModel::Apply(const cv::Mat& raw) const {
-  ROMUNECT_CHECK(raw.type() == CV_16UC1);
-  if (kind != DepthModelKind::kNone) {
-    ROMUNECT_CHECK(a.type() == CV_32FC1 && b.type() == CV_32FC1);
-    ROMUNECT_CHECK(raw.size() == a.size() && raw.size() == b.size());
-  }
-  cv::Mat depth_m(raw.size(), CV_32FC1);
-  for (int r = 0; r < raw.rows; ++r) {
-    const uint16_t* in = raw.ptr<uint16_t>(r);
-    float* out = depth_m.ptr<float>(r);
-    for (int c = 0; c < raw.cols; ++c) out[c] = static_cast<float>(ApplyPixel(r, c, in[c]));
-  }
-  return depth_m;
-}
+ChipGeometry StockChipGeometry() { return RigPreset("kinect-v1").depth_engine.chip; }
 
 std::string DepthCorrectionOptions::Problem() const {
   if (min_planes < 2) return "min_planes is " + std::to_string(min_planes) + "; a line needs at least 2";
   if (!(min_plane_coverage >= 0.0 && min_plane_coverage <= 1.0)) return "min_plane_coverage must be in [0, 1]";
   if (!(min_depth_spread_m >= 0.0)) return "min_depth_spread_m must be >= 0";
-  if (!(std::isfinite(chip.c0_per_m) && std::isfinite(chip.c1_per_m) && chip.c1_per_m != 0.0)) {
-    return "chip model needs finite c0 and a non-zero c1";
+  if (!(std::isfinite(chip.FocalTimesBaseline()) && chip.FocalTimesBaseline() > 0.0 && std::isfinite(chip.raw_offset))) {
+    return "chip needs a positive finite focal length times baseline and a finite raw_offset";
   }
   return "";
 }
@@ -164,7 +99,7 @@ DepthCorrectionResult FitDepthCorrection(const CameraModel& camera, const std::v
     size_t valid = 0;
     for (int r = 0; r < h; ++r) {
       for (int c = 0; c < w; ++c) {
-        valid += truth[i].at<float>(r, c) > 0.0f && raw.at<uint16_t>(r, c) != options.chip.invalid_raw;
+        valid += truth[i].at<float>(r, c) > 0.0f && raw.at<uint16_t>(r, c) != kRawInvalid;
       }
     }
     const double coverage = static_cast<double>(valid) / n_px;
@@ -178,71 +113,70 @@ DepthCorrectionResult FitDepthCorrection(const CameraModel& camera, const std::v
     }
   }
 
-  std::vector<LineFit> inverse_fit(n_px), affine_fit(n_px);
-  std::vector<float> z_lo(n_px, std::numeric_limits<float>::infinity()), z_hi(n_px, 0.0f);
-  std::vector<int> count(n_px, 0);
+  // The chip's depth of every raw value, once per capture (the affine model's input).
+  std::vector<double> chip_lut(kRawInvalid + 1);
+  for (int v = 0; v <= kRawInvalid; ++v) chip_lut[v] = ChipDepthM(options.chip, v);
+  std::vector<cv::Mat> raws(captures.size()), chip_depth(captures.size());
   for (size_t i = 0; i < captures.size(); ++i) {
+    raws[i] = captures[i].raw;
+    chip_depth[i] = cv::Mat(h, w, CV_32FC1);
     for (int r = 0; r < h; ++r) {
       const uint16_t* raw = captures[i].raw.ptr<uint16_t>(r);
-      const float* z = truth[i].ptr<float>(r);
-      for (int c = 0; c < w; ++c) {
-        const double d_chip = options.chip.DepthM(raw[c]);
-        if (!(z[c] > 0.0f) || raw[c] == options.chip.invalid_raw || d_chip <= 0.0) continue;
-        const size_t k = static_cast<size_t>(r) * w + c;
-        const double z_m = z[c];
-        // Weight Z^4: an error e in 1/Z is an error Z^2 e in depth, so this fits depth.
-        inverse_fit[k].Add(raw[c], 1.0 / z_m, z_m * z_m * z_m * z_m);
-        affine_fit[k].Add(d_chip, z_m, 1.0);
-        z_lo[k] = std::min(z_lo[k], z[c]);
-        z_hi[k] = std::max(z_hi[k], z[c]);
-        ++count[k];
-      }
+      float* out = chip_depth[i].ptr<float>(r);
+      for (int c = 0; c < w; ++c) out[c] = raw[c] <= kRawInvalid ? static_cast<float>(chip_lut[raw[c]]) : 0.0f;
     }
   }
 
+  // The sensor model's one per-pixel fit, once per model.
+  DepthFitOptions fit;
+  fit.min_samples = options.min_planes;
+  fit.min_depth_spread_m = options.min_depth_spread_m;
   DepthCorrectionResult result;
-  result.inverse = {DepthModelKind::kInverseDepthRaw, cv::Mat(h, w, CV_32FC1, kNaN), cv::Mat(h, w, CV_32FC1, kNaN), options.chip};
-  result.affine = {DepthModelKind::kAffineDepth, cv::Mat(h, w, CV_32FC1, kNaN), cv::Mat(h, w, CV_32FC1, kNaN), options.chip};
+  result.inverse = FitDepthCorrection(DepthCorrectionModel::kInverseAffineInRaw, raws, chip_depth, truth, fit);
+  result.affine = FitDepthCorrection(DepthCorrectionModel::kAffineInChipDepth, raws, chip_depth, truth, fit);
+  for (DepthCorrection* m : {&result.inverse, &result.affine}) {
+    m->a = RoundToFloat(m->a);
+    m->b = RoundToFloat(m->b);
+  }
+  // A pixel is fitted in both models or in neither.
   for (int r = 0; r < h; ++r) {
     for (int c = 0; c < w; ++c) {
-      const size_t k = static_cast<size_t>(r) * w + c;
-      double a1, b1, a2, b2;
-      if (count[k] < options.min_planes || z_hi[k] - z_lo[k] < options.min_depth_spread_m ||
-          !inverse_fit[k].Solve(&a1, &b1) || !affine_fit[k].Solve(&a2, &b2)) {
-        ++result.unfitted_pixels;
+      double& ia = result.inverse.a.at<double>(r, c);
+      double& aa = result.affine.a.at<double>(r, c);
+      if (std::isfinite(ia) && std::isfinite(aa)) {
+        ++result.fitted_pixels;
         continue;
       }
-      result.inverse.a.at<float>(r, c) = static_cast<float>(a1);
-      result.inverse.b.at<float>(r, c) = static_cast<float>(b1);
-      result.affine.a.at<float>(r, c) = static_cast<float>(a2);
-      result.affine.b.at<float>(r, c) = static_cast<float>(b2);
-      ++result.fitted_pixels;
+      ++result.unfitted_pixels;
+      ia = result.inverse.b.at<double>(r, c) = kNaN;
+      aa = result.affine.b.at<double>(r, c) = kNaN;
     }
   }
 
   // Residuals of both models in depth, over every fitted sample, after float rounding of the
   // maps (what a loaded file gives).
   std::vector<double> sq_inverse(n_px, 0.0), sq_affine(n_px, 0.0);
+  std::vector<int> count(n_px, 0);
   double sum_inverse = 0.0, sum_affine = 0.0;
   size_t samples = 0;
   for (size_t i = 0; i < captures.size(); ++i) {
     for (int r = 0; r < h; ++r) {
       const uint16_t* raw = captures[i].raw.ptr<uint16_t>(r);
       const float* z = truth[i].ptr<float>(r);
+      const float* chip = chip_depth[i].ptr<float>(r);
+      const double* fitted = result.inverse.a.ptr<double>(r);
       for (int c = 0; c < w; ++c) {
         const size_t k = static_cast<size_t>(r) * w + c;
-        if (!std::isfinite(result.inverse.a.at<float>(r, c)) || !(z[c] > 0.0f) ||
-            raw[c] == options.chip.invalid_raw || options.chip.DepthM(raw[c]) <= 0.0) {
-          continue;
-        }
-        const double e1 = result.inverse.ApplyPixel(r, c, raw[c]) - z[c];
-        const double e2 = result.affine.ApplyPixel(r, c, raw[c]) - z[c];
+        if (!std::isfinite(fitted[c]) || !(z[c] > 0.0f) || raw[c] == kRawInvalid || !(chip[c] > 0.0f)) continue;
+        const double e1 = ApplyDepthCorrectionPixel(result.inverse, r, c, raw[c], chip[c]) - z[c];
+        const double e2 = ApplyDepthCorrectionPixel(result.affine, r, c, raw[c], chip[c]) - z[c];
         sq_inverse[k] += e1 * e1;
         sq_affine[k] += e2 * e2;
         sum_inverse += e1 * e1;
         sum_affine += e2 * e2;
         result.inverse_max_m = std::max(result.inverse_max_m, std::abs(e1));
         result.affine_max_m = std::max(result.affine_max_m, std::abs(e2));
+        ++count[k];
         ++samples;
       }
     }
@@ -256,7 +190,7 @@ DepthCorrectionResult FitDepthCorrection(const CameraModel& camera, const std::v
   for (int r = 0; r < h; ++r) {
     for (int c = 0; c < w; ++c) {
       const size_t k = static_cast<size_t>(r) * w + c;
-      if (!std::isfinite(result.inverse.a.at<float>(r, c)) || count[k] == 0) continue;
+      if (count[k] == 0) continue;
       result.inverse_residual_rms_m.at<float>(r, c) = static_cast<float>(std::sqrt(sq_inverse[k] / count[k]));
       result.affine_residual_rms_m.at<float>(r, c) = static_cast<float>(std::sqrt(sq_affine[k] / count[k]));
     }

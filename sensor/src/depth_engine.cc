@@ -106,10 +106,7 @@ double DepthEngine::RawAtReference() const {
   return c.raw_offset - 8.0 * c.FocalTimesBaseline() / c.reference_distance_m;
 }
 
-double DepthEngine::ChipDepthM(int raw) const {
-  if (raw == kRawInvalid || raw >= options_.chip.raw_offset) return 0.0;
-  return 8.0 * options_.chip.FocalTimesBaseline() / (options_.chip.raw_offset - raw);
-}
+double DepthEngine::ChipDepthM(int raw) const { return romunect::ChipDepthM(options_.chip, raw); }
 
 double DepthEngine::ShiftOfRaw(int raw) const { return (raw_at_reference_rounded_ - raw) / 8.0; }
 
@@ -316,62 +313,152 @@ const char* DepthCorrectionModelName(DepthCorrectionModel model) {
   return model == DepthCorrectionModel::kAffineInChipDepth ? "affine_in_chip_depth" : "inverse_affine_in_raw";
 }
 
-cv::Mat ApplyDepthCorrection(const DepthCorrection& correction, const DepthEngineOutput& output) {
-  ROMUNECT_CHECK(correction.a.size() == output.raw.size() && correction.b.size() == output.raw.size());
-  cv::Mat depth(output.raw.size(), CV_32F, cv::Scalar(0));
+double ChipDepthM(const ChipGeometry& chip, double raw) {
+  if (raw == kRawInvalid || raw >= chip.raw_offset) return 0.0;
+  return 8.0 * chip.FocalTimesBaseline() / (chip.raw_offset - raw);
+}
+
+double ApplyDepthCorrectionPixel(const DepthCorrection& correction, int row, int col, uint16_t raw,
+                                 double chip_depth_m) {
+  if (raw == kRawInvalid) return 0.0;
+  const double a = correction.a.at<double>(row, col), b = correction.b.at<double>(row, col);
+  if (!std::isfinite(a) || !std::isfinite(b)) return 0.0;
+  double z = 0.0;
+  if (correction.model == DepthCorrectionModel::kAffineInChipDepth) {
+    if (!(chip_depth_m > 0.0)) return 0.0;
+    z = a * chip_depth_m + b;
+  } else {
+    const double inv = a * raw + b;
+    z = inv > 0.0 ? 1.0 / inv : 0.0;
+  }
+  return z > 0.0 ? z : 0.0;
+}
+
+namespace {
+
+// Shared by both ApplyDepthCorrection overloads: chip_depth(raw, x, y) gives Z_chip.
+template <typename ChipDepth>
+cv::Mat ApplyRows(const DepthCorrection& correction, const cv::Mat& raw, ChipDepth chip_depth) {
+  ROMUNECT_CHECK(raw.type() == CV_16UC1);
+  ROMUNECT_CHECK(correction.a.type() == CV_64FC1 && correction.b.type() == CV_64FC1);
+  ROMUNECT_CHECK(correction.a.size() == raw.size() && correction.b.size() == raw.size());
+  cv::Mat depth(raw.size(), CV_32F, cv::Scalar(0));
   for (int y = 0; y < depth.rows; ++y) {
-    const uint16_t* raw = output.raw.ptr<uint16_t>(y);
-    const float* chip = output.depth_m.ptr<float>(y);
-    const double* a = correction.a.ptr<double>(y);
-    const double* b = correction.b.ptr<double>(y);
+    const uint16_t* in = raw.ptr<uint16_t>(y);
     float* out = depth.ptr<float>(y);
     for (int x = 0; x < depth.cols; ++x) {
-      if (raw[x] == kRawInvalid || !std::isfinite(a[x]) || !std::isfinite(b[x])) continue;
-      double z = 0.0;
-      if (correction.model == DepthCorrectionModel::kAffineInChipDepth) {
-        z = a[x] * chip[x] + b[x];
-      } else {
-        const double inv = a[x] * raw[x] + b[x];
-        z = inv > 0 ? 1.0 / inv : 0.0;
-      }
-      out[x] = z > 0 ? static_cast<float>(z) : 0.f;
+      out[x] = static_cast<float>(ApplyDepthCorrectionPixel(correction, y, x, in[x], chip_depth(in[x], x, y)));
     }
   }
   return depth;
 }
 
-DepthCorrection FitDepthCorrection(DepthCorrectionModel model, const std::vector<DepthEngineOutput>& outputs,
-                                   const std::vector<cv::Mat>& truth_depth_m, int min_samples) {
-  ROMUNECT_CHECK(outputs.size() == truth_depth_m.size() && !outputs.empty());
-  const cv::Size size = outputs[0].raw.size();
+// y = a x + b by weighted least squares, accumulated sample by sample. x is shifted by the
+// first sample so raw values near 700 keep the normal equations well conditioned.
+struct LineFit {
+  double x0 = 0.0;
+  double w = 0, wx = 0, wy = 0, wxx = 0, wxy = 0;
+  void Add(double x, double y, double weight) {
+    if (w == 0.0) x0 = x;
+    x -= x0;
+    w += weight;
+    wx += weight * x;
+    wy += weight * y;
+    wxx += weight * x * x;
+    wxy += weight * x * y;
+  }
+  bool Solve(double* a, double* b) const {
+    const double det = w * wxx - wx * wx;
+    if (!(w > 0.0) || !(std::abs(det) > 1e-12 * w * w * std::max(1.0, wxx / w))) return false;
+    *a = (w * wxy - wx * wy) / det;
+    *b = (wy - *a * wx) / w - *a * x0;
+    return std::isfinite(*a) && std::isfinite(*b);
+  }
+};
+
+}  // namespace
+
+cv::Mat ApplyDepthCorrection(const DepthCorrection& correction, const DepthEngineOutput& output) {
+  ROMUNECT_CHECK(output.depth_m.type() == CV_32FC1 && output.depth_m.size() == output.raw.size());
+  return ApplyRows(correction, output.raw, [&](uint16_t, int x, int y) { return output.depth_m.at<float>(y, x); });
+}
+
+cv::Mat ApplyDepthCorrection(const DepthCorrection& correction, const cv::Mat& raw, const ChipGeometry& chip) {
+  if (correction.model == DepthCorrectionModel::kInverseAffineInRaw) {
+    return ApplyRows(correction, raw, [](uint16_t, int, int) { return 0.0; });
+  }
+  std::vector<double> lut(kRawInvalid + 1);
+  for (int r = 0; r <= kRawInvalid; ++r) lut[r] = ChipDepthM(chip, r);
+  return ApplyRows(correction, raw, [&](uint16_t v, int, int) { return v <= kRawInvalid ? lut[v] : 0.0; });
+}
+
+DepthCorrection FitDepthCorrection(DepthCorrectionModel model, const std::vector<cv::Mat>& raw,
+                                   const std::vector<cv::Mat>& chip_depth_m,
+                                   const std::vector<cv::Mat>& truth_depth_m, const DepthFitOptions& options) {
+  ROMUNECT_CHECK(!raw.empty() && raw.size() == chip_depth_m.size() && raw.size() == truth_depth_m.size());
+  const cv::Size size = raw[0].size();
+  for (size_t i = 0; i < raw.size(); ++i) {
+    ROMUNECT_CHECK(raw[i].type() == CV_16UC1 && raw[i].size() == size);
+    ROMUNECT_CHECK(chip_depth_m[i].type() == CV_32FC1 && chip_depth_m[i].size() == size);
+    ROMUNECT_CHECK(truth_depth_m[i].type() == CV_32FC1 && truth_depth_m[i].size() == size);
+  }
+  const bool affine = model == DepthCorrectionModel::kAffineInChipDepth;
+  const size_t n_px = static_cast<size_t>(size.area());
+  std::vector<LineFit> fit(n_px);
+  std::vector<float> z_lo(n_px, std::numeric_limits<float>::infinity()), z_hi(n_px, 0.0f);
+  std::vector<int> count(n_px, 0);
+  // Image by image, row by row: each image is read once, in memory order.
+  for (size_t i = 0; i < raw.size(); ++i) {
+    for (int y = 0; y < size.height; ++y) {
+      const uint16_t* r = raw[i].ptr<uint16_t>(y);
+      const float* chip = chip_depth_m[i].ptr<float>(y);
+      const float* z = truth_depth_m[i].ptr<float>(y);
+      for (int x = 0; x < size.width; ++x) {
+        if (!(z[x] > 0.0f) || r[x] == kRawInvalid || !(chip[x] > 0.0f)) continue;
+        const size_t k = static_cast<size_t>(y) * size.width + x;
+        const double z_m = z[x];
+        if (affine) {
+          fit[k].Add(chip[x], z_m, 1.0);
+        } else {
+          // Weight Z^4: an error e in 1/Z is an error Z^2 e in depth, so this fits depth.
+          fit[k].Add(r[x], 1.0 / z_m, z_m * z_m * z_m * z_m);
+        }
+        z_lo[k] = std::min(z_lo[k], z[x]);
+        z_hi[k] = std::max(z_hi[k], z[x]);
+        ++count[k];
+      }
+    }
+  }
   DepthCorrection c;
   c.model = model;
   c.a = cv::Mat(size, CV_64F, cv::Scalar(std::numeric_limits<double>::quiet_NaN()));
   c.b = c.a.clone();
   for (int y = 0; y < size.height; ++y) {
     for (int x = 0; x < size.width; ++x) {
-      // Sums of the normal equations of t = a u + b.
-      double n = 0, su = 0, st = 0, suu = 0, sut = 0;
-      for (size_t i = 0; i < outputs.size(); ++i) {
-        const uint16_t raw = outputs[i].raw.at<uint16_t>(y, x);
-        const float truth = truth_depth_m[i].at<float>(y, x);
-        if (raw == kRawInvalid || !(truth > 0)) continue;
-        const double u = model == DepthCorrectionModel::kAffineInChipDepth ? outputs[i].depth_m.at<float>(y, x)
-                                                                             : static_cast<double>(raw);
-        const double t = model == DepthCorrectionModel::kAffineInChipDepth ? truth : 1.0 / truth;
-        n += 1;
-        su += u;
-        st += t;
-        suu += u * u;
-        sut += u * t;
+      const size_t k = static_cast<size_t>(y) * size.width + x;
+      double a, b;
+      if (count[k] < options.min_samples || z_hi[k] - z_lo[k] < options.min_depth_spread_m ||
+          !fit[k].Solve(&a, &b)) {
+        continue;
       }
-      const double det = n * suu - su * su;
-      if (n < min_samples || !(det > 1e-12 * std::max(1.0, n * suu))) continue;
-      c.a.at<double>(y, x) = (n * sut - su * st) / det;
-      c.b.at<double>(y, x) = (st - c.a.at<double>(y, x) * su) / n;
+      c.a.at<double>(y, x) = a;
+      c.b.at<double>(y, x) = b;
     }
   }
   return c;
+}
+
+DepthCorrection FitDepthCorrection(DepthCorrectionModel model, const std::vector<DepthEngineOutput>& outputs,
+                                   const std::vector<cv::Mat>& truth_depth_m, int min_samples) {
+  ROMUNECT_CHECK(outputs.size() == truth_depth_m.size() && !outputs.empty());
+  std::vector<cv::Mat> raw, chip;
+  for (const DepthEngineOutput& o : outputs) {
+    raw.push_back(o.raw);
+    chip.push_back(o.depth_m);
+  }
+  DepthFitOptions options;
+  options.min_samples = min_samples;
+  return FitDepthCorrection(model, raw, chip, truth_depth_m, options);
 }
 
 }  // namespace romunect

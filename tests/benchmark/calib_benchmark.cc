@@ -171,11 +171,11 @@ std::vector<PlaneCapture> PlaneCaptures(const CameraModel& camera, int count, un
   return captures;
 }
 
-double HeldOutRms(const CameraModel& camera, const DepthModel& model, const std::vector<PlaneCapture>& fresh) {
+double HeldOutRms(const CameraModel& camera, const DepthCorrection& model, const std::vector<PlaneCapture>& fresh) {
   double sum = 0.0;
   size_t n = 0;
   for (const PlaneCapture& c : fresh) {
-    const cv::Mat depth = model.Apply(c.raw), gt = PlaneDepth(camera, c.T_C_K);
+    const cv::Mat depth = ApplyDepthCorrection(model, c.raw, StockChipGeometry()), gt = PlaneDepth(camera, c.T_C_K);
     for (int r = 0; r < depth.rows; ++r) {
       for (int k = 0; k < depth.cols; ++k) {
         if (depth.at<float>(r, k) == 0.0f) continue;

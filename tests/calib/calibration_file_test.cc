@@ -25,12 +25,16 @@ Calibration Sample() {
   c.H_P_rec << 1.01, 0.02, -3.5, -0.01, 0.99, 2.25, 1e-6, -2e-6, 1.0;
   c.T_H_C = testing::TruthHandEye();
   c.T_B_K = testing::TruthBoardInBase();
-  c.depth.kind = DepthModelKind::kInverseDepthRaw;
-  c.depth.a = cv::Mat(c.camera.height, c.camera.width, CV_32F);
-  c.depth.b = cv::Mat(c.camera.height, c.camera.width, CV_32F);
-  cv::randu(c.depth.a, -0.003, -0.002);
-  cv::randu(c.depth.b, 6.0, 7.0);
-  c.depth.a.at<float>(3, 4) = std::numeric_limits<float>::quiet_NaN();  // an unfitted pixel
+  // Float values, as a fit gives and the file stores.
+  cv::Mat a(c.camera.height, c.camera.width, CV_32F), b(c.camera.height, c.camera.width, CV_32F);
+  cv::randu(a, -0.003, -0.002);
+  cv::randu(b, 6.0, 7.0);
+  a.at<float>(3, 4) = std::numeric_limits<float>::quiet_NaN();  // an unfitted pixel
+  c.depth = DepthCorrection{DepthCorrectionModel::kInverseAffineInRaw, {}, {}};
+  a.convertTo(c.depth->a, CV_64F);
+  b.convertTo(c.depth->b, CV_64F);
+  c.chip.baseline_m = 0.0751;
+  c.chip.raw_offset = 1091.5;
   c.date = "2026-11-26T12:00:00Z";
   c.residuals = {0.19, 0.21, 0.2, 0.05, 3e-5};
   return c;
@@ -38,10 +42,10 @@ Calibration Sample() {
 
 // Same size and values, NaN where the other has NaN (YAML writes NaN as .Nan, sign lost).
 ::testing::AssertionResult MapsEqual(const cv::Mat& a, const cv::Mat& b) {
-  if (a.size() != b.size() || a.type() != CV_32F || b.type() != CV_32F) return ::testing::AssertionFailure() << "size/type";
+  if (a.size() != b.size() || a.type() != CV_64F || b.type() != CV_64F) return ::testing::AssertionFailure() << "size/type";
   for (int r = 0; r < a.rows; ++r) {
     for (int c = 0; c < a.cols; ++c) {
-      const float x = a.at<float>(r, c), y = b.at<float>(r, c);
+      const double x = a.at<double>(r, c), y = b.at<double>(r, c);
       if (!(x == y || (std::isnan(x) && std::isnan(y)))) {
         return ::testing::AssertionFailure() << "differ at " << c << "," << r << ": " << x << " vs " << y;
       }
@@ -55,9 +59,15 @@ void ExpectSame(const Calibration& a, const Calibration& b) {
   EXPECT_EQ(a.H_P_rec, b.H_P_rec);
   EXPECT_TRUE(a.T_H_C.isApprox(b.T_H_C, 1e-15));
   EXPECT_TRUE(a.T_B_K.isApprox(b.T_B_K, 1e-15));
-  EXPECT_EQ(a.depth.kind, b.depth.kind);
-  EXPECT_TRUE(MapsEqual(a.depth.a, b.depth.a));
-  EXPECT_TRUE(MapsEqual(a.depth.b, b.depth.b));
+  ASSERT_EQ(a.depth.has_value(), b.depth.has_value());
+  if (a.depth) {
+    EXPECT_EQ(a.depth->model, b.depth->model);
+    EXPECT_TRUE(MapsEqual(a.depth->a, b.depth->a));
+    EXPECT_TRUE(MapsEqual(a.depth->b, b.depth->b));
+  }
+  EXPECT_EQ(a.chip.camera.fx, b.chip.camera.fx);
+  EXPECT_EQ(a.chip.baseline_m, b.chip.baseline_m);
+  EXPECT_EQ(a.chip.raw_offset, b.chip.raw_offset);
   EXPECT_EQ(a.date, b.date);
   EXPECT_EQ(a.residuals.depth_rms_m, b.residuals.depth_rms_m);
   EXPECT_EQ(a.residuals.intrinsics_holdout_rms_px, b.residuals.intrinsics_holdout_rms_px);
@@ -80,8 +90,8 @@ TEST(CalibrationFileTest, RoundTripsAndPlainOpenCvReadsIt) {
   EXPECT_EQ(K.at<double>(0, 0), c.camera.fx);
   EXPECT_EQ(dist.total(), 5u);
   EXPECT_EQ(T_H_C.at<double>(0, 3), c.T_H_C.translation().x());
-  EXPECT_EQ(a.size(), c.depth.a.size());
-  EXPECT_EQ(static_cast<std::string>(fs["depth_model"]["kind"]), "inverse_depth_raw");
+  EXPECT_EQ(a.size(), c.depth->a.size());
+  EXPECT_EQ(static_cast<std::string>(fs["depth_model"]["kind"]), "inverse_affine_in_raw");
 }
 
 TEST(CalibrationFileTest, RoundTripsMapsAsExrBesideTheFile) {
@@ -91,6 +101,16 @@ TEST(CalibrationFileTest, RoundTripsMapsAsExrBesideTheFile) {
   EXPECT_TRUE(fs::exists(dir / "rig_depth_a.exr"));
   EXPECT_EQ(ReadText(dir / "rig.yaml").find("\"a\":"), std::string::npos);
   ExpectSame(LoadCalibration(dir / "rig.yaml"), c);
+}
+
+TEST(CalibrationFileTest, RoundTripsWithoutADepthModel) {
+  ScratchDir dir("none");
+  Calibration c = Sample();
+  c.depth = std::nullopt;
+  SaveCalibration(dir / "c.yaml", c);
+  const Calibration loaded = LoadCalibration(dir / "c.yaml");
+  EXPECT_FALSE(loaded.depth.has_value());
+  ExpectSame(loaded, c);
 }
 
 TEST(CalibrationFileTest, StampsTheDateWhenEmpty) {
@@ -120,7 +140,9 @@ void ExpectLoadFails(const std::string& from_regex, const std::string& to, const
 
 TEST(CalibrationFileTest, MissingOrMalformedFieldsNameTheField) {
   ExpectLoadFails("T_H_C:", "T_H_X:", "T_H_C");
-  ExpectLoadFails("kind: inverse_depth_raw", "kind: quadratic", "depth_model.kind");
+  ExpectLoadFails("kind: inverse_affine_in_raw", "kind: quadratic", "depth_model.kind");
+  ExpectLoadFails("chip_baseline_m: [^\\n]*", "chip_baseline_m: -0.075", "depth_model.chip_baseline_m");
+  ExpectLoadFails("chip_raw_offset: [^\\n]*", "chip_raw_offset: 3000.", "depth_model.chip_raw_offset");
   ExpectLoadFails("depth_rms_m: [^\\n]*", "depth_rms_m: fast", "residuals.depth_rms_m");
   ExpectLoadFails("date: [^\\n]*", "dat: x", "date");
   ExpectLoadFails("format: [^\\n]*", "format: something", "format");

@@ -132,7 +132,8 @@ TEST(CalibrateCliTest, HandEyeThenDepthOnFrameDirectories) {
   const auto depth = RunRomunect("calibrate depth --frames " + (dir / "plane").string() + " --output " + file.string());
   ASSERT_EQ(depth.exit_code, 0) << depth.output;
   const Calibration done = LoadCalibration(file);
-  EXPECT_EQ(done.depth.kind, DepthModelKind::kInverseDepthRaw);
+  ASSERT_TRUE(done.depth.has_value());
+  EXPECT_EQ(done.depth->model, DepthCorrectionModel::kInverseAffineInRaw);
   EXPECT_LE(done.residuals.depth_rms_m, kDepthGoalM);
   EXPECT_EQ(done.T_H_C.matrix(), after_hand_eye.T_H_C.matrix());  // earlier steps kept
 
@@ -141,7 +142,7 @@ TEST(CalibrateCliTest, HandEyeThenDepthOnFrameDirectories) {
                                   " --output " + file.string());
   EXPECT_EQ(affine.exit_code, 2);
   EXPECT_NE(affine.output.find("worse"), std::string::npos) << affine.output;
-  EXPECT_EQ(LoadCalibration(file).depth.kind, DepthModelKind::kInverseDepthRaw);
+  EXPECT_EQ(LoadCalibration(file).depth->model, DepthCorrectionModel::kInverseAffineInRaw);
   const auto forced = RunRomunect("calibrate depth --model affine --overwrite-worse --frames " +
                                   (dir / "plane").string() + " --output " + file.string());
   EXPECT_EQ(forced.exit_code, 0) << forced.output;

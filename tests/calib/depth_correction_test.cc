@@ -68,7 +68,7 @@ TEST(DepthCorrectionTest, ExactModelMeetsGoalAndAffineModelLeavesMoreError) {
   double sum = 0.0;
   size_t n = 0;
   for (const PlaneCapture& capture : fresh) {
-    const cv::Mat depth = fit.inverse.Apply(capture.raw);
+    const cv::Mat depth = ApplyDepthCorrection(fit.inverse, capture.raw, StockChipGeometry());
     const cv::Mat gt = PlaneDepth(camera, capture.T_C_K);
     for (int r = 0; r < camera.height; ++r) {
       for (int c = 0; c < camera.width; ++c) {
@@ -85,23 +85,24 @@ TEST(DepthCorrectionTest, ExactModelMeetsGoalAndAffineModelLeavesMoreError) {
 
 TEST(DepthCorrectionTest, ApplyConvertsRawToMetresAndKeepsInvalidAsZero) {
   const CameraModel camera = SmallCamera();
-  DepthModel model;
-  model.kind = DepthModelKind::kInverseDepthRaw;
-  model.a = cv::Mat(camera.height, camera.width, CV_32F, cv::Scalar(-0.001f));
-  model.b = cv::Mat(camera.height, camera.width, CV_32F, cv::Scalar(5.7f));
-  model.a.at<float>(0, 1) = std::numeric_limits<float>::quiet_NaN();
+  DepthCorrection model;
+  model.model = DepthCorrectionModel::kInverseAffineInRaw;
+  model.a = cv::Mat(camera.height, camera.width, CV_64F, cv::Scalar(-0.001));
+  model.b = cv::Mat(camera.height, camera.width, CV_64F, cv::Scalar(5.7));
+  model.a.at<double>(0, 1) = std::numeric_limits<double>::quiet_NaN();
   cv::Mat raw(camera.height, camera.width, CV_16U, cv::Scalar(700));
   raw.at<uint16_t>(0, 0) = 2047;
-  const cv::Mat depth = model.Apply(raw);
+  const ChipGeometry chip = StockChipGeometry();
+  const cv::Mat depth = ApplyDepthCorrection(model, raw, chip);
   ASSERT_EQ(depth.type(), CV_32FC1);
   EXPECT_FLOAT_EQ(depth.at<float>(1, 1), 1.0f / (5.7f - 0.7f));  // 0.2 m
   EXPECT_EQ(depth.at<float>(0, 0), 0.0f);  // invalid raw
   EXPECT_EQ(depth.at<float>(0, 1), 0.0f);  // unfitted pixel
-  model.kind = DepthModelKind::kAffineDepth;
-  model.a.setTo(2.0f);
-  model.b.setTo(-0.1f);
-  const double chip = model.chip.DepthM(700);
-  EXPECT_NEAR(model.Apply(raw).at<float>(3, 3), 2.0 * chip - 0.1, 1e-6);
+  model.model = DepthCorrectionModel::kAffineInChipDepth;
+  model.a.setTo(2.0);
+  model.b.setTo(-0.1);
+  const double chip_m = ChipDepthM(chip, 700);
+  EXPECT_NEAR(ApplyDepthCorrection(model, raw, chip).at<float>(3, 3), 2.0 * chip_m - 0.1, 1e-6);
 }
 
 TEST(DepthCorrectionTest, PlaneNotCoveringTheImageIsAClearError) {
@@ -137,15 +138,16 @@ namespace romunect::calib {
 namespace {
 
 TEST(DepthCorrectionTest, ChipModelMatchesRigFormula) {
-  // rig.h: Z = 8 f b / (raw_offset - raw); the defaults are its defaults (f 580, b 0.075, 1090).
+  // rig.h: Z = 8 f b / (raw_offset - raw); the stock chip is f 580, b 0.075, 1090.
   const double fb = 580.0 * 0.075;
-  const ChipDepthModel chip = ChipDepthModel::FromChip(fb, 1090.0);
+  const ChipGeometry chip = StockChipGeometry();
+  EXPECT_EQ(chip.FocalTimesBaseline(), fb);
+  EXPECT_EQ(chip.raw_offset, 1090.0);
   for (const double raw : {100.0, 700.0, 1000.0}) {
-    EXPECT_NEAR(chip.DepthM(raw), 8.0 * fb / (1090.0 - raw), 1e-12);
-    EXPECT_NEAR(ChipDepthModel().DepthM(raw), chip.DepthM(raw), 1e-12);
+    EXPECT_NEAR(ChipDepthM(chip, raw), 8.0 * fb / (1090.0 - raw), 1e-12);
   }
-  EXPECT_EQ(chip.DepthM(2047), 0.0);  // invalid
-  EXPECT_EQ(chip.DepthM(1095), 0.0);  // beyond infinity: no depth
+  EXPECT_EQ(ChipDepthM(chip, 2047), 0.0);  // invalid
+  EXPECT_EQ(ChipDepthM(chip, 1095), 0.0);  // beyond infinity: no depth
 }
 
 }  // namespace

@@ -4,21 +4,26 @@
 //   image_width, image_height, camera_matrix, distortion_coefficients  (OpenCV's names)
 //   H_P_rec: 3x3 (projector pre-warp homography, projector pixels)
 //   T_H_C: 4x4 (camera in hand, metres), T_B_K: 4x4 (board in base, metres)
-//   depth_model: {kind: none | affine_depth | inverse_depth_raw, chip_c0_per_m, chip_c1_per_m,
-//                 chip_invalid_raw, a, b: CV_32F maps inline, or a_exr, b_exr: paths relative
-//                 to the file}
+//   depth_model: {kind: none | affine_in_chip_depth | inverse_affine_in_raw (the sensor model's
+//                 DepthCorrectionModelName), chip_focal_px, chip_baseline_m, chip_raw_offset (the
+//                 chip's raw -> depth formula Z = 8 f b / (raw_offset - raw), read by the affine
+//                 model; raw 2047 = none), a, b: CV_32F maps inline (NaN = unfitted pixel), or
+//                 a_exr, b_exr: paths relative to the file; no a/b when kind is none}
 //   residuals: {intrinsics_rms_px, intrinsics_holdout_rms_px, hand_eye_rms_px,
 //               homography_rms_px, depth_rms_m}  (-1 = step not run)
 #pragma once
 
 #include <filesystem>
+#include <optional>
 #include <string>
 
 #include <Eigen/Core>
 
 #include "romunect/calib/depth_correction.h"
 #include "romunect/sensor/camera_model.h"
+#include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/pose.h"
+#include "romunect/sensor/rig.h"
 
 namespace romunect::calib {
 
@@ -38,7 +43,11 @@ struct Calibration {
   Eigen::Matrix3d H_P_rec = Eigen::Matrix3d::Identity();
   Pose T_H_C = Pose::Identity();
   Pose T_B_K = Pose::Identity();
-  DepthModel depth;
+  // The sensor model's per-pixel correction (applied by the pipeline); none until the depth
+  // step ran. Its a and b hold float values (the file stores CV_32F).
+  std::optional<DepthCorrection> depth;
+  // The chip whose raw values `depth` reads; the file keeps its depth formula (f, b, raw_offset).
+  ChipGeometry chip = StockChipGeometry();
   std::string date;  // set by Save when empty
   CalibrationResiduals residuals;
 };

@@ -96,23 +96,47 @@ class DepthEngine {
   std::vector<float> chip_depth_lut_;  // ChipDepthM per raw value
 };
 
-// Per-pixel conversion of the chip's output to metric depth (the calibration fits a and b).
+// Per-pixel conversion of the chip's output to metric depth (paper eqs. 2-3). The one
+// representation: the calibration fits a and b (calib/depth_correction.h), its file stores them
+// (calib/calibration_file.h), and the pipeline applies them here.
 enum class DepthCorrectionModel {
   kAffineInChipDepth,      // Z = a * Z_chip + b  (the paper's correction)
   kInverseAffineInRaw,     // 1/Z = a * raw + b   (exact for a pinhole camera)
 };
-const char* DepthCorrectionModelName(DepthCorrectionModel model);
+const char* DepthCorrectionModelName(DepthCorrectionModel model);  // "affine_in_chip_depth", ...
 
 struct DepthCorrection {
   DepthCorrectionModel model = DepthCorrectionModel::kInverseAffineInRaw;
   cv::Mat a, b;  // CV_64F, camera size; NaN where the pixel has no correction
 };
 
+// The chip's reported depth of a raw value, Z_chip = 8 f b / (raw_offset - raw) metres; 0 for
+// kRawInvalid or raw >= raw_offset (at or beyond infinity).
+double ChipDepthM(const ChipGeometry& chip, double raw);
+
+// One pixel: metres, 0 where raw is invalid, the pixel uncorrected (NaN), the chip depth (read
+// by kAffineInChipDepth only) not positive, or the result not positive.
+double ApplyDepthCorrectionPixel(const DepthCorrection& correction, int row, int col, uint16_t raw,
+                                 double chip_depth_m);
+
 // Metric depth (CV_32F, metres, 0 where invalid or uncorrected) from the engine's output.
 cv::Mat ApplyDepthCorrection(const DepthCorrection& correction, const DepthEngineOutput& output);
+// The same from raw alone (CV_16U; recorded frames), the chip depth from the chip geometry.
+cv::Mat ApplyDepthCorrection(const DepthCorrection& correction, const cv::Mat& raw, const ChipGeometry& chip);
 
-// Least-squares fit of a and b per pixel from frames with ground-truth depth (CV_32F metres,
-// 0 = none). Pixels with fewer than min_samples valid pairs, or one distinct raw value, get NaN.
+struct DepthFitOptions {
+  int min_samples = 2;             // per pixel, else NaN
+  double min_depth_spread_m = 0.0;  // per pixel, max - min truth depth, else NaN (a blind fit)
+};
+
+// The per-pixel least-squares fit of a and b from raw images (CV_16U), the chip's depth of them
+// (CV_32F metres; a sample needs it positive) and ground-truth depth (CV_32F metres, 0 = none).
+// kInverseAffineInRaw weighs each sample by Z^4 so that it minimizes depth error, not 1/Z
+// error. Pixels with too few samples, too little spread or one distinct value get NaN.
+DepthCorrection FitDepthCorrection(DepthCorrectionModel model, const std::vector<cv::Mat>& raw,
+                                   const std::vector<cv::Mat>& chip_depth_m,
+                                   const std::vector<cv::Mat>& truth_depth_m, const DepthFitOptions& options);
+// The same from the engine's outputs.
 DepthCorrection FitDepthCorrection(DepthCorrectionModel model, const std::vector<DepthEngineOutput>& outputs,
                                    const std::vector<cv::Mat>& truth_depth_m, int min_samples = 2);
 
