@@ -96,48 +96,8 @@ void HandEyeTable(const char* label, double max_roll_rad) {
   Row("", "OpenCV 4.6 Park alone", "mm", park_mm);
 }
 
-// The projector scene of tests/calib/projector_homography_test.cc.
-struct ProjectorScene {
-  CameraModel camera = testing::TruthCamera();
-  CameraModel projector = [] {
-    CameraModel p;
-    p.width = 1280;
-    p.height = 800;
-    p.fx = p.fy = 1400.0;
-    p.cx = 639.5;
-    p.cy = 399.5;
-    return p;
-  }();
-  Pose T_C_P = MakePose(Eigen::AngleAxisd(0.06, Eigen::Vector3d(0.1, 1, 0.05).normalized()).toRotationMatrix(),
-                        Eigen::Vector3d(0.075, 0.002, -0.001));
-  Pose T_C_K = testing::PlaneAt(0.2, 0.05, -0.08);
-  std::vector<Eigen::Vector2d> pattern_P, target_C;
-  ProjectorScene() {
-    for (int r = 0; r < 8; ++r) {
-      for (int c = 0; c < 12; ++c) {
-        pattern_P.emplace_back(100 + c * 98.0, 80 + r * 90.0);
-        const Eigen::Vector3d ray((60 + c * 47.0 - camera.cx) / camera.fx, (50 + r * 52.0 - camera.cy) / camera.fy, 1.0);
-        target_C.push_back(*camera.Project(ray));
-      }
-    }
-  }
-  Eigen::Vector2d Map(const Eigen::Vector2d& q_P) const {
-    const Eigen::Vector3d ray_C = T_C_P.linear() * projector.Ray(q_P);
-    const Eigen::Vector3d o_C = T_C_P.translation();
-    const Eigen::Vector3d n = T_C_K.linear().col(2);
-    return *camera.Project(o_C + n.dot(T_C_K.translation() - o_C) / n.dot(ray_C) * ray_C);
-  }
-  double TrueResidual(const Eigen::Matrix3d& H) const {
-    double sum = 0.0;
-    for (size_t i = 0; i < pattern_P.size(); ++i) {
-      sum += (Map((H * pattern_P[i].homogeneous()).hnormalized()) - target_C[i]).squaredNorm();
-    }
-    return std::sqrt(sum / pattern_P.size());
-  }
-};
-
 void HomographyTable() {
-  const ProjectorScene scene;
+  const testing::ProjectorScene scene;
   std::vector<double> residual, captures;
   for (int t = 0; t < g_trials; ++t) {
     std::mt19937 rng(3000 + t);
@@ -152,7 +112,7 @@ void HomographyTable() {
     };
     const ProjectorHomographyResult r = CalibrateProjectorHomography(scene.pattern_P, scene.target_C, scene.camera,
                                                                      Eigen::Matrix3d::Identity(), observe);
-    residual.push_back(scene.TrueResidual(r.H_P_rec));
+    residual.push_back(scene.TrueResidualPx(r.H_P_rec));
     captures.push_back(r.captures);
   }
   Row("projector homography (goal <= 0.1)", "Ceres LM loop, true residual", "px", residual);
@@ -232,7 +192,7 @@ void BM_DepthCorrection640x480(benchmark::State& state) {
 BENCHMARK(BM_DepthCorrection640x480)->Arg(20)->Unit(benchmark::kMillisecond);
 
 void BM_ProjectorHomographyStep(benchmark::State& state) {
-  const ProjectorScene scene;
+  const testing::ProjectorScene scene;
   ProjectorCapture capture;
   for (const Eigen::Vector2d& x : scene.pattern_P) {
     const Eigen::Vector2d u = scene.Map(x);

@@ -178,4 +178,40 @@ cv::Mat RenderBoardImage(const CameraModel& camera, const BoardSpec& board, cons
   return image;
 }
 
+ProjectorScene::ProjectorScene()
+    : camera(TruthCamera()),
+      T_C_P(MakePose(Eigen::AngleAxisd(0.06, Eigen::Vector3d(0.1, 1, 0.05).normalized()).toRotationMatrix(),
+                     Eigen::Vector3d(0.075, 0.002, -0.001))),
+      T_C_K(PlaneAt(0.2, 0.05, -0.08)) {
+  projector.width = 1280;
+  projector.height = 800;
+  projector.fx = projector.fy = 1400.0;
+  projector.cx = 639.5;
+  projector.cy = 399.5;
+  for (int r = 0; r < 8; ++r) {
+    for (int c = 0; c < 12; ++c) {
+      pattern_P.emplace_back(100 + c * 98.0, 80 + r * 90.0);
+      const Eigen::Vector2d ideal(60 + c * 47.0, 50 + r * 52.0);
+      const Eigen::Vector3d ray((ideal.x() - camera.cx) / camera.fx, (ideal.y() - camera.cy) / camera.fy, 1.0);
+      target_C.push_back(*camera.Project(ray));
+    }
+  }
+}
+
+Eigen::Vector2d ProjectorScene::Map(const Eigen::Vector2d& q_P) const {
+  const Eigen::Vector3d ray_C = T_C_P.linear() * projector.Ray(q_P);
+  const Eigen::Vector3d o_C = T_C_P.translation();
+  const Eigen::Vector3d n = T_C_K.linear().col(2);
+  const double s = n.dot(T_C_K.translation() - o_C) / n.dot(ray_C);
+  return *camera.Project(o_C + s * ray_C);
+}
+
+double ProjectorScene::TrueResidualPx(const Eigen::Matrix3d& H_P_rec) const {
+  double sum = 0.0;
+  for (size_t i = 0; i < pattern_P.size(); ++i) {
+    sum += (Map((H_P_rec * pattern_P[i].homogeneous()).hnormalized()) - target_C[i]).squaredNorm();
+  }
+  return std::sqrt(sum / pattern_P.size());
+}
+
 }  // namespace romunect::calib::testing

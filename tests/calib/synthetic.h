@@ -71,4 +71,22 @@ CameraModel Scaled(const CameraModel& camera, double factor);
 // of side square_m, a white border of one square, grey around; 4x supersampled.
 cv::Mat RenderBoardImage(const CameraModel& camera, const BoardSpec& board, const Pose& T_C_K);
 
+// A projector (1280 x 800 pixels, f 1400 px) 75 mm beside the camera, both seeing a tilted
+// plane at 0.2 m, and the pattern of the homography step: a 12 x 8 grid of dots over the
+// projector image, with targets on a rectangular grid of the ideal camera image, distorted
+// (what the chip expects to see), reachable by a homography.
+struct ProjectorScene {
+  CameraModel camera;
+  CameraModel projector;
+  Pose T_C_P;
+  Pose T_C_K;
+  std::vector<Eigen::Vector2d> pattern_P, target_C;
+
+  ProjectorScene();
+  // Truth F_img: projector pixel -> ray -> plane -> camera pixel (distorted).
+  Eigen::Vector2d Map(const Eigen::Vector2d& q_P) const;
+  // RMS (px) between where the pre-warped pattern lands and the targets.
+  double TrueResidualPx(const Eigen::Matrix3d& H_P_rec) const;
+};
+
 }  // namespace romunect::calib::testing
