@@ -1,19 +1,28 @@
-// romunect fuse DIR: fuses the depth maps of a frame directory into one height map (fusion/)
-// and writes fused_depth.exr, fused_depth.png, fused_points.ply, completeness.png, report.json.
+// romunect fuse SOURCE: fuses the depth maps of a frame directory, an .oni recording or a live
+// OpenNI2 device (sources as OpenSource reads them; the last two with a pose log and a
+// calibration for the camera poses) into one height map (fusion/) and writes fused_depth.exr,
+// fused_depth.png, fused_points.ply, completeness.png, report.json. A device that stops
+// mid-scan ends the run with an error, after the outputs of the frames fused so far are written.
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <sstream>
 #include <string>
+#include <utility>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
 #include "commands.h"
+#include "romunect/calib/calibration_file.h"
 #include "romunect/fusion/frame_inserter.h"
 #include "romunect/fusion/metrics.h"
 #include "romunect/fusion/outputs.h"
 #include "romunect/fusion/voting_grid.h"
+#include "romunect/openni2/open_source.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/image_io.h"
@@ -24,10 +33,14 @@ namespace {
 namespace fs = std::filesystem;
 
 struct FuseArguments {
-  std::string dir, out, gt, box;
+  std::string source, out, gt, box;
   double voxel_m = 0.25e-3;
   int threads = 1;
   double max_memory_mb = 16384.0;
+  // OpenNI2 sources (.oni files, devices) only.
+  std::string poses, calibration, camera;
+  double pose_offset_s = 0.0;
+  double timeout_s = 2.0;
 };
 
 double NowMs() {
@@ -56,6 +69,52 @@ void ParseBox(const std::string& text, fusion::GridOptions* options) {
   options->max_W = Eigen::Vector3d(values[3], values[4], values[5]);
 }
 
+// The source as OpenSource opens it for fusion: a frame directory as is (its frames.json holds
+// camera and poses); an .oni file or a device with a pose log for T_B_H and a calibration for
+// T_H_C and the camera, depth only.
+std::unique_ptr<FrameSource> OpenFuseSource(const FuseArguments& args) {
+  const openni2::SourceKind kind = openni2::ClassifySource(args.source);
+  openni2::OpenSourceOptions options;
+  options.invalid_depth = InvalidDepthPolicy::kSkip;
+  if (kind == openni2::SourceKind::kFrameDirectory) {
+    for (const auto& [flag, given] : {std::pair<const char*, bool>{"--poses", !args.poses.empty()},
+                                      {"--calibration", !args.calibration.empty()},
+                                      {"--camera", !args.camera.empty()}}) {
+      if (given) {
+        throw InputError(flag, "", std::string("applies to .oni files and devices; ") + args.source +
+                                       " is a frame directory, whose frames.json holds the camera and the poses");
+      }
+    }
+    return openni2::OpenSource(args.source, options);
+  }
+  if (args.poses.empty()) {
+    throw InputError("--poses", "", "missing: " + args.source +
+                                        " carries no robot poses; give the robot's pose log (CSV of T_B_H with times)");
+  }
+  if (args.calibration.empty()) {
+    throw InputError("--calibration", "", "missing: turning the pose log's flange poses into camera poses needs "
+                                          "the calibration file's hand-eye pose T_H_C");
+  }
+  const calib::Calibration calibration = calib::LoadCalibration(args.calibration);
+  options.pose_log = args.poses;
+  options.pose.time_offset_s = args.pose_offset_s;
+  options.pose.T_H_C = calibration.T_H_C;  // world = robot base
+  options.openni2.camera = args.camera.empty() ? calibration.camera : CameraModel::Load(args.camera);
+  options.openni2.ir = false;  // fusion reads depth only
+  options.openni2.timeout_s = args.timeout_s;
+  return openni2::OpenSource(args.source, options);
+}
+
+// Default output folder: beside a directory or .oni file; a device has no place of its own.
+fs::path DefaultOutput(const FuseArguments& args) {
+  switch (openni2::ClassifySource(args.source)) {
+    case openni2::SourceKind::kFrameDirectory: return fs::path(args.source + "_fused");
+    case openni2::SourceKind::kOniFile: return fs::path(args.source).replace_extension().string() + "_fused";
+    case openni2::SourceKind::kDevice: break;
+  }
+  throw InputError("--out", "", "missing: fusing a live device (" + args.source + ") needs an output folder");
+}
+
 void RunFuse(const FuseArguments& args) {
   // Options first: a bad option fails before any file is read.
   fusion::GridOptions grid_options;
@@ -73,11 +132,12 @@ void RunFuse(const FuseArguments& args) {
   fusion::InserterOptions inserter_options;
   inserter_options.threads = args.threads;
   if (const std::string p = inserter_options.Problem(); !p.empty()) throw InputError("--threads", "", p);
+  const fs::path out = args.out.empty() ? DefaultOutput(args) : fs::path(args.out);
 
-  const fs::path dir = args.dir;
-  FrameDirectorySource source(dir, InvalidDepthPolicy::kSkip);  // validates frames.json
-  const CameraModel camera = source.camera();
-  const size_t frame_count = source.manifest().frames.size();
+  const std::unique_ptr<FrameSource> source = OpenFuseSource(args);  // validates frames.json
+  const FrameDirectorySource* directory = openni2::FindFrameDirectorySource(source.get());
+  const CameraModel camera = source->camera();
+  const size_t frame_count = directory != nullptr ? directory->manifest().frames.size() : 0;
   cv::Mat gt;
   if (!args.gt.empty()) gt = ReadDepthExr(args.gt);
 
@@ -88,10 +148,9 @@ void RunFuse(const FuseArguments& args) {
                          std::to_string(grid.nx()) + " x " + std::to_string(grid.ny()) + " (same box and voxel)");
   }
   fusion::FrameInserter inserter(&grid, inserter_options);
-  const fs::path out = args.out.empty() ? fs::path(dir.string() + "_fused") : fs::path(args.out);
 
   fusion::FusionReport report;
-  report.input = dir.string();
+  report.input = args.source;
   report.threads = args.threads;
   report.geometry = grid.geometry();
   report.max_x_m = grid_options.max_W.x();
@@ -99,21 +158,37 @@ void RunFuse(const FuseArguments& args) {
   report.max_z_m = grid_options.max_W.z();
   report.grid_mb = grid.memory_bytes() / 1e6;
   std::fprintf(stderr, "fuse: %s, grid %d x %d x %d at %.3g mm (%.1f MB), %d thread(s)\n",
-               source.Describe().c_str(), grid.nx(), grid.ny(), grid.nz(), grid.voxel_m() * 1e3,
+               source->Describe().c_str(), grid.nx(), grid.ny(), grid.nz(), grid.voxel_m() * 1e3,
                report.grid_mb, args.threads);
 
+  // A frame directory's frames are named by their frames.json entry; a stream's by its index.
+  const std::string where = directory != nullptr ? (fs::path(args.source) / "frames.json").string() : args.source;
   Frame frame;
   std::string error;
-  const fs::path manifest = dir / "frames.json";
+  std::optional<std::string> stopped;  // why the source stopped before its end
   for (size_t i = 0;; ++i) {
-    const FrameStatus status = source.Next(&frame, &error);
+    FrameStatus status;
+    try {
+      status = source->Next(&frame, &error);
+    } catch (const InputError& e) {
+      if (directory != nullptr) throw;  // a broken directory is bad input, not a stopped device
+      stopped = e.what();  // the device is gone: keep what was fused
+      break;
+    }
     if (status == FrameStatus::kEndOfStream) break;
-    const std::string field = "frames[" + std::to_string(i) + "]";
-    if (status == FrameStatus::kBadFrame) throw InputError(manifest.string(), field, error);
-    if (frame.depth_m.empty()) throw InputError(manifest.string(), field + ".depth", "missing: fuse needs depth");
-    if (!frame.T_W_C) throw InputError(manifest.string(), field + ".T_W_C", "missing: fuse needs the camera pose");
+    const std::string field = directory != nullptr ? "frames[" + std::to_string(i) + "]" : "frame " + std::to_string(frame.index);
+    if (status == FrameStatus::kBadFrame) {
+      if (directory != nullptr) throw InputError(where, field, error);
+      // A stream's frame outside the pose log (before or after the robot's log): skip it.
+      ++report.bad_frames;
+      report.bad_frame_messages.push_back(error);
+      std::fprintf(stderr, "\nromunect: warning: %s: %s, skipped\n", field.c_str(), error.c_str());
+      continue;
+    }
+    if (frame.depth_m.empty()) throw InputError(where, field + ".depth", "missing: fuse needs depth");
+    if (!frame.T_W_C) throw InputError(where, field + ".T_W_C", "missing: fuse needs the camera pose");
     if (frame.depth_m.rows != camera.height || frame.depth_m.cols != camera.width) {
-      throw InputError(manifest.string(), field + ".depth",
+      throw InputError(where, field + ".depth",
                        "is " + std::to_string(frame.depth_m.cols) + " x " + std::to_string(frame.depth_m.rows) +
                            ", the camera is " + std::to_string(camera.width) + " x " + std::to_string(camera.height));
     }
@@ -123,8 +198,13 @@ void RunFuse(const FuseArguments& args) {
     const double completeness = fusion::Completeness(fusion::ExtractHeightMap(grid));
     report.completeness_per_frame.push_back(completeness);
     ++report.frames;
-    std::fprintf(stderr, "\rfuse: frame %zu/%zu, insert %.1f ms, completeness %.1f %%   ", i + 1, frame_count,
-                 report.insert_ms.back(), 100.0 * completeness);
+    if (frame_count > 0) {
+      std::fprintf(stderr, "\rfuse: frame %zu/%zu, insert %.1f ms, completeness %.1f %%   ", i + 1, frame_count,
+                   report.insert_ms.back(), 100.0 * completeness);
+    } else {
+      std::fprintf(stderr, "\rfuse: frame %zu, insert %.1f ms, completeness %.1f %%   ", i + 1,
+                   report.insert_ms.back(), 100.0 * completeness);
+    }
   }
   std::fprintf(stderr, "\n");
 
@@ -132,7 +212,7 @@ void RunFuse(const FuseArguments& args) {
   const cv::Mat height = fusion::ExtractHeightMap(grid);
   report.extract_ms = NowMs() - t0;
   report.completeness = fusion::Completeness(height);
-  report.skipped_pixels = source.skipped_pixels();
+  report.skipped_pixels = directory != nullptr ? directory->skipped_pixels() : 0;
   if (!gt.empty()) report.metrics = fusion::CompareHeightMaps(height, gt);
   report.peak_rss_mb = fusion::PeakRssMb();
 
@@ -141,7 +221,11 @@ void RunFuse(const FuseArguments& args) {
   fusion::WriteHeightMapPicture(out / "fused_depth.png", height, grid.geometry());
   fusion::WriteHeightMapPly(out / "fused_points.ply", height, grid.geometry());
   fusion::WriteCompletenessPlot(out / "completeness.png", report.completeness_per_frame);
-  fusion::WriteFusionReport(out / "report.json", report);
+  // The fusion's report, plus whether the source ended or stopped early (and why).
+  nlohmann::ordered_json json = nlohmann::ordered_json::parse(fusion::FusionReportJson(report));
+  json["stopped_early"] = stopped.has_value();
+  if (stopped) json["stop_reason"] = *stopped;
+  WriteTextAtomically(out / "report.json", json.dump(2) + "\n");
 
   std::printf("fused %zu frames into %s: completeness %.1f %%", report.frames, out.string().c_str(),
               100.0 * report.completeness);
@@ -150,18 +234,29 @@ void RunFuse(const FuseArguments& args) {
                 report.metrics->mae_mm, 100.0 * report.metrics->within_1mm);
   }
   std::printf("\ninsert %.2f ms per frame (median), extract %.2f ms, peak memory %.0f MB; %zu pixels skipped "
-              "(NaN/inf/negative)\n%s\n",
+              "(NaN/inf/negative), %zu frames skipped\n%s\n",
               fusion::Quantile(report.insert_ms, 0.5), report.extract_ms, report.peak_rss_mb, report.skipped_pixels,
-              report.stats.BriefReport().c_str());
+              report.bad_frames, report.stats.BriefReport().c_str());
+  if (stopped) {
+    std::fflush(stdout);
+    // Exit non-zero with the device's message, after the outputs of the frames so far.
+    throw InputError(args.source, "",
+                     "stopped early after " + std::to_string(report.frames) + " fused frames (outputs written to " +
+                         out.string() + "): " + *stopped);
+  }
 }
 
 }  // namespace
 
 void AddFuseCommand(CLI::App& app) {
-  auto* cmd = app.add_subcommand("fuse", "Fuse the depth maps of a frame directory into one height map");
+  auto* cmd = app.add_subcommand(
+      "fuse", "Fuse the depth maps of a frame directory, an .oni recording or a live OpenNI2 device into one height map");
   auto args = std::make_shared<FuseArguments>();
-  cmd->add_option("DIR", args->dir, "Frame directory (frames.json with depth and T_W_C per frame)")->required();
-  cmd->add_option("--out", args->out, "Output folder (default: DIR_fused beside the input)");
+  cmd->add_option("SOURCE", args->source,
+                  "Frame directory (frames.json with depth and T_W_C per frame), FILE.oni, oni://[URI] or "
+                  "romunect:DIR[?...] (the last three with --poses and --calibration)")
+      ->required();
+  cmd->add_option("--out", args->out, "Output folder (default: SOURCE_fused beside a directory or .oni file)");
   cmd->add_option("--gt", args->gt, "Ground-truth height map (EXR, same box and voxel) for RMSE/MAE");
   cmd->add_option("--box", args->box,
                   "Fusion box in world metres: xmin,ymin,zmin,xmax,ymax,zmax (default "
@@ -169,6 +264,16 @@ void AddFuseCommand(CLI::App& app) {
   cmd->add_option("--voxel", args->voxel_m, "Voxel size in metres (default 0.00025)");
   cmd->add_option("--threads", args->threads, "Insertion threads (default 1)");
   cmd->add_option("--max-memory-mb", args->max_memory_mb, "Refuse grids larger than this (default 16384)");
+  cmd->add_option("--poses,--pose-log", args->poses,
+                  ".oni/device: CSV pose log of T_B_H (time_s,x_m,y_m,z_m,qw,qx,qy,qz; docs/openni2.md)");
+  cmd->add_option("--pose-offset", args->pose_offset_s, ".oni/device: seconds added to frame times to get pose-log times");
+  cmd->add_option("--calibration", args->calibration,
+                  ".oni/device: romunect calibration file: T_H_C turns flange poses into camera poses (world = robot "
+                  "base), and its camera is the frames' camera");
+  cmd->add_option("--camera", args->camera, ".oni/device: camera model (OpenCV YAML/JSON) replacing the calibration's");
+  cmd->add_option("--timeout", args->timeout_s,
+                  ".oni/device: seconds without a frame before the device counts as gone (default 2)")
+      ->check(CLI::PositiveNumber);
   cmd->callback([args] { RunFuse(*args); });
 }
 

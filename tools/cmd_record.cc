@@ -56,11 +56,6 @@ void ReadCalibration(const std::string& path, CameraModel* camera, Pose* T_H_C) 
   *T_H_C = PoseFromRowMajor(row_major);
 }
 
-openni2::OpenNI2Source* FindDevice(FrameSource* source) {
-  if (auto* logged = dynamic_cast<openni2::PoseLogSource*>(source)) source = &logged->inner();
-  return dynamic_cast<openni2::OpenNI2Source*>(source);
-}
-
 // frames.json's top-level "recording" (provenance) and "ps1080" (the chip's geometry, in the
 // keys the virtual device reads back, so a recorded directory replays with the same chip).
 std::string ExtraJson(const RecordArgs& args, FrameSource& source, const std::string& incomplete) {
@@ -68,7 +63,7 @@ std::string ExtraJson(const RecordArgs& args, FrameSource& source, const std::st
   extra["recording"]["source"] = args.source;
   extra["recording"]["description"] = source.Describe();
   if (!incomplete.empty()) extra["recording"]["incomplete"] = incomplete;
-  if (auto* device = FindDevice(&source)) {
+  if (auto* device = openni2::FindOpenNI2Source(&source)) {
     const openni2::PS1080Properties& c = device->chip();
     extra["recording"]["depth_unit"] = openni2::ToString(device->depth_unit());
     nlohmann::json chip = nlohmann::json::object();
@@ -171,7 +166,7 @@ void RunRecord(const RecordArgs& args) {
   writer.SetExtraJson(ExtraJson(args, *source, g_interrupted ? "interrupted" : ""));
   writer.Finish();
   std::string dropped;
-  if (auto* d = FindDevice(source.get())) {
+  if (auto* d = openni2::FindOpenNI2Source(source.get())) {
     d->FinishRecording();
     dropped = ", " + std::to_string(d->stats().dropped_frames) + " dropped by the device";
   }

@@ -13,6 +13,11 @@ bool EndsWith(const std::string& s, const std::string& suffix) {
   return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
 }
 
+FrameSource* Unwrap(FrameSource* source) {
+  if (auto* logged = dynamic_cast<PoseLogSource*>(source)) return &logged->inner();
+  return source;
+}
+
 }  // namespace
 
 SourceKind ClassifySource(const std::string& source) {
@@ -32,7 +37,7 @@ std::unique_ptr<FrameSource> OpenSource(const std::string& source, const OpenSou
       if (!std::filesystem::is_directory(source, ec)) {
         throw InputError(source, "", "not a directory, a .oni file, oni://[URI] or romunect:DIR");
       }
-      inner = std::make_unique<FrameDirectorySource>(source);
+      inner = std::make_unique<FrameDirectorySource>(source, options.invalid_depth);
       break;
     }
     case SourceKind::kOniFile:
@@ -45,6 +50,12 @@ std::unique_ptr<FrameSource> OpenSource(const std::string& source, const OpenSou
   }
   if (options.pose_log.empty()) return inner;
   return std::make_unique<PoseLogSource>(std::move(inner), PoseLog::Load(options.pose_log), options.pose);
+}
+
+OpenNI2Source* FindOpenNI2Source(FrameSource* source) { return dynamic_cast<OpenNI2Source*>(Unwrap(source)); }
+
+FrameDirectorySource* FindFrameDirectorySource(FrameSource* source) {
+  return dynamic_cast<FrameDirectorySource*>(Unwrap(source));
 }
 
 }  // namespace romunect::openni2

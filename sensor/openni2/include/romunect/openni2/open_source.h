@@ -16,6 +16,7 @@
 
 #include "romunect/openni2/openni2_source.h"
 #include "romunect/openni2/pose_log.h"
+#include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/frame_source.h"
 
 namespace romunect::openni2 {
@@ -24,6 +25,8 @@ struct OpenSourceOptions {
   std::filesystem::path pose_log;        // CSV pose log (pose_log.h); empty = none
   PoseLogSourceOptions pose;             // clock offset and hand-eye, with a pose log
   OpenNI2SourceOptions openni2;          // device options (uri is taken from the string)
+  // What a frame directory's loader does with NaN/inf/negative depth pixels.
+  InvalidDepthPolicy invalid_depth = InvalidDepthPolicy::kReject;
 };
 
 enum class SourceKind { kFrameDirectory, kOniFile, kDevice };
@@ -34,5 +37,10 @@ SourceKind ClassifySource(const std::string& source);
 // Opens the source; throws InputError naming the string when it fits none of the forms or the
 // source cannot be opened.
 std::unique_ptr<FrameSource> OpenSource(const std::string& source, const OpenSourceOptions& options = {});
+
+// The source under a PoseLogSource (or `source` itself), as its concrete kind; nullptr when it
+// is another kind. For what only one kind reports (a device's chip, a directory's manifest).
+OpenNI2Source* FindOpenNI2Source(FrameSource* source);
+FrameDirectorySource* FindFrameDirectorySource(FrameSource* source);
 
 }  // namespace romunect::openni2

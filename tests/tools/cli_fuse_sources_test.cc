@@ -1,0 +1,192 @@
+// `romunect fuse` on the hardware path's sources, run as a user would: an .oni recording of the
+// virtual device with its pose log, and the live virtual device, each fused to the same map as
+// the frame directory they came from; a device that stops mid-scan (outputs kept, exit 2); and
+// the options only those sources take.
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "romunect/calib/calibration_file.h"
+#include "romunect/openni2/depth_units.h"
+#include "romunect/openni2/pose_log.h"
+#include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/frame_io.h"
+#include "romunect/sensor/image_io.h"
+#include "romunect/testing/analytic_bin.h"
+#include "romunect/testing/test_support.h"
+
+namespace romunect::openni2 {
+namespace {
+
+using ::testing::HasSubstr;
+using testing::ImagesBitEqual;
+using testing::ReadText;
+using testing::RunRomunect;
+using testing::ScratchDir;
+
+constexpr int kFrames = 6;
+// Coarse voxels and small images: the test is about the source path, not resolution.
+const std::string kFuseArgs = " --voxel 0.001";
+
+std::string Quote(const std::string& s) { return "'" + s + "'"; }
+
+// The time OpenNI2Source gives frame i: the device sends whole microseconds since the first.
+double WireTime(double t_s, double t0_s) {
+  return static_cast<double>(std::llround((t_s - t0_s) * 1e6)) * 1e-6;
+}
+
+// A capture of the analytic bin as the hardware path sees it: depth at the wire's 100 um,
+// times in whole microseconds, and T_W_C exactly what the pose log (T_B_H, world = base) and
+// an identity hand-eye give at those times. Writes DIR (the first `frames` frames), the pose
+// log (covering the first `logged` frames) and a calibration file (camera, T_H_C = identity).
+struct Capture {
+  std::filesystem::path dir, poses, calibration;
+};
+
+Capture WriteCapture(const std::filesystem::path& root, int frames, int logged) {
+  testing::AnalyticBinOptions options;
+  options.width = 96;
+  options.height = 72;
+  options.frames = kFrames;
+  options.seed = 5;
+  const testing::AnalyticBin bin(options);
+  std::filesystem::create_directories(root);
+  Capture c{root / "capture", root / "poses.csv", root / "calibration.yml"};
+
+  std::vector<Frame> rendered;
+  std::vector<TimedPose> log;
+  for (int i = 0; i < kFrames; ++i) {
+    rendered.push_back(bin.RenderFrame(i));
+    if (i < logged) log.push_back({WireTime(rendered[i].time_s, rendered[0].time_s), *rendered[i].T_W_C});
+  }
+  PoseLog(log).Save(c.poses);
+  const PoseLog loaded = PoseLog::Load(c.poses);  // the poses as fuse reads them
+
+  FrameDirectoryWriter writer(c.dir, bin.camera());
+  for (int i = 0; i < frames; ++i) {
+    Frame f = rendered[i];
+    f.time_s = WireTime(f.time_s, rendered[0].time_s);
+    if (i < logged) f.T_W_C = *loaded.At(f.time_s);
+    f.depth_m.forEach<float>([](float& d, const int*) {
+      d = DequantizeDepth(QuantizeDepth(d, DepthUnit::k100um), DepthUnit::k100um);
+    });
+    writer.Add(f);
+  }
+  writer.Finish();
+
+  calib::Calibration calibration;
+  calibration.camera = bin.camera();
+  calib::SaveCalibration(c.calibration, calibration);
+  return c;
+}
+
+std::string DeviceUri(const std::filesystem::path& dir, int stop_after = -1) {
+  VirtualDeviceOptions o;
+  o.pace = VirtualDeviceOptions::Pace::kStep;
+  o.stop_after = stop_after;
+  return VirtualDeviceUri(dir, o);
+}
+
+std::string PoseArgs(const Capture& c) {
+  return " --poses " + c.poses.string() + " --calibration " + c.calibration.string();
+}
+
+nlohmann::json Report(const std::filesystem::path& out) { return nlohmann::json::parse(ReadText(out / "report.json")); }
+
+TEST(FuseSourcesCli, OniWithPoseLogAndLiveDeviceFuseToTheDirectorysMap) {
+  ScratchDir scratch("fuse_sources_same");
+  const Capture c = WriteCapture(scratch.path(), kFrames, kFrames);
+  const auto rec = RunRomunect("record " + Quote(DeviceUri(c.dir)) + " " + (scratch / "rec").string() + " --no-ir --oni " +
+                               (scratch / "scan.oni").string());
+  ASSERT_EQ(rec.exit_code, 0) << rec.output;
+
+  const auto from_dir = RunRomunect("fuse " + c.dir.string() + kFuseArgs + " --out " + (scratch / "dir").string());
+  ASSERT_EQ(from_dir.exit_code, 0) << from_dir.output;
+  const auto from_oni = RunRomunect("fuse " + (scratch / "scan.oni").string() + kFuseArgs + PoseArgs(c));
+  ASSERT_EQ(from_oni.exit_code, 0) << from_oni.output;
+  const auto live = RunRomunect("fuse " + Quote(DeviceUri(c.dir)) + kFuseArgs + PoseArgs(c) + " --out " +
+                                (scratch / "live").string());
+  ASSERT_EQ(live.exit_code, 0) << live.output;
+
+  const cv::Mat expected = ReadDepthExr(scratch / "dir" / "fused_depth.exr");
+  // The fixture must fill a good part of the map, or equality would prove little.
+  constexpr double kMinCompleteness = 0.3;  // measured 0.5 with 6 frames of 96 x 72 at 1 mm
+  EXPECT_GT(Report(scratch / "dir")["completeness"].get<double>(), kMinCompleteness);
+  // Default output beside the .oni file, as beside a directory.
+  for (const std::filesystem::path& out : {scratch / "scan_fused", scratch / "live"}) {
+    EXPECT_TRUE(ImagesBitEqual(ReadDepthExr(out / "fused_depth.exr"), expected)) << out;
+    const nlohmann::json report = Report(out);
+    EXPECT_EQ(report["frames"], kFrames) << out;
+    EXPECT_EQ(report["bad_frames"], 0) << out;
+    EXPECT_EQ(report["stopped_early"], false) << out;
+  }
+  EXPECT_EQ(Report(scratch / "live")["input"], DeviceUri(c.dir));
+}
+
+TEST(FuseSourcesCli, ADeviceThatStopsKeepsTheFramesFusedSoFarAndExitsNonZero) {
+  ScratchDir scratch("fuse_sources_stop");
+  const Capture c = WriteCapture(scratch.path(), kFrames, kFrames);
+  constexpr int kSent = 3;
+  const auto r = RunRomunect("fuse " + Quote(DeviceUri(c.dir, kSent)) + kFuseArgs + PoseArgs(c) +
+                             " --timeout 0.3 --out " + (scratch / "out").string());
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_THAT(r.output, HasSubstr("stopped early after 3 fused frames"));
+  EXPECT_THAT(r.output, HasSubstr("no frame for 0.3 s (device unplugged or stalled)"));
+  const nlohmann::json report = Report(scratch / "out");
+  EXPECT_EQ(report["frames"], kSent);
+  EXPECT_EQ(report["stopped_early"], true);
+  EXPECT_THAT(report["stop_reason"].get<std::string>(), HasSubstr("3 frames were delivered before"));
+
+  // What was kept is exactly the fusion of the frames the device sent.
+  const Capture first = WriteCapture(scratch / "first", kSent, kFrames);
+  const auto expected = RunRomunect("fuse " + first.dir.string() + kFuseArgs + " --out " + (scratch / "ref").string());
+  ASSERT_EQ(expected.exit_code, 0) << expected.output;
+  EXPECT_TRUE(ImagesBitEqual(ReadDepthExr(scratch / "out" / "fused_depth.exr"),
+                             ReadDepthExr(scratch / "ref" / "fused_depth.exr")));
+  for (const char* file : {"fused_depth.png", "fused_points.ply", "completeness.png"}) {
+    EXPECT_TRUE(std::filesystem::exists(scratch / "out" / file)) << file;
+  }
+}
+
+TEST(FuseSourcesCli, FramesOutsideThePoseLogAreSkippedAndCounted) {
+  ScratchDir scratch("fuse_sources_outside");
+  constexpr int kLogged = 4;
+  const Capture c = WriteCapture(scratch.path(), kFrames, kLogged);
+  const auto r = RunRomunect("fuse " + Quote(DeviceUri(c.dir)) + kFuseArgs + PoseArgs(c) + " --out " +
+                             (scratch / "out").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_THAT(r.output, HasSubstr("lies outside the pose log"));
+  const nlohmann::json report = Report(scratch / "out");
+  EXPECT_EQ(report["frames"], kLogged);
+  EXPECT_EQ(report["bad_frames"], kFrames - kLogged);
+}
+
+TEST(FuseSourcesCli, RejectsMissingOrMisplacedSourceOptions) {
+  ScratchDir scratch("fuse_sources_bad");
+  const Capture c = WriteCapture(scratch.path(), 1, 1);
+  const std::string device = Quote(DeviceUri(c.dir));
+  struct Case {
+    std::string args, expected;
+  };
+  for (const Case& k : std::vector<Case>{
+           {device + " --out " + (scratch / "o").string(), "--poses: missing"},
+           {device + " --out " + (scratch / "o").string() + " --poses " + c.poses.string(), "--calibration: missing"},
+           {device + PoseArgs(c), "--out: missing: fusing a live device"},
+           {c.dir.string() + PoseArgs(c), "--poses: applies to .oni files and devices"},
+           {(scratch / "none.oni").string() + PoseArgs(c), "no such .oni file"},
+           {Quote("romunect:" + (scratch / "nowhere").string()) + PoseArgs(c) + " --out " + (scratch / "o").string(),
+            "no frames.json"},
+       }) {
+    const auto r = RunRomunect("fuse " + k.args + kFuseArgs);
+    EXPECT_EQ(r.exit_code, 2) << k.args << "\n" << r.output;
+    EXPECT_THAT(r.output, HasSubstr(k.expected)) << k.args;
+    EXPECT_FALSE(std::filesystem::exists(scratch / "o" / "report.json")) << k.args;
+  }
+}
+
+}  // namespace
+}  // namespace romunect::openni2
