@@ -20,6 +20,8 @@ set(backends "[<\"](mujoco/|mujoco\\.h|embree3/|OpenNI|openni2/|Driver/Oni|PS108
 check_folder(fusion "${backends}" "fusion runs on real frames: sensor model only")
 check_folder(calib "${backends}" "calib runs on real frames: sensor model only")
 check_folder(fusion "[<\"]romunect/calib/" "fusion and calib are siblings")
+# The hardware path sees no simulator: live frames reach it through feed_abi.h and dlopen.
+check_folder(sensor/openni2 "[<\"](mujoco/|mujoco\\.h|embree3/|romunect/sim/|romunect/sim_feed/)" "sensor/openni2 loads the simulator's feed through feed_abi.h only")
 check_folder(calib "[<\"]romunect/fusion/" "fusion and calib are siblings")
 
 # The sensor model (sensor/include, sensor/src) sees only Eigen, OpenCV and file formats.

@@ -1,9 +1,12 @@
-// libRomunectVirtual.so.0: an OpenNI2 driver plug-in that presents a frame directory as a
-// PS1080-like device (romunect/openni2/virtual_device.h documents URIs and behaviour).
+// libRomunectVirtual.so.0: an OpenNI2 driver plug-in that presents a frame directory, or the
+// frames of a feed library (feed_abi.h, e.g. the live simulator), as a PS1080-like device
+// (romunect/openni2/virtual_device.h documents URIs and behaviour).
 //
 // Threads: OpenNI2 calls in from the application's threads; in realtime pace one producer thread
 // per device sends frames. One mutex per device guards the streams and the frame cursor and is
 // held while a frame is handed to OpenNI2, so a stream is never destroyed mid-delivery.
+#include <dlfcn.h>
+
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -15,7 +18,9 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <set>
+#include <stdexcept>
 #include <string>
 #include <thread>
 #include <vector>
@@ -29,6 +34,7 @@
 #include <PS1080.h>
 
 #include "romunect/openni2/depth_units.h"
+#include "romunect/openni2/feed_abi.h"
 #include "romunect/openni2/virtual_device.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/rig.h"
@@ -83,6 +89,172 @@ ChipParameters ReadChipParameters(const std::string& extra_json) {
   return p;
 }
 
+// Where a device's frames come from. Next() is called with the device mutex held.
+class FrameFeed {
+ public:
+  enum class Status { kFrame, kEnd, kBroken };
+  virtual ~FrameFeed() = default;
+  virtual const CameraModel& camera() const = 0;
+  virtual bool has_depth() const = 0;
+  virtual bool has_ir() const = 0;
+  virtual int frame_count() const = 0;   // frames it will deliver; 0 = endless
+  virtual double fps() const = 0;        // 0 = unknown
+  virtual std::string extra_json() const { return ""; }
+  // The next frame: depth_m and/or ir, time_s since the first frame. kBroken: that frame is
+  // lost (a gap in the frame numbers), *error says why; the feed goes on.
+  virtual Status Next(Frame* frame, std::string* error) = 0;
+};
+
+// A frame directory, optionally looped.
+class DirectoryFeed : public FrameFeed {
+ public:
+  DirectoryFeed(const std::filesystem::path& dir, bool loop) : dir_(dir), loop_(loop) {
+    manifest_ = ReadFrameDirectoryManifest(dir_);  // throws InputError
+    for (FrameRecord& r : manifest_.frames) {
+      r.raw.clear();  // a PS1080 sends neither raw shifts nor ground truth: don't decode them
+      r.gt_depth.clear();
+    }
+    const auto& frames = manifest_.frames;
+    has_depth_ = !frames.empty() && std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.depth.empty(); });
+    has_ir_ = !frames.empty() && std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.ir.empty(); });
+    if (frames.size() >= 2) {
+      std::vector<double> dt;
+      for (size_t i = 1; i < frames.size(); ++i) dt.push_back(frames[i].time_s - frames[i - 1].time_s);
+      std::nth_element(dt.begin(), dt.begin() + dt.size() / 2, dt.end());
+      if (dt[dt.size() / 2] > 0.0) fps_ = 1.0 / dt[dt.size() / 2];
+    }
+  }
+  const CameraModel& camera() const override { return manifest_.camera; }
+  bool has_depth() const override { return has_depth_; }
+  bool has_ir() const override { return has_ir_; }
+  int frame_count() const override { return loop_ ? 0 : static_cast<int>(manifest_.frames.size()); }
+  double fps() const override { return fps_; }
+  std::string extra_json() const override { return manifest_.extra_json; }
+
+  Status Next(Frame* frame, std::string* error) override {
+    const auto& frames = manifest_.frames;
+    if (next_ >= frames.size()) {
+      if (!loop_ || frames.empty()) return Status::kEnd;
+      loop_offset_s_ += frames.back().time_s - frames.front().time_s + 1.0 / (fps_ > 0.0 ? fps_ : 30.0);
+      next_ = 0;
+    }
+    const size_t k = next_++;
+    try {
+      *frame = LoadFrame(dir_, manifest_, k);
+    } catch (const std::exception& e) {
+      *error = "frame " + std::to_string(k) + ": " + e.what();
+      return Status::kBroken;  // a broken frame is a frame the device never sent
+    }
+    frame->time_s = frames[k].time_s - frames.front().time_s + loop_offset_s_;
+    return Status::kFrame;
+  }
+
+ private:
+  std::filesystem::path dir_;
+  bool loop_;
+  FrameDirectoryManifest manifest_;
+  bool has_depth_ = false, has_ir_ = false;
+  double fps_ = 0.0;
+  size_t next_ = 0;
+  double loop_offset_s_ = 0.0;  // time added on each pass when looping
+};
+
+// The simulator's feed library: libRomunectSimFeed.so in <build>/lib, two folders above the
+// driver folder this plug-in was loaded from (CMake builds both there).
+std::string DefaultFeedLibrary() {
+  Dl_info info{};
+  if (dladdr(reinterpret_cast<void*>(&DefaultFeedLibrary), &info) == 0 || info.dli_fname == nullptr) return "";
+  return (std::filesystem::path(info.dli_fname).parent_path().parent_path().parent_path() / "libRomunectSimFeed.so").string();
+}
+
+// A feed library loaded through the C ABI of feed_abi.h.
+class LibraryFeed : public FrameFeed {
+ public:
+  LibraryFeed(const std::string& library, const std::string& query) {
+    const std::string path = library.empty() ? DefaultFeedLibrary() : library;
+    handle_ = dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL);
+    if (handle_ == nullptr) throw std::runtime_error("cannot load the feed library " + path + ": " + dlerror());
+    create_ = reinterpret_cast<RomunectFeedCreateFn>(dlsym(handle_, ROMUNECT_FEED_CREATE_SYMBOL));
+    next_ = reinterpret_cast<RomunectFeedNextFn>(dlsym(handle_, ROMUNECT_FEED_NEXT_SYMBOL));
+    destroy_ = reinterpret_cast<RomunectFeedDestroyFn>(dlsym(handle_, ROMUNECT_FEED_DESTROY_SYMBOL));
+    if (create_ == nullptr || next_ == nullptr || destroy_ == nullptr) {
+      dlclose(handle_);
+      throw std::runtime_error(path + " is not a romunect feed library (it lacks romunect_feed_create/next/destroy)");
+    }
+    char error[1024] = "";
+    RomunectFeedInfo info{};
+    feed_ = create_(query.c_str(), &info, error, sizeof(error));
+    if (feed_ == nullptr) {
+      dlclose(handle_);
+      throw std::runtime_error(path + ": " + error);
+    }
+    if (info.abi_version != ROMUNECT_FEED_ABI_VERSION || info.width <= 0 || info.height <= 0 ||
+        !(info.fx > 0.0 && info.fy > 0.0)) {
+      destroy_(feed_);
+      dlclose(handle_);
+      throw std::runtime_error(path + ": unsupported feed (ABI version " + std::to_string(info.abi_version) +
+                               ", size " + std::to_string(info.width) + "x" + std::to_string(info.height) + ")");
+    }
+    info_ = info;
+    camera_.width = info.width;
+    camera_.height = info.height;
+    camera_.fx = info.fx;
+    camera_.fy = info.fy;
+    camera_.cx = info.cx;
+    camera_.cy = info.cy;
+  }
+  ~LibraryFeed() override {
+    destroy_(feed_);
+    dlclose(handle_);
+  }
+  LibraryFeed(const LibraryFeed&) = delete;
+  LibraryFeed& operator=(const LibraryFeed&) = delete;
+
+  const CameraModel& camera() const override { return camera_; }
+  bool has_depth() const override { return info_.has_depth != 0; }
+  bool has_ir() const override { return info_.has_ir != 0; }
+  int frame_count() const override { return info_.frame_count; }
+  double fps() const override { return info_.fps; }
+
+  Status Next(Frame* frame, std::string* error) override {
+    if (ended_) return Status::kEnd;
+    char message[1024] = "";
+    RomunectFeedFrame f{};
+    const int status = next_(feed_, &f, message, sizeof(message));
+    if (status == 0) {
+      ended_ = true;
+      return Status::kEnd;
+    }
+    if (status < 0) {
+      *error = message;
+      return Status::kBroken;
+    }
+    *frame = Frame();
+    frame->time_s = f.time_s;
+    // Copies: the feed's buffers live only until its next call.
+    if (f.depth_m != nullptr) {
+      frame->depth_m = cv::Mat(info_.height, info_.width, CV_32F, const_cast<float*>(f.depth_m)).clone();
+    }
+    if (f.ir != nullptr) frame->ir = cv::Mat(info_.height, info_.width, CV_16U, const_cast<uint16_t*>(f.ir)).clone();
+    return Status::kFrame;
+  }
+
+ private:
+  void* handle_ = nullptr;
+  RomunectFeedCreateFn create_ = nullptr;
+  RomunectFeedNextFn next_ = nullptr;
+  RomunectFeedDestroyFn destroy_ = nullptr;
+  void* feed_ = nullptr;
+  RomunectFeedInfo info_{};
+  CameraModel camera_;
+  bool ended_ = false;
+};
+
+std::unique_ptr<FrameFeed> MakeFeed(const ParsedVirtualDeviceUri& parsed) {
+  if (parsed.feed) return std::make_unique<LibraryFeed>(parsed.feed_library, parsed.feed_query);
+  return std::make_unique<DirectoryFeed>(parsed.dir, parsed.options.loop);
+}
+
 template <typename T>
 OniStatus Answer(const T& value, void* data, int* size) {
   if (*size != static_cast<int>(sizeof(T))) return ONI_STATUS_BAD_PARAMETER;
@@ -122,25 +294,13 @@ class VirtualStream : public oni::driver::StreamBase {
 class VirtualDevice : public oni::driver::DeviceBase {
  public:
   VirtualDevice(const ParsedVirtualDeviceUri& parsed, oni::driver::DriverServices* services)
-      : dir_(parsed.dir), options_(parsed.options), services_(services) {
-    manifest_ = ReadFrameDirectoryManifest(dir_);  // throws InputError
-    for (FrameRecord& r : manifest_.frames) {
-      r.raw.clear();  // a PS1080 sends neither raw shifts nor ground truth: don't decode them
-      r.gt_depth.clear();
-    }
-    chip_ = ReadChipParameters(manifest_.extra_json);
-    const auto& frames = manifest_.frames;
-    has_depth_ = !frames.empty() && std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.depth.empty(); });
-    has_ir_ = !frames.empty() && std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.ir.empty(); });
-    fps_ = static_cast<int>(std::lround(options_.fps));
-    if (fps_ <= 0 && frames.size() >= 2) {
-      std::vector<double> dt;
-      for (size_t i = 1; i < frames.size(); ++i) dt.push_back(frames[i].time_s - frames[i - 1].time_s);
-      std::nth_element(dt.begin(), dt.begin() + dt.size() / 2, dt.end());
-      if (dt[dt.size() / 2] > 0.0) fps_ = static_cast<int>(std::lround(1.0 / dt[dt.size() / 2]));
-    }
+      : options_(parsed.options), services_(services), feed_(MakeFeed(parsed)) {  // MakeFeed throws
+    chip_ = ReadChipParameters(feed_->extra_json());
+    has_depth_ = feed_->has_depth();
+    has_ir_ = feed_->has_ir();
+    fps_ = static_cast<int>(std::lround(options_.fps > 0.0 ? options_.fps : feed_->fps()));
     if (fps_ <= 0) fps_ = 30;
-    const int w = manifest_.camera.width, h = manifest_.camera.height;
+    const int w = feed_->camera().width, h = feed_->camera().height;
     depth_modes_ = {{ONI_PIXEL_FORMAT_DEPTH_100_UM, w, h, fps_}, {ONI_PIXEL_FORMAT_DEPTH_1_MM, w, h, fps_}};
     ir_modes_ = {{ONI_PIXEL_FORMAT_GRAY16, w, h, fps_}};
     if (has_depth_) sensors_.push_back({ONI_SENSOR_DEPTH, static_cast<int>(depth_modes_.size()), depth_modes_.data()});
@@ -217,18 +377,18 @@ class VirtualDevice : public oni::driver::DeviceBase {
   OniStatus invoke(int id, void* /*data*/, int /*size*/) override {
     if (!isCommandSupported(id)) return ONI_STATUS_NOT_SUPPORTED;
     std::lock_guard<std::mutex> lock(mutex_);
-    if (CanSendLocked()) SendNextLocked();
+    if (CanSendLocked() && FetchLocked()) SendPendingLocked();
     return ONI_STATUS_OK;
   }
 
   void StreamStateChanged() { wake_.notify_all(); }
 
   std::mutex& mutex() { return mutex_; }
-  const CameraModel& camera() const { return manifest_.camera; }
+  const CameraModel& camera() const { return feed_->camera(); }
   const ChipParameters& chip() const { return chip_; }
   int total_frames() const {
     // A finite device says how many frames it will send, as OpenNI2's file player does.
-    return options_.loop ? 0 : static_cast<int>(manifest_.frames.size());
+    return feed_->frame_count();
   }
   bool IsOffered(OniSensorType type, const OniVideoMode& mode) const {
     for (const OniVideoMode& m : type == ONI_SENSOR_DEPTH ? depth_modes_ : ir_modes_) {
@@ -246,35 +406,35 @@ class VirtualDevice : public oni::driver::DeviceBase {
   }
   bool CanSendLocked() const {
     if (options_.stop_after >= 0 && sent_ >= options_.stop_after) return false;
-    return options_.loop || next_ < manifest_.frames.size();
+    return !ended_;
   }
 
-  double SpanLocked() const {
-    return manifest_.frames.back().time_s - manifest_.frames.front().time_s + 1.0 / fps_;
-  }
-  // Stream time (s) of the frame SendNextLocked() sends next.
-  double NextTimeLocked() const {
-    if (next_ >= manifest_.frames.size()) return loop_offset_s_ + SpanLocked();
-    return manifest_.frames[next_].time_s - manifest_.frames.front().time_s + loop_offset_s_;
-  }
-
-  // Loads the next frame and hands it to every started stream. Mutex held.
-  void SendNextLocked() {
-    if (next_ >= manifest_.frames.size()) {  // loop
-      loop_offset_s_ += SpanLocked();
-      next_ = 0;
-    }
-    const size_t k = next_++;
-    const int frame_index = ++sent_;  // 1-based, as the PS1080 and .oni files count
+  // Takes the next frame from the feed into pending_ (unless one waits there). Mutex held.
+  // False at the feed's end.
+  bool FetchLocked() {
+    if (pending_) return true;
     Frame frame;
-    try {
-      frame = LoadFrame(dir_, manifest_, k);
-    } catch (const std::exception& e) {
-      services_->errorLoggerAppend("romunect virtual device: frame %zu: %s", k, e.what());
-      return;  // a broken frame is a frame the device never sent
+    std::string error;
+    for (;;) {
+      const FrameFeed::Status status = feed_->Next(&frame, &error);
+      if (status == FrameFeed::Status::kEnd) {
+        ended_ = true;
+        return false;
+      }
+      if (status == FrameFeed::Status::kFrame) break;
+      services_->errorLoggerAppend("romunect virtual device: %s", error.c_str());
+      ++sent_;  // the lost frame's number is skipped, as a device that drops one
     }
-    const double t_s = manifest_.frames[k].time_s - manifest_.frames.front().time_s + loop_offset_s_;
-    const uint64_t timestamp_us = static_cast<uint64_t>(std::llround(t_s * 1e6));
+    pending_ = std::move(frame);
+    return true;
+  }
+
+  // Hands the pending frame to every started stream. Mutex held.
+  void SendPendingLocked() {
+    const Frame frame = std::move(*pending_);
+    pending_.reset();
+    const int frame_index = ++sent_;  // 1-based, as the PS1080 and .oni files count
+    const uint64_t timestamp_us = static_cast<uint64_t>(std::llround(frame.time_s * 1e6));
     for (VirtualStream* s : streams_) {
       if (!s->started()) continue;
       if (s->type() == ONI_SENSOR_IR) {
@@ -292,19 +452,19 @@ class VirtualDevice : public oni::driver::DeviceBase {
     }
   }
 
-  // Realtime pace: sends frames at their frames.json times while any stream runs.
+  // Realtime pace: sends frames at their times while any stream runs.
   void Produce() {
     std::unique_lock<std::mutex> lock(mutex_);
     bool running = false;
     Clock::time_point start;
     double start_t_s = 0.0;
     while (!closing_) {
-      if (!AnyStartedLocked() || !CanSendLocked()) {
+      if (!AnyStartedLocked() || !CanSendLocked() || !FetchLocked()) {
         running = false;
         wake_.wait(lock);
         continue;
       }
-      const double t_s = NextTimeLocked();
+      const double t_s = pending_->time_s;
       if (!running) {
         // Let every stream the application starts together see the first frame.
         running = true;
@@ -314,14 +474,13 @@ class VirtualDevice : public oni::driver::DeviceBase {
       const auto due = start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(t_s - start_t_s));
       if (wake_.wait_until(lock, due, [this] { return closing_; })) break;
       if (Clock::now() < due) continue;
-      if (AnyStartedLocked() && CanSendLocked()) SendNextLocked();
+      if (AnyStartedLocked() && CanSendLocked()) SendPendingLocked();
     }
   }
 
-  std::filesystem::path dir_;
   VirtualDeviceOptions options_;
   oni::driver::DriverServices* services_;
-  FrameDirectoryManifest manifest_;
+  std::unique_ptr<FrameFeed> feed_;
   ChipParameters chip_;
   bool has_depth_ = false, has_ir_ = false;
   int fps_ = 30;
@@ -331,9 +490,9 @@ class VirtualDevice : public oni::driver::DeviceBase {
   std::mutex mutex_;
   std::condition_variable wake_;
   std::set<VirtualStream*> streams_;
-  size_t next_ = 0;            // next manifest entry to send
-  int sent_ = 0;               // frames sent so far
-  double loop_offset_s_ = 0.0;  // time added on each pass when looping
+  std::optional<Frame> pending_;  // fetched from the feed, not yet sent
+  int sent_ = 0;                  // frame numbers used so far
+  bool ended_ = false;            // the feed has no more frames
   bool closing_ = false;
   std::thread producer_;
 };
@@ -496,6 +655,16 @@ void VirtualStream::notifyAllProperties() {
   }
 }
 
+// Why the last deviceOpen failed. OpenNI2 2.2 does not pass a driver's log on to the
+// application's getExtendedError(), so OpenNI2Source asks here (kVirtualDeviceLastErrorSymbol).
+std::mutex g_last_open_error_mutex;
+std::string g_last_open_error;
+
+void SetLastOpenError(const std::string& message) {
+  std::lock_guard<std::mutex> lock(g_last_open_error_mutex);
+  g_last_open_error = message;
+}
+
 class VirtualDriver : public oni::driver::DriverBase {
  public:
   explicit VirtualDriver(OniDriverServices* services) : DriverBase(services) {}
@@ -523,7 +692,7 @@ class VirtualDriver : public oni::driver::DriverBase {
       return ONI_STATUS_ERROR;
     }
     std::error_code ec;
-    if (!std::filesystem::is_regular_file(parsed->dir / "frames.json", ec)) {
+    if (!parsed->feed && !std::filesystem::is_regular_file(parsed->dir / "frames.json", ec)) {
       getServices().errorLoggerAppend("%s: no frames.json in %s", uri, parsed->dir.c_str());
       return ONI_STATUS_ERROR;
     }
@@ -536,7 +705,7 @@ class VirtualDriver : public oni::driver::DriverBase {
       OniDeviceInfo info{};
       std::snprintf(info.uri, sizeof(info.uri), "%s", uri);
       std::snprintf(info.vendor, sizeof(info.vendor), "romunect");
-      std::snprintf(info.name, sizeof(info.name), "romunect virtual sensor");
+      std::snprintf(info.name, sizeof(info.name), parsed->feed ? "romunect live feed" : "romunect virtual sensor");
       deviceConnected(&info);
     }
     return ONI_STATUS_OK;
@@ -546,12 +715,15 @@ class VirtualDriver : public oni::driver::DriverBase {
     std::string problem;
     const auto parsed = ParseVirtualDeviceUri(uri, &problem);
     if (!parsed) {
+      SetLastOpenError(problem);
       getServices().errorLoggerAppend("%s: %s", uri, problem.c_str());
       return nullptr;
     }
     try {
+      SetLastOpenError("");
       return new VirtualDevice(*parsed, &getServices());
     } catch (const std::exception& e) {
+      SetLastOpenError(e.what());
       getServices().errorLoggerAppend("%s", e.what());
       return nullptr;
     }
@@ -570,3 +742,10 @@ class VirtualDriver : public oni::driver::DriverBase {
 }  // namespace romunect::openni2
 
 ONI_EXPORT_DRIVER(romunect::openni2::VirtualDriver)
+
+// Copies why the last deviceOpen failed ("" after a success) into buffer (size bytes).
+extern "C" __attribute__((visibility("default"))) void romunect_virtual_device_last_error(char* buffer, int size) {
+  if (buffer == nullptr || size <= 0) return;
+  std::lock_guard<std::mutex> lock(romunect::openni2::g_last_open_error_mutex);
+  std::snprintf(buffer, static_cast<size_t>(size), "%s", romunect::openni2::g_last_open_error.c_str());
+}

@@ -99,6 +99,20 @@ bool IsDepthFormat(openni::PixelFormat f) {
   return f == openni::PIXEL_FORMAT_DEPTH_1_MM || f == openni::PIXEL_FORMAT_DEPTH_100_UM;
 }
 
+// Why the virtual device's driver refused the last open ("" if unknown): OpenNI2 does not
+// pass driver messages on, so ask the loaded driver itself.
+std::string VirtualDeviceOpenError() {
+  const std::string path = (DriverDirectory() / kVirtualDriverFile).string();
+  void* driver = dlopen(path.c_str(), RTLD_NOW | RTLD_NOLOAD);
+  if (driver == nullptr) return "";
+  using LastError = void (*)(char*, int);
+  auto last_error = reinterpret_cast<LastError>(dlsym(driver, kVirtualDeviceLastErrorSymbol));
+  char message[1024] = "";
+  if (last_error != nullptr) last_error(message, sizeof(message));
+  dlclose(driver);  // balances the NOLOAD open; OpenNI2 keeps its own reference
+  return message;
+}
+
 template <typename T>
 std::optional<T> ReadProperty(const openni::VideoStream& stream, int id) {
   // Ask directly: the file driver answers recorded PS1080 properties without listing them.
@@ -251,7 +265,7 @@ OpenNI2Source::OpenNI2Source(const OpenNI2SourceOptions& options) : impl_(std::m
     const auto parsed = ParseVirtualDeviceUri(options.uri, &why);
     if (!parsed) throw InputError(options.uri, "", "not a valid virtual-device URI: " + why);
     std::error_code ec;
-    if (!std::filesystem::is_regular_file(parsed->dir / "frames.json", ec)) {
+    if (!parsed->feed && !std::filesystem::is_regular_file(parsed->dir / "frames.json", ec)) {
       throw InputError(options.uri, "", "no OpenNI2 device opens with this URI: " + parsed->dir.string() +
                                             " is not a frame directory (no frames.json)");
     }
@@ -263,6 +277,10 @@ OpenNI2Source::OpenNI2Source(const OpenNI2SourceOptions& options) : impl_(std::m
     if (options.uri.empty()) {
       throw InputError("OpenNI2", "", "no device found (" + ExtendedError() + "); is the sensor plugged in and its driver in " +
                                           DriverDirectory().string() + "?");
+    }
+    if (IsVirtualDeviceUri(options.uri)) {
+      const std::string why = VirtualDeviceOpenError();
+      if (!why.empty()) throw InputError(s.name, "", "the virtual device cannot open: " + why);
     }
     throw InputError(s.name, "", "no OpenNI2 device opens with this URI (" + ExtendedError() +
                                      "); devices found: " + DeviceListText());

@@ -17,15 +17,15 @@ std::string VirtualDeviceOptions::Problem() const {
   return "";
 }
 
-std::string VirtualDeviceUri(const std::filesystem::path& frame_dir, const VirtualDeviceOptions& options) {
+namespace {
+
+// The driver's keys of `options` appended to `uri` (which ends in its path).
+std::string WithOptions(const std::string& uri_path, const VirtualDeviceOptions& options,
+                        const std::string& extra_query = "") {
   const std::string problem = options.Problem();
   if (!problem.empty()) throw InputError("virtual device", "options", problem);
-  const std::string dir = std::filesystem::absolute(frame_dir).lexically_normal().string();
-  if (dir.find('?') != std::string::npos) {
-    throw InputError(dir, "", "a virtual device's directory may not contain '?'");
-  }
   std::ostringstream uri;
-  uri << kVirtualDeviceScheme << dir;
+  uri << uri_path;
   char sep = '?';
   auto add = [&](const std::string& key, const std::string& value) {
     uri << sep << key << '=' << value;
@@ -40,25 +40,51 @@ std::string VirtualDeviceUri(const std::filesystem::path& frame_dir, const Virtu
     fps << options.fps;
     add("fps", fps.str());
   }
+  if (!extra_query.empty()) uri << sep << extra_query;
   return uri.str();
 }
 
-bool IsVirtualDeviceUri(const std::string& uri) { return uri.rfind(kVirtualDeviceScheme, 0) == 0; }
+}  // namespace
+
+std::string VirtualDeviceUri(const std::filesystem::path& frame_dir, const VirtualDeviceOptions& options) {
+  const std::string dir = std::filesystem::absolute(frame_dir).lexically_normal().string();
+  if (dir.find('?') != std::string::npos) {
+    throw InputError(dir, "", "a virtual device's directory may not contain '?'");
+  }
+  return WithOptions(kVirtualDeviceScheme + dir, options);
+}
+
+std::string SimFeedUri(const std::string& feed_query, const VirtualDeviceOptions& options) {
+  if (options.loop) throw InputError("virtual device", "options", "loop = 1: only for frame directories");
+  return WithOptions(kSimFeedScheme, options, feed_query);
+}
+
+bool IsVirtualDeviceUri(const std::string& uri) {
+  return uri.rfind(kVirtualDeviceScheme, 0) == 0 || uri.rfind(kSimFeedScheme, 0) == 0;
+}
 
 std::optional<ParsedVirtualDeviceUri> ParseVirtualDeviceUri(const std::string& uri, std::string* problem) {
   if (!IsVirtualDeviceUri(uri)) {
     *problem = std::string("does not start with ") + kVirtualDeviceScheme;
     return std::nullopt;
   }
-  std::string rest = uri.substr(std::string(kVirtualDeviceScheme).size());
+  ParsedVirtualDeviceUri parsed;
+  parsed.feed = uri.rfind(kSimFeedScheme, 0) == 0;
+  std::string rest = uri.substr(std::string(parsed.feed ? kSimFeedScheme : kVirtualDeviceScheme).size());
   // Accept both romunect:/abs/dir and romunect:///abs/dir.
   if (rest.rfind("//", 0) == 0) rest = rest.substr(2);
-  ParsedVirtualDeviceUri parsed;
   const size_t q = rest.find('?');
-  parsed.dir = rest.substr(0, q);
-  if (parsed.dir.empty() || !parsed.dir.is_absolute()) {
-    *problem = "the directory must be an absolute path";
-    return std::nullopt;
+  if (parsed.feed) {
+    if (q != 0 && !rest.empty()) {
+      *problem = "a feed URI has no path: romunect-sim:?key=value&...";
+      return std::nullopt;
+    }
+  } else {
+    parsed.dir = rest.substr(0, q);
+    if (parsed.dir.empty() || !parsed.dir.is_absolute()) {
+      *problem = "the directory must be an absolute path";
+      return std::nullopt;
+    }
   }
   if (q != std::string::npos) {
     std::stringstream query(rest.substr(q + 1));
@@ -85,12 +111,20 @@ std::optional<ParsedVirtualDeviceUri> ParseVirtualDeviceUri(const std::string& u
           *problem = "fps=" + value + ": not a number";
           return std::nullopt;
         }
+      } else if (parsed.feed && key == "feed" && !value.empty()) {
+        parsed.feed_library = value;
+      } else if (parsed.feed) {
+        parsed.feed_query += (parsed.feed_query.empty() ? "" : "&") + item;  // the feed's own key
       } else {
         *problem = "unknown or malformed parameter '" + item +
                    "' (expected pace=realtime|step, stop_after=N, loop=0|1, fps=F)";
         return std::nullopt;
       }
     }
+  }
+  if (parsed.feed && parsed.options.loop) {
+    *problem = "loop=1: only for frame directories";
+    return std::nullopt;
   }
   const std::string options_problem = parsed.options.Problem();
   if (!options_problem.empty()) {

@@ -10,13 +10,21 @@
 namespace romunect::openni2 {
 
 inline constexpr const char* kVirtualDeviceScheme = "romunect:";
+inline constexpr const char* kSimFeedScheme = "romunect-sim:";
+// The driver's file name and its C function that says why the last open failed:
+// void romunect_virtual_device_last_error(char* buffer, int size).
+inline constexpr const char* kVirtualDriverFile = "libRomunectVirtual.so.0";
+inline constexpr const char* kVirtualDeviceLastErrorSymbol = "romunect_virtual_device_last_error";
 
 struct ParsedVirtualDeviceUri {
-  std::filesystem::path dir;
+  std::filesystem::path dir;  // a frame directory; empty for a feed
   VirtualDeviceOptions options;
+  bool feed = false;          // frames from a feed library (romunect-sim:)
+  std::string feed_library;   // feed=PATH; empty = the simulator's, beside the driver folder
+  std::string feed_query;     // the keys the driver does not read, for the feed
 };
 
-// True when `uri` uses the virtual device's scheme (whether or not it is valid).
+// True when `uri` uses one of the virtual device's schemes (whether or not it is valid).
 bool IsVirtualDeviceUri(const std::string& uri);
 
 // Parses a virtual-device URI; on failure returns nullopt and says why in *problem.

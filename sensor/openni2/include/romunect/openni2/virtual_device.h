@@ -9,6 +9,10 @@
 //   stop_after=N    the device stops sending after N frames, like an unplugged sensor
 //   loop=1          start again at the first frame after the last (realtime only; viewers)
 //   fps=F           the frame rate it announces (default: from the frame times, else 30)
+// The same device also presents live frames from a feed library (feed_abi.h), by default the
+// simulator's (sim/openni2_feed, libRomunectSimFeed.so beside the driver folder):
+//   romunect-sim:?[driver keys above except loop][&feed=/abs/libX.so][&the feed's own keys]
+// The driver keys are read by the driver; every other key is handed to the feed.
 // Depth is offered as ONI_PIXEL_FORMAT_DEPTH_100_UM (default) and DEPTH_1_MM, IR as GRAY16, both
 // at the directory's resolution. Any OpenNI2 program opens the device named by the environment
 // variable ROMUNECT_VIRTUAL_DEVICE (a URI or a plain directory) as its first device.
@@ -34,6 +38,10 @@ struct VirtualDeviceOptions {
 // Throws InputError if the options are invalid or the path holds '?' (the URI's separator).
 std::string VirtualDeviceUri(const std::filesystem::path& frame_dir,
                              const VirtualDeviceOptions& options = {});
+
+// The URI of a live feed device (see above): `feed_query` holds the feed's own keys.
+// Throws InputError if the options are invalid (loop is not offered for feeds).
+std::string SimFeedUri(const std::string& feed_query, const VirtualDeviceOptions& options = {});
 
 // OpenNI2's private device command that asks a step-paced virtual device for the next frame set.
 inline constexpr int kVirtualDeviceStepCommand = 0x524D0001;  // 'RM' 0001
