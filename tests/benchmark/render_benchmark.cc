@@ -135,6 +135,32 @@ BENCHMARK(BM_PoseUpdate)->UseRealTime()->MeasureProcessCPUTime()->Unit(benchmark
 
 #ifdef ROMUNECT_HAVE_FULL_FRAME
 
+// IR synthesis alone on the rendered bin (1 or 4 samples), `threads` threads.
+void BM_IrSynthesis(benchmark::State& state) {
+  Fixture& f = GetFixture();
+  GeometryRenderer renderer;
+  GeometryBuffer buffer;
+  renderer.Render(f.scene, f.rig.camera, Pose::Identity(), f.rig.T_C_P, f.Options(2, static_cast<int>(state.range(1))),
+                  &buffer);
+  IrSynthesisOptions options;
+  options.threads = static_cast<int>(state.range(0));
+  IrSynthesizer synthesizer(options);
+  cv::Mat ir;
+  uint64_t seed = 0;
+  for (auto _ : state) {
+    synthesizer.Synthesize(f.rig, buffer, ++seed, &ir, nullptr);
+    benchmark::DoNotOptimize(ir.data);
+  }
+}
+BENCHMARK(BM_IrSynthesis)
+    ->ArgNames({"threads", "samples"})
+    ->Args({1, 1})
+    ->Args({2, 1})
+    ->Args({1, 4})
+    ->UseRealTime()
+    ->MeasureProcessCPUTime()
+    ->Unit(benchmark::kMillisecond);
+
 // Render, IR synthesis and depth engine of one frame, all with `threads` threads.
 void BM_FullFrame(benchmark::State& state) {
   Fixture& f = GetFixture();

@@ -111,10 +111,6 @@ RayScene::RayScene(const RaySceneOptions& options) : impl_(std::make_unique<Impl
   // The top level holds a handful of instances and changes every frame: fast build.
   impl_->top = NewScene(device, RTC_BUILD_QUALITY_LOW, RTC_SCENE_FLAG_DYNAMIC);
   impl_->static_part.scene = NewScene(device, RTC_BUILD_QUALITY_HIGH, RTC_SCENE_FLAG_NONE);
-  impl_->static_part.instance_id =
-      AttachInstance(device, impl_->top.get(), impl_->static_part.scene.get(), Pose::Identity());
-  impl_->part_of_instance.resize(impl_->static_part.instance_id + 1, -2);
-  impl_->part_of_instance[impl_->static_part.instance_id] = -1;
 }
 
 RayScene::~RayScene() = default;
@@ -151,7 +147,7 @@ int RayScene::AddMoving(const TriangleMesh& mesh_O, const Pose& T_W_O, const IrM
   part.T_W_O = T_W_O;
   part.instance_id = AttachInstance(device, s.top.get(), part.scene.get(), T_W_O);
   if (s.part_of_instance.size() <= part.instance_id) {
-    s.part_of_instance.resize(part.instance_id + 1, -2);
+    s.part_of_instance.resize(part.instance_id + 1, -1);
   }
   const int index = static_cast<int>(s.moving.size());
   s.part_of_instance[part.instance_id] = index;
@@ -187,9 +183,6 @@ void RayScene::Commit() {
     s.static_dirty = false;
     ++s.stats.static_builds;
     s.stats.static_build_s = SecondsSince(start);
-    // The instance refers to the scene; re-commit it so the top level sees the new bounds.
-    rtcCommitGeometry(rtcGetGeometry(s.top.get(), s.static_part.instance_id));
-    s.top_dirty = true;
   }
   if (s.top_dirty) {
     rtcCommitScene(s.top.get());

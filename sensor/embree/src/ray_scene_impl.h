@@ -26,23 +26,25 @@ struct GeometryInfo {
   int object_id = -1;
 };
 
-// One instance of the top-level scene: the static part (identity pose, meshes pre-placed in W)
-// or a moving part (one mesh in O, pose T_W_O).
+// The static part (meshes pre-placed in W, traced directly) or a moving part (one mesh in O,
+// pose T_W_O, an instance in the top level).
 struct Part {
-  ScenePtr scene;                          // the instanced scene (its own BVH)
+  ScenePtr scene;                          // its own BVH
   Pose T_W_O = Pose::Identity();
   std::vector<GeometryInfo> geometries;    // by geometry id within `scene`
-  unsigned instance_id = RTC_INVALID_GEOMETRY_ID;  // geometry id of the instance in the top level
+  unsigned instance_id = RTC_INVALID_GEOMETRY_ID;  // moving parts: geometry id of the instance in top
 };
 
 struct RayScene::Impl {
   RaySceneOptions options;
   DevicePtr device;
-  ScenePtr top;               // instances only: cheap to re-commit when poses change
+  // Instances of the moving parts only: cheap to re-commit when poses change. The static part
+  // is not instanced: rays meet it first, directly, and coherent occlusion rays work there.
+  ScenePtr top;
   Part static_part;
   std::vector<Part> moving;
   std::vector<IrMaterial> materials;
-  std::vector<int> part_of_instance;  // top-level geometry id -> -1 (static) or moving index
+  std::vector<int> part_of_instance;  // top-level geometry id -> moving index
   bool static_dirty = true;
   bool top_dirty = true;
   RaySceneStats stats;

@@ -24,37 +24,115 @@ constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
 // Per-frame constants shared by all threads (read only while tracing).
 struct FrameSetup {
-  RTCScene top = nullptr;
+  RTCScene static_scene = nullptr;  // the static part, in W, traced directly
+  RTCScene moving = nullptr;        // instances of the moving parts; null when there are none
   int width = 0, height = 0;
-  Eigen::Matrix3f R_W_C;
+  Eigen::Matrix3f R_W_C, R_C_W;
   Eigen::Vector3f t_W_C;
   Eigen::Vector3f p_P_C;  // projector centre in C
   Eigen::Vector3f p_P_W;  // projector centre in W
   float shadow_bias_m = 0.0f;
   float inv_focus_m = 0.0f;
-  std::vector<Eigen::Matrix3f> R_C_O;             // by top-level instance id
-  std::vector<const std::vector<GeometryInfo>*> info;  // by top-level instance id
+  const std::vector<GeometryInfo>* static_info = nullptr;
+  std::vector<Eigen::Matrix3f> R_C_O;                  // by moving instance id
+  std::vector<const std::vector<GeometryInfo>*> info;  // by moving instance id
   std::vector<LensSample> samples;
   const std::vector<cv::Mat>* ray_tables = nullptr;  // one CV_32FC2 per sample
 };
 
-struct Counters {
+// Per-thread counters, a cache line each so that threads do not share one.
+struct alignas(64) Counters {
   int64_t camera_rays = 0, hits = 0, shadow_rays = 0, lit = 0;
 };
 
-void RenderPacket(const FrameSetup& f, int layer_index, int u0, int v0, GeometryLayer* layer,
-                  Counters* counters) {
-  const cv::Mat& table = (*f.ray_tables)[layer_index];
-  const LensSample& sample = f.samples[layer_index];
-  const Eigen::Vector3f o_C(sample.lens_offset_m.x(), sample.lens_offset_m.y(), 0.0f);
-  const Eigen::Vector3f o_W = f.R_W_C * o_C + f.t_W_C;
+bool AnyValid(const int* valid) {
+  int any = 0;
+  for (int i = 0; i < 16; ++i) any |= valid[i];
+  return any != 0;
+}
 
-  alignas(64) RTCRayHit16 rh;
-  alignas(64) int valid[16];
-  Eigen::Vector3f dir_C[16];
+// Closest hits of a packet: the static part (coherent, no instance to enter), then the moving
+// parts up to that distance. A hit on a moving part carries its instance id; a static hit
+// carries RTC_INVALID_GEOMETRY_ID there.
+void IntersectPacket(const FrameSetup& f, const int* valid, RTCRayHit16* rh) {
+  RTCIntersectContext coherent;
+  rtcInitIntersectContext(&coherent);
+  coherent.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+  rtcIntersect16(valid, f.static_scene, &coherent, rh);
+  if (f.moving == nullptr) return;
+  RTCHit16& hit = rh->hit;
+  alignas(64) unsigned static_geometry[16];
+  for (int i = 0; i < 16; ++i) {
+    static_geometry[i] = hit.geomID[i];
+    hit.geomID[i] = RTC_INVALID_GEOMETRY_ID;
+  }
+  alignas(64) float ng[3][16];
+  std::copy_n(hit.Ng_x, 16, ng[0]);
+  std::copy_n(hit.Ng_y, 16, ng[1]);
+  std::copy_n(hit.Ng_z, 16, ng[2]);
+  rtcIntersect16(valid, f.moving, &coherent, rh);  // tfar holds the static hit: nearer only
+  for (int i = 0; i < 16; ++i) {
+    if (hit.geomID[i] != RTC_INVALID_GEOMETRY_ID) continue;  // a moving part is nearer
+    hit.geomID[i] = static_geometry[i];
+    hit.instID[0][i] = RTC_INVALID_GEOMETRY_ID;
+    hit.Ng_x[i] = ng[0][i];
+    hit.Ng_y[i] = ng[1][i];
+    hit.Ng_z[i] = ng[2][i];
+  }
+}
+
+// Occlusion of the shadow rays: the static part with a coherent packet, then the moving parts
+// for the rays still free. Coherent occlusion rays through instances never return in Debian's
+// Embree 3.13.5 on AVX-512 (seen on this machine), so the instances get the default context.
+void OccludedPacket(const FrameSetup& f, int* valid, RTCRay16* shadow) {
+  if (!AnyValid(valid)) return;
+  RTCIntersectContext coherent;
+  rtcInitIntersectContext(&coherent);
+  coherent.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+  rtcOccluded16(valid, f.static_scene, &coherent, shadow);
+  if (f.moving == nullptr) return;
+  alignas(64) int free_rays[16];
+  for (int i = 0; i < 16; ++i) free_rays[i] = (valid[i] && shadow->tfar[i] >= 0.0f) ? -1 : 0;
+  if (!AnyValid(free_rays)) return;
+  RTCIntersectContext incoherent;
+  rtcInitIntersectContext(&incoherent);
+  rtcOccluded16(free_rays, f.moving, &incoherent, shadow);
+}
+
+// Up to 16 samples traced together, each a pixel and a layer: a 4 x 4 block of one layer, or
+// in adaptive sampling the extra samples of the next marked pixels of a tile (packets cost
+// about the same however few of their lanes are in use, and a pixel's samples are coherent).
+struct Lanes {
+  int count = 0;
+  int u[16], v[16], layer[16];
+  void Add(int u_px, int v_px, int layer_index) {
+    u[count] = u_px;
+    v[count] = v_px;
+    layer[count] = layer_index;
+    ++count;
+  }
+};
+
+Lanes Block(const FrameSetup& f, int layer_index, int u0, int v0) {
+  Lanes lanes;
   for (int i = 0; i < 16; ++i) {
     const int u = u0 + i % kPacket, v = v0 + i / kPacket;
-    valid[i] = (u < f.width && v < f.height) ? -1 : 0;
+    if (u < f.width && v < f.height) lanes.Add(u, v, layer_index);
+  }
+  return lanes;
+}
+
+// Traces the samples of `lanes` and writes them into their layers of *out.
+void RenderPacket(const FrameSetup& f, const Lanes& lanes, GeometryBuffer* out, Counters* counters) {
+  alignas(64) RTCRayHit16 rh;
+  alignas(64) int valid[16];
+  alignas(64) float dir_x[16], dir_y[16];  // direction in C (z = 1)
+  Eigen::Vector3f o_C[16];                   // ray origin on the lens, in C
+  for (int i = 0; i < 16; ++i) {
+    valid[i] = i < lanes.count ? -1 : 0;
+    const LensSample& sample = f.samples[valid[i] ? lanes.layer[i] : 0];
+    o_C[i] = Eigen::Vector3f(sample.lens_offset_m.x(), sample.lens_offset_m.y(), 0.0f);
+    const Eigen::Vector3f o_W = f.R_W_C * o_C[i] + f.t_W_C;
     rh.ray.org_x[i] = o_W.x();
     rh.ray.org_y[i] = o_W.y();
     rh.ray.org_z[i] = o_W.z();
@@ -65,34 +143,28 @@ void RenderPacket(const FrameSetup& f, int layer_index, int u0, int v0, Geometry
     rh.ray.flags[i] = 0;
     rh.hit.geomID[i] = RTC_INVALID_GEOMETRY_ID;
     rh.hit.instID[0][i] = RTC_INVALID_GEOMETRY_ID;
-    if (!valid[i]) {
-      dir_C[i] = Eigen::Vector3f::UnitZ();
-      rh.ray.dir_x[i] = rh.ray.dir_y[i] = 0.0f;
-      rh.ray.dir_z[i] = 1.0f;
-      rh.ray.tfar[i] = -1.0f;
-      continue;
+    dir_x[i] = dir_y[i] = 0.0f;
+    if (valid[i]) {
+      // Thin lens: through the lens point o_C towards the point the pinhole ray meets at the
+      // focus depth; scaled to z = 1, so that the hit depth (z in C) is exactly t.
+      const cv::Vec2f xy_n = (*f.ray_tables)[lanes.layer[i]].ptr<cv::Vec2f>(lanes.v[i])[lanes.u[i]];
+      dir_x[i] = xy_n[0] - o_C[i].x() * f.inv_focus_m;
+      dir_y[i] = xy_n[1] - o_C[i].y() * f.inv_focus_m;
     }
-    const cv::Vec2f xy_n = table.at<cv::Vec2f>(v, u);
-    // Thin lens: through the lens point o_C towards the point the pinhole ray meets at the
-    // focus depth; scaled to z = 1, so that the hit depth (z in C) is exactly t.
-    dir_C[i] = Eigen::Vector3f(xy_n[0] - o_C.x() * f.inv_focus_m, xy_n[1] - o_C.y() * f.inv_focus_m,
-                               1.0f);
-    const Eigen::Vector3f dir_W = f.R_W_C * dir_C[i];
+    const Eigen::Vector3f dir_W = f.R_W_C * Eigen::Vector3f(dir_x[i], dir_y[i], 1.0f);
     rh.ray.dir_x[i] = dir_W.x();
     rh.ray.dir_y[i] = dir_W.y();
     rh.ray.dir_z[i] = dir_W.z();
-    rh.ray.tfar[i] = std::numeric_limits<float>::infinity();
-    ++counters->camera_rays;
+    rh.ray.tfar[i] = valid[i] ? std::numeric_limits<float>::infinity() : -1.0f;
   }
-  RTCIntersectContext context;
-  rtcInitIntersectContext(&context);
-  context.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
-  rtcIntersect16(valid, f.top, &context, &rh);
+  IntersectPacket(f, valid, &rh);
 
   alignas(64) RTCRay16 shadow;
   alignas(64) int shadow_valid[16];
   Eigen::Vector3f p_C[16], n_C[16];
+  int64_t camera_rays = 0, shadow_rays = 0;
   for (int i = 0; i < 16; ++i) {
+    camera_rays += valid[i] != 0;
     shadow_valid[i] = 0;
     shadow.org_x[i] = shadow.org_y[i] = shadow.org_z[i] = 0.0f;
     shadow.dir_x[i] = shadow.dir_y[i] = shadow.dir_z[i] = 1.0f;
@@ -104,14 +176,14 @@ void RenderPacket(const FrameSetup& f, int layer_index, int u0, int v0, Geometry
     shadow.flags[i] = 0;
     if (!valid[i] || rh.hit.geomID[i] == RTC_INVALID_GEOMETRY_ID) continue;
     const float t = rh.ray.tfar[i];
-    p_C[i] = o_C + t * dir_C[i];
+    p_C[i] = o_C[i] + t * Eigen::Vector3f(dir_x[i], dir_y[i], 1.0f);
     const unsigned instance = rh.hit.instID[0][i];
-    ROMUNECT_DCHECK(instance < f.R_C_O.size());
-    // Embree reports the geometric normal in the instanced (object) frame.
-    Eigen::Vector3f n =
-        f.R_C_O[instance] * Eigen::Vector3f(rh.hit.Ng_x[i], rh.hit.Ng_y[i], rh.hit.Ng_z[i]);
+    ROMUNECT_DCHECK(instance == RTC_INVALID_GEOMETRY_ID || instance < f.R_C_O.size());
+    // Embree reports the geometric normal in the frame of the part it hit (W or O).
+    const Eigen::Matrix3f& R_C_hit = instance == RTC_INVALID_GEOMETRY_ID ? f.R_C_W : f.R_C_O[instance];
+    Eigen::Vector3f n = R_C_hit * Eigen::Vector3f(rh.hit.Ng_x[i], rh.hit.Ng_y[i], rh.hit.Ng_z[i]);
     n.normalize();
-    if (n.dot(dir_C[i]) > 0.0f) n = -n;
+    if (n.dot(p_C[i] - o_C[i]) > 0.0f) n = -n;
     n_C[i] = n;
     // A surface facing away from the projector shadows itself: no ray needed.
     if (n.dot(f.p_P_C - p_C[i]) <= 0.0f) continue;
@@ -124,37 +196,80 @@ void RenderPacket(const FrameSetup& f, int layer_index, int u0, int v0, Geometry
     shadow.dir_y[i] = to_P_W.y();
     shadow.dir_z[i] = to_P_W.z();
     shadow_valid[i] = -1;
-    ++counters->shadow_rays;
+    ++shadow_rays;
   }
-  // Shadow rays use the default (incoherent) context: rtcOccluded16 with the coherent flag
-  // never returns in Debian's Embree 3.13.5 on AVX-512 (seen on this machine).
-  RTCIntersectContext shadow_context;
-  rtcInitIntersectContext(&shadow_context);
-  rtcOccluded16(shadow_valid, f.top, &shadow_context, &shadow);
+  OccludedPacket(f, shadow_valid, &shadow);
 
-  for (int i = 0; i < 16; ++i) {
-    if (!valid[i]) continue;
-    const int u = u0 + i % kPacket, v = v0 + i / kPacket;
-    cv::Vec3f& p_out = layer->p_C.at<cv::Vec3f>(v, u);
-    cv::Vec3f& n_out = layer->normal_C.at<cv::Vec3f>(v, u);
+  int64_t hits = 0, lit_count = 0;
+  for (int i = 0; i < lanes.count; ++i) {
+    const int u = lanes.u[i], v = lanes.v[i];
+    GeometryLayer* layer = &out->layers[lanes.layer[i]];
+    cv::Vec3f& p_out = layer->p_C.ptr<cv::Vec3f>(v)[u];
+    cv::Vec3f& n_out = layer->normal_C.ptr<cv::Vec3f>(v)[u];
+    int& material = layer->material.ptr<int>(v)[u];
+    int& object_id = layer->object_id.ptr<int>(v)[u];
+    uint8_t& lit = layer->lit.ptr<uint8_t>(v)[u];
     if (rh.hit.geomID[i] == RTC_INVALID_GEOMETRY_ID) {
       p_out = cv::Vec3f(kNaN, kNaN, kNaN);
       n_out = cv::Vec3f(0.0f, 0.0f, 0.0f);
-      layer->material.at<int>(v, u) = -1;
-      layer->object_id.at<int>(v, u) = -1;
-      layer->lit.at<uint8_t>(v, u) = 0;
+      material = object_id = -1;
+      lit = 0;
       continue;
     }
-    ++counters->hits;
+    ++hits;
     p_out = cv::Vec3f(p_C[i].x(), p_C[i].y(), p_C[i].z());
     n_out = cv::Vec3f(n_C[i].x(), n_C[i].y(), n_C[i].z());
-    const GeometryInfo& g = (*f.info[rh.hit.instID[0][i]])[rh.hit.geomID[i]];
-    layer->material.at<int>(v, u) = g.material;
-    layer->object_id.at<int>(v, u) = g.object_id;
+    const unsigned instance = rh.hit.instID[0][i];
+    const std::vector<GeometryInfo>& info =
+        instance == RTC_INVALID_GEOMETRY_ID ? *f.static_info : *f.info[instance];
+    const GeometryInfo& g = info[rh.hit.geomID[i]];
+    material = g.material;
+    object_id = g.object_id;
     // Embree sets tfar to -inf for occluded rays.
-    const bool lit = shadow_valid[i] && shadow.tfar[i] >= 0.0f;
-    layer->lit.at<uint8_t>(v, u) = lit ? 1 : 0;
-    counters->lit += lit;
+    lit = (shadow_valid[i] && shadow.tfar[i] >= 0.0f) ? 1 : 0;
+    lit_count += lit;
+  }
+  counters->camera_rays += camera_rays;
+  counters->hits += hits;
+  counters->shadow_rays += shadow_rays;
+  counters->lit += lit_count;
+}
+
+// Marks (1 in *refine, CV_8U) both pixels of every horizontal and vertical neighbour pair of
+// layer 0 between which the object (or hit / miss), the shadow, or the depth changes: there the
+// pixel's area holds more than its centre sample shows. A depth step counts when it exceeds
+// max_slope pixel footprints (z / fx): a surface steeper than atan(max_slope) or an edge.
+int64_t MarkEdges(const GeometryLayer& layer, double fx, double max_slope, cv::Mat* refine) {
+  const int rows = layer.p_C.rows, cols = layer.p_C.cols;
+  refine->create(rows, cols, CV_8U);
+  refine->setTo(0);
+  const float step_per_m = static_cast<float>(max_slope / fx);
+  auto edge = [&](int v0, int u0, int v1, int u1) {
+    const int id0 = layer.object_id.ptr<int>(v0)[u0], id1 = layer.object_id.ptr<int>(v1)[u1];
+    if (id0 != id1) return true;
+    if (id0 < 0) return false;  // both missed
+    if (layer.lit.ptr<uint8_t>(v0)[u0] != layer.lit.ptr<uint8_t>(v1)[u1]) return true;
+    const float z0 = layer.p_C.ptr<cv::Vec3f>(v0)[u0][2], z1 = layer.p_C.ptr<cv::Vec3f>(v1)[u1][2];
+    return std::abs(z0 - z1) > step_per_m * std::min(z0, z1);
+  };
+  for (int v = 0; v < rows; ++v) {
+    uint8_t* mark = refine->ptr<uint8_t>(v);
+    uint8_t* mark_below = v + 1 < rows ? refine->ptr<uint8_t>(v + 1) : nullptr;
+    for (int u = 0; u < cols; ++u) {
+      if (u + 1 < cols && edge(v, u, v, u + 1)) mark[u] = mark[u + 1] = 1;
+      if (mark_below != nullptr && edge(v, u, v + 1, u)) mark[u] = mark_below[u] = 1;
+    }
+  }
+  return cv::countNonZero(*refine);
+}
+
+// Copies the samples of `rect` from one layer to another.
+void CopySamples(const GeometryLayer& from, const cv::Rect& rect, GeometryLayer* to) {
+  const cv::Mat* sources[] = {&from.p_C, &from.normal_C, &from.material, &from.object_id, &from.lit};
+  cv::Mat* targets[] = {&to->p_C, &to->normal_C, &to->material, &to->object_id, &to->lit};
+  for (int i = 0; i < 5; ++i) {
+    cv::Mat target = (*targets[i])(rect);  // a view: copyTo writes into the layer
+    (*sources[i])(rect).copyTo(target);
   }
 }
 
@@ -188,6 +303,10 @@ std::string RenderOptions::Problem() const {
     s << "tile_size_px = " << tile_size_px << ": must be a positive multiple of " << kPacket;
   } else if (!(shadow_bias_m >= 0.0) || !std::isfinite(shadow_bias_m)) {
     s << "shadow_bias_m = " << shadow_bias_m << ": must be >= 0";
+  } else if (adaptive && samples_per_pixel == 1) {
+    s << "adaptive = true: needs samples_per_pixel = 4 (the samples it adds at edges)";
+  } else if (!(edge_slope > 0.0) || !std::isfinite(edge_slope)) {
+    s << "edge_slope = " << edge_slope << ": must be positive";
   }
   return s.str();
 }
@@ -195,7 +314,7 @@ std::string RenderOptions::Problem() const {
 std::string RenderStats::BriefReport() const {
   std::ostringstream s;
   s << "render: " << camera_rays << " camera rays, " << hits << " hits, " << shadow_rays
-    << " shadow rays, " << lit << " lit, " << seconds * 1e3 << " ms";
+    << " shadow rays, " << lit << " lit, " << refined_pixels << " refined, " << seconds * 1e3 << " ms";
   return s.str();
 }
 
@@ -224,6 +343,7 @@ struct GeometryRenderer::Cache {
   CameraModel camera;
   std::vector<Eigen::Vector2f> offsets;  // the pixel offset each table was made for
   std::vector<cv::Mat> tables;
+  cv::Mat refine;  // adaptive sampling: pixels that get the extra samples
 };
 
 GeometryRenderer::GeometryRenderer() : cache_(std::make_unique<Cache>()) {}
@@ -242,10 +362,14 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
   const RayScene::Impl& s = *scene.impl_;
 
   FrameSetup f;
-  f.top = s.top.get();
+  f.static_scene = s.static_part.scene.get();
+  f.moving = s.moving.empty() ? nullptr : s.top.get();
+  f.static_info = &s.static_part.geometries;
   f.width = camera.width;
   f.height = camera.height;
-  f.samples = QualitySamplePattern(options.samples_per_pixel, options.aperture_radius_m);
+  // Adaptive: sub-pixel samples through the pinhole; the lens' defocus is left to synthesis.
+  f.samples = QualitySamplePattern(options.samples_per_pixel,
+                                   options.adaptive ? 0.0 : options.aperture_radius_m);
   const int layers = static_cast<int>(f.samples.size());
 
   // Ray tables depend only on the camera and the fixed pixel offsets: computed once.
@@ -269,12 +393,12 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
   f.shadow_bias_m = static_cast<float>(options.shadow_bias_m);
   f.inv_focus_m = static_cast<float>(1.0 / options.focus_distance_m);
   const Eigen::Matrix3d R_C_W = T_W_C.rotation().transpose();
+  f.R_C_W = R_C_W.cast<float>();
   f.R_C_O.assign(s.part_of_instance.size(), Eigen::Matrix3f::Identity());
   f.info.assign(s.part_of_instance.size(), nullptr);
   for (size_t id = 0; id < s.part_of_instance.size(); ++id) {
-    const int part_index = s.part_of_instance[id];
-    if (part_index == -2) continue;
-    const Part& part = part_index == -1 ? s.static_part : s.moving[part_index];
+    if (s.part_of_instance[id] < 0) continue;
+    const Part& part = s.moving[s.part_of_instance[id]];
     f.R_C_O[id] = (R_C_W * part.T_W_O.rotation()).cast<float>();
     f.info[id] = &part.geometries;
   }
@@ -298,32 +422,70 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
   const int tiles_x = (camera.width + tile - 1) / tile;
   const int tiles_y = (camera.height + tile - 1) / tile;
   const int tile_count = tiles_x * tiles_y;
-  std::atomic<int> next_tile{0};
   const int thread_count = std::min(options.threads, tile_count);
   std::vector<Counters> counters(thread_count);
-  auto work = [&](int thread) {
-    // Embree wants denormals flushed (its traversal slows down badly on them); every thread
-    // runs in the same mode, so results stay independent of the thread count.
-    const unsigned saved_mxcsr = _mm_getcsr();
-    _MM_SET_FLUSH_ZERO_MODE(_MM_FLUSH_ZERO_ON);
-    _MM_SET_DENORMALS_ZERO_MODE(_MM_DENORMALS_ZERO_ON);
-    for (int t = next_tile++; t < tile_count; t = next_tile++) {
-      const int tu = (t % tiles_x) * tile, tv = (t / tiles_x) * tile;
-      const int u_end = std::min(tu + tile, camera.width), v_end = std::min(tv + tile, camera.height);
-      for (int l = 0; l < layers; ++l) {
-        for (int v = tv; v < v_end; v += kPacket) {
-          for (int u = tu; u < u_end; u += kPacket) {
-            RenderPacket(f, l, u, v, &out->layers[l], &counters[thread]);
+  // Traces layers [first, last) of every tile. With `refine` (adaptive), only the pixels it
+  // marks, packed 16 to a packet in the tile's row order; the others repeat layer 0's sample
+  // (the centre sample stands for the whole pixel).
+  auto trace = [&](int first, int last, const cv::Mat* refine) {
+    std::atomic<int> next_tile{0};
+    auto work = [&](int thread) {
+      // Embree wants denormals flushed (its traversal slows down badly on them); every thread
+      // runs in the same mode, so results stay independent of the thread count.
+      const unsigned saved_mxcsr = _mm_getcsr();
+      _MM_SET_FLUSH_ZERO_MODE(_MM_FLUSH_ZERO_ON);
+      _MM_SET_DENORMALS_ZERO_MODE(_MM_DENORMALS_ZERO_ON);
+      for (int t = next_tile++; t < tile_count; t = next_tile++) {
+        const int tu = (t % tiles_x) * tile, tv = (t / tiles_x) * tile;
+        const int u_end = std::min(tu + tile, camera.width), v_end = std::min(tv + tile, camera.height);
+        const cv::Rect rect(tu, tv, u_end - tu, v_end - tv);
+        if (refine == nullptr) {
+          for (int l = first; l < last; ++l) {
+            for (int v = tv; v < v_end; v += kPacket) {
+              for (int u = tu; u < u_end; u += kPacket) {
+                RenderPacket(f, Block(f, l, u, v), out, &counters[thread]);
+              }
+            }
+          }
+          continue;
+        }
+        for (int l = first; l < last; ++l) CopySamples(out->layers[0], rect, &out->layers[l]);
+        // Marked pixels by 4 x 4 blocks, all their layers in a row, packed 16 samples a packet.
+        Lanes lanes;
+        for (int bv = tv; bv < v_end; bv += kPacket) {
+          for (int bu = tu; bu < u_end; bu += kPacket) {
+            for (int v = bv; v < std::min(bv + kPacket, v_end); ++v) {
+              const uint8_t* marked = refine->ptr<uint8_t>(v);
+              for (int u = bu; u < std::min(bu + kPacket, u_end); ++u) {
+                if (!marked[u]) continue;
+                for (int l = first; l < last; ++l) {
+                  lanes.Add(u, v, l);
+                  if (lanes.count == 16) {
+                    RenderPacket(f, lanes, out, &counters[thread]);
+                    lanes.count = 0;
+                  }
+                }
+              }
+            }
           }
         }
+        if (lanes.count > 0) RenderPacket(f, lanes, out, &counters[thread]);
       }
-    }
-    _mm_setcsr(saved_mxcsr);
+      _mm_setcsr(saved_mxcsr);
+    };
+    std::vector<std::thread> pool;
+    for (int i = 1; i < thread_count; ++i) pool.emplace_back(work, i);
+    work(0);
+    for (auto& thread : pool) thread.join();
   };
-  std::vector<std::thread> pool;
-  for (int i = 1; i < thread_count; ++i) pool.emplace_back(work, i);
-  work(0);
-  for (auto& thread : pool) thread.join();
+  int64_t refined = 0;
+  if (options.adaptive) {
+    trace(0, 1, nullptr);
+    refined = MarkEdges(out->layers[0], camera.fx, options.edge_slope, &cache.refine);
+    trace(1, layers, &cache.refine);
+  } else {
+    trace(0, layers, nullptr);
+  }
 
   RenderStats stats;
   for (const Counters& c : counters) {
@@ -332,6 +494,7 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
     stats.shadow_rays += c.shadow_rays;
     stats.lit += c.lit;
   }
+  stats.refined_pixels = refined;
   stats.seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return stats;

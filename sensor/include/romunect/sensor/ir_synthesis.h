@@ -8,6 +8,7 @@
 // noise (seeded, counter based: the same bytes at any thread count), full well, quantization.
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -50,20 +51,54 @@ class IrSynthesizer {
   const cv::Mat& expected_electrons() const { return blurred_; }
 
  private:
+  // Blur levels (sigmas increasing) and where to start looking for a sigma's pair of levels:
+  // Find gives the level k and weight w of value = (1 - w) level[k] + w level[k + 1].
+  struct LevelTable {
+    LevelTable() = default;
+    explicit LevelTable(std::vector<float> level_sigmas);
+    void Find(float sigma, int* k, float* w) const {
+      const int n = static_cast<int>(sigmas.size());
+      if (sigma <= sigmas[0] || n == 1) {
+        *k = 0;
+        *w = 0.f;
+        return;
+      }
+      if (sigma >= sigmas[n - 1]) {
+        *k = n - 2;
+        *w = 1.f;
+        return;
+      }
+      int i = start[std::min(static_cast<size_t>(sigma * kLutPerPx), start.size() - 1)];
+      while (i < n - 2 && sigma > sigmas[i + 1]) ++i;
+      *k = i;
+      *w = (sigma - sigmas[i]) / (sigmas[i + 1] - sigmas[i]);
+    }
+    static constexpr float kLutPerPx = 16.f;  // start indices per pixel of sigma
+    std::vector<float> sigmas;
+    std::vector<int> start;  // by sigma bin
+  };
+
   void PreparePattern(const Rig& rig);
+  // The displayed pattern at projector pixel (x, y) blurred by a Gaussian of sigma (px),
+  // blended between the two nearest levels; 0 off the pattern.
+  float PatternAt(float x, float y, float sigma) const;
+  // Writes the layer's radiance (electrons) into *electrons or, given layer 0 as `base` with
+  // its radiance, adds it to *electrons, reusing base's value where the hit is the same.
   void ShadeLayer(const Rig& rig, const GeometryLayer& layer, const std::vector<IrMaterial>& materials,
-                  cv::Mat* electrons) const;
+                  const GeometryLayer* base, const cv::Mat* base_electrons, cv::Mat* electrons) const;
 
   IrSynthesisOptions options_;
-  // Cached per rig: the displayed image blurred at increasing sigmas (projector pixels).
+  // Cached per rig: the displayed image blurred at increasing sigmas (projector pixels), each
+  // with a zero border of one pixel.
   PatternSpec cached_pattern_;
   Eigen::Matrix3d cached_H_ = Eigen::Matrix3d::Zero();
   ProjectorModel cached_projector_;
   std::vector<cv::Mat> pattern_levels_;
-  std::vector<float> pattern_sigmas_;
-  // Per-frame workspace.
-  cv::Mat electrons_, layer_electrons_, blurred_;
+  LevelTable pattern_table_;
+  // Per-frame workspace, reused.
+  cv::Mat electrons_, layer0_electrons_, blurred_, sigma_map_;
   std::vector<cv::Mat> camera_levels_;
+  LevelTable camera_table_;
 };
 
 // A fronto-parallel plane at depth_m filling the whole view, lit everywhere, one material:

@@ -7,7 +7,12 @@
 // Sampling: layers[0] is always the pinhole ray through the pixel centre (ground truth). The
 // quality mode (samples_per_pixel = 4) adds three thin-lens samples with a fixed stratified
 // pattern (QualitySamplePattern): sub-pixel offsets and points on the lens aperture, focused
-// at focus_distance_m. The result does not depend on the number of threads, bit for bit.
+// at focus_distance_m. Its fast variant (adaptive) traces layer 0 first and adds the three
+// extra samples, through the pinhole at the same sub-pixel offsets, only in pixels at an edge of
+// layer 0 (object, shadow or depth step: where depth or defocus changes within the pixel);
+// elsewhere the extra layers repeat layer 0's sample and image synthesis applies the camera's
+// defocus as in the 1-sample mode. The result does not depend on the number of threads, bit
+// for bit.
 #pragma once
 
 #include <cstdint>
@@ -31,6 +36,10 @@ struct RenderOptions {
   int threads = 1;                  // render threads (tiles handed out in order), >= 1
   int tile_size_px = 32;            // square tiles, a multiple of 4 (the packet size)
   double shadow_bias_m = 2e-6;      // shadow rays leave this far off the surface (self-hits)
+  bool adaptive = false;            // with 4 samples: extra samples only at edges (see above)
+  // Adaptive: neighbouring depths further apart than this many pixel footprints (z / fx) mark
+  // a depth edge; 4 = surfaces steeper than 76 degrees to the view count as edges.
+  double edge_slope = 4.0;
 
   // Why the options are unusable, or "" (names the field, its value and the rule).
   std::string Problem() const;
@@ -41,6 +50,7 @@ struct RenderStats {
   int64_t hits = 0;          // camera rays that hit something
   int64_t shadow_rays = 0;   // traced shadow rays (hits facing the projector)
   int64_t lit = 0;           // hits the projector centre sees
+  int64_t refined_pixels = 0;  // adaptive: pixels that got the extra samples
   double seconds = 0.0;      // wall time of Render()
   std::string BriefReport() const;
 };
