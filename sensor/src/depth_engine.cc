@@ -3,11 +3,13 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <limits>
 #include <sstream>
 
 #include <opencv2/imgproc.hpp>
 
+#include "depth_engine_kernel.h"
 #include "parallel_rows.h"
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/errors.h"
@@ -16,22 +18,52 @@
 namespace romunect {
 namespace {
 
-constexpr int kBandRows = 32;          // rows per cost slab (slab ~ 16 x range x width x 2 B)
+namespace internal = depth_engine_internal;
+
 constexpr float kSigmaFloorDn = 2.0f;  // keeps the normalization finite on flat windows
 constexpr float kNormScale = 48.0f;    // one local standard deviation = 48 levels of 8 bits
-constexpr uint8_t kOutsideReference = 255;  // difference where the reference has no column
-// Window costs fit signed 16 bits (21 x 21 x 255 would not: window_px <= 11 is checked).
-constexpr int16_t kMaxCost = 32767;
+static_assert(internal::kRawNone == kRawInvalid);
+
+using KernelFn = void (*)(const internal::KernelArgs&, internal::KernelStats*);
+
+KernelFn KernelFunction(MatchKernel kernel) {
+  switch (kernel) {
+#if ROMUNECT_DEPTH_KERNEL_AVX2
+    case MatchKernel::kAvx2: return &internal::MatchRowsAvx2;
+#endif
+#if ROMUNECT_DEPTH_KERNEL_SSE2
+    case MatchKernel::kSse2: return &internal::MatchRowsSse2;
+#endif
+    case MatchKernel::kScalar: return &internal::MatchRowsScalar;
+    default: return nullptr;  // not compiled in
+  }
+}
 
 }  // namespace
 
-// The cost slabs run on AVX2 where the CPU has it (twice the lanes), chosen at load time; the
-// results are the same bytes either way (integer arithmetic, same order).
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(__SANITIZE_ADDRESS__)
-#define ROMUNECT_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define ROMUNECT_SIMD_CLONES
+const char* MatchKernelName(MatchKernel kernel) {
+  switch (kernel) {
+    case MatchKernel::kScalar: return "scalar";
+    case MatchKernel::kSse2: return "sse2";
+    case MatchKernel::kAvx2: return "avx2";
+  }
+  return "?";
+}
+
+bool MatchKernelAvailable(MatchKernel kernel) {
+  if (KernelFunction(kernel) == nullptr) return false;
+#if ROMUNECT_DEPTH_KERNEL_AVX2
+  if (kernel == MatchKernel::kAvx2) return __builtin_cpu_supports("avx2");
 #endif
+  return true;
+}
+
+MatchKernel FastestMatchKernel() {
+  for (MatchKernel k : {MatchKernel::kAvx2, MatchKernel::kSse2}) {
+    if (MatchKernelAvailable(k)) return k;
+  }
+  return MatchKernel::kScalar;
+}
 
 std::string DepthEngineStats::BriefReport() const {
   std::ostringstream s;
@@ -63,25 +95,72 @@ cv::Mat ChipReferenceImage(const ChipGeometry& chip) {
   return ir;
 }
 
+// Box sums are exact integers (squares rounded to float first, as a float image's are), slid
+// down the image by columns and along each row, so the means are the bytes cv::boxFilter gives
+// on float images (its sums run in double, exact for these integers): float(sum * (1.0 / area)).
+// Borders reflect (cv::BORDER_REFLECT). The float arithmetic per pixel runs in a loop of its own
+// so that it vectorizes.
 void DepthEngine::Prefilter(const cv::Mat& ir, int window_px, cv::Mat* normalized, cv::Mat* local_sigma) {
-  cv::Mat f, mean, mean2;
-  ir.convertTo(f, CV_32F);
-  const cv::Size k(window_px, window_px);
-  cv::boxFilter(f, mean, CV_32F, k, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
-  cv::boxFilter(f.mul(f), mean2, CV_32F, k, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
+  ROMUNECT_CHECK(ir.type() == CV_16UC1);
+  const int W = ir.cols, H = ir.rows, r = window_px / 2;
+  const double inv_area = 1.0 / (window_px * window_px);
   local_sigma->create(ir.size(), CV_32F);
   normalized->create(ir.size(), CV_8U);
-  for (int y = 0; y < ir.rows; ++y) {
-    const float* v = f.ptr<float>(y);
-    const float* m = mean.ptr<float>(y);
-    const float* m2 = mean2.ptr<float>(y);
-    float* s = local_sigma->ptr<float>(y);
+  // Per column, the sums over the window's rows; r reflected columns added on each side.
+  std::vector<int32_t> sum(W + 2 * r, 0);
+  std::vector<double> sum_sq(W + 2 * r, 0.0);  // integers below 2^53: exact
+  std::vector<float> mean(W), mean_sq(W);
+  auto add_row = [&](int y, bool add) {
+    const uint16_t* v = ir.ptr<uint16_t>(cv::borderInterpolate(y, H, cv::BORDER_REFLECT));
+    int32_t* s = sum.data() + r;
+    double* q = sum_sq.data() + r;
+    for (int x = 0; x < W; ++x) {
+      const float f = v[x];
+      const double f2 = f * f;
+      s[x] += add ? v[x] : -v[x];
+      q[x] += add ? f2 : -f2;
+    }
+  };
+  for (int dy = -r; dy <= r; ++dy) add_row(dy, true);
+  for (int y = 0; y < H; ++y) {
+    if (y > 0) {
+      add_row(y + r, true);
+      add_row(y - r - 1, false);
+    }
+    for (int k = 0; k < r; ++k) {
+      const int left = r + cv::borderInterpolate(k - r, W, cv::BORDER_REFLECT);
+      const int right = r + cv::borderInterpolate(W + k, W, cv::BORDER_REFLECT);
+      sum[k] = sum[left];
+      sum_sq[k] = sum_sq[left];
+      sum[r + W + k] = sum[right];
+      sum_sq[r + W + k] = sum_sq[right];
+    }
+    int32_t window = 0;
+    int64_t window_sq = 0;
+    for (int k = 0; k < 2 * r; ++k) {
+      window += sum[k];
+      window_sq += static_cast<int64_t>(sum_sq[k]);
+    }
+    for (int x = 0; x < W; ++x) {
+      window += sum[x + 2 * r];
+      window_sq += static_cast<int64_t>(sum_sq[x + 2 * r]);
+      mean[x] = static_cast<float>(window * inv_area);
+      mean_sq[x] = static_cast<float>(static_cast<double>(window_sq) * inv_area);
+      window -= sum[x];
+      window_sq -= static_cast<int64_t>(sum_sq[x]);
+    }
+    const uint16_t* v = ir.ptr<uint16_t>(y);
+    float* sigma_row = local_sigma->ptr<float>(y);
     uint8_t* n = normalized->ptr<uint8_t>(y);
-    for (int x = 0; x < ir.cols; ++x) {
-      const float sigma = std::sqrt(std::max(m2[x] - m[x] * m[x], 0.f));
-      s[x] = sigma;
-      const float value = 128.f + kNormScale * (v[x] - m[x]) / std::max(sigma, kSigmaFloorDn);
-      n[x] = static_cast<uint8_t>(std::clamp(value, 0.f, 255.f) + 0.5f);  // round half up
+    for (int x = 0; x < W; ++x) sigma_row[x] = std::max(mean_sq[x] - mean[x] * mean[x], 0.f);
+    cv::Mat sigma_mat(1, W, CV_32F, sigma_row);
+    cv::sqrt(sigma_mat, sigma_mat);  // SIMD, correctly rounded (std::sqrt's errno path is not)
+    for (int x = 0; x < W; ++x) {
+      const float value =
+          128.f + kNormScale * (static_cast<float>(v[x]) - mean[x]) / std::max(sigma_row[x], kSigmaFloorDn);
+      // Clamped to [0, 255], rounded half up; written so that GCC vectorizes it (the same
+      // floats as clamp(value, 0, 255) + 0.5).
+      n[x] = static_cast<uint8_t>(static_cast<int32_t>(std::min(std::max(value + 0.5f, 0.5f), 255.5f)));
     }
   }
 }
@@ -89,16 +168,51 @@ void DepthEngine::Prefilter(const cv::Mat& ir, int window_px, cv::Mat* normalize
 DepthEngine::DepthEngine(const DepthEngineOptions& options)
     : DepthEngine(options, ChipReferenceImage(options.chip)) {}
 
-DepthEngine::DepthEngine(const DepthEngineOptions& options, const cv::Mat& reference_ir) : options_(options) {
+DepthEngine::DepthEngine(const DepthEngineOptions& options, const cv::Mat& reference_ir)
+    : options_(options), kernel_(FastestMatchKernel()) {
   ROMUNECT_CHECK_MSG(options.Problem().empty(), options.Problem().c_str());
   ROMUNECT_CHECK(reference_ir.type() == CV_16U);
   ROMUNECT_CHECK(reference_ir.cols == options.chip.camera.width && reference_ir.rows == options.chip.camera.height);
   reference_ir_ = reference_ir.clone();
-  cv::Mat sigma;
-  Prefilter(reference_ir_, options_.prefilter_px, &reference_norm_, &sigma);
+  cv::Mat reference_norm, sigma;
+  Prefilter(reference_ir_, options_.prefilter_px, &reference_norm, &sigma);
   raw_at_reference_rounded_ = static_cast<int>(std::lround(RawAtReference()));
   chip_depth_lut_.resize(kRawInvalid + 1);
   for (int raw = 0; raw <= kRawInvalid; ++raw) chip_depth_lut_[raw] = static_cast<float>(ChipDepthM(raw));
+
+  // Search tables (depth_engine_kernel.h): padded index p holds reference column
+  // W - 1 - min_shift - p, so that pixel x's shifts j read p = W - 1 - x + j, ascending in j.
+  const int W = reference_ir.cols, D = options_.search_range_px;
+  const int blocks = (D + internal::kLanesPerBlock - 1) / internal::kLanesPerBlock;
+  ROMUNECT_CHECK(blocks <= internal::kMaxBlocks);
+  search_lanes_ = blocks * internal::kLanesPerBlock;
+  reference_row_length_ = W + search_lanes_;
+  reference_reversed_.assign(static_cast<size_t>(reference_ir.rows) * reference_row_length_, 0);
+  reference_outside_.assign(reference_row_length_, 0xFF);
+  for (int p = 0; p < reference_row_length_; ++p) {
+    const int col = W - 1 - options_.min_shift_px - p;
+    if (col < 0 || col >= W) continue;
+    reference_outside_[p] = 0;
+    for (int y = 0; y < reference_ir.rows; ++y) {
+      reference_reversed_[static_cast<size_t>(y) * reference_row_length_ + p] = reference_norm.at<uint8_t>(y, col);
+    }
+  }
+  // Columns x whose shifts j < D all read a reference column (an interval).
+  auto clean = [&](int x) {
+    for (int j = 0; j < D; ++j) {
+      if (reference_outside_[W - 1 - x + j] != 0) return false;
+    }
+    return true;
+  };
+  clean_begin_ = 0;
+  while (clean_begin_ < W && !clean(clean_begin_)) ++clean_begin_;
+  clean_end_ = clean_begin_;
+  while (clean_end_ < W && clean(clean_end_)) ++clean_end_;
+}
+
+void DepthEngine::set_kernel(MatchKernel kernel) {
+  ROMUNECT_CHECK_MSG(MatchKernelAvailable(kernel), MatchKernelName(kernel));
+  kernel_ = kernel;
 }
 
 double DepthEngine::RawAtReference() const {
@@ -109,162 +223,6 @@ double DepthEngine::RawAtReference() const {
 double DepthEngine::ChipDepthM(int raw) const { return romunect::ChipDepthM(options_.chip, raw); }
 
 double DepthEngine::ShiftOfRaw(int raw) const { return (raw_at_reference_rounded_ - raw) / 8.0; }
-
-ROMUNECT_SIMD_CLONES void DepthEngine::ComputeBand(int y_begin, int y_end, std::vector<int16_t>* slab_storage, DepthEngineOutput* out,
-                              DepthEngineStats* stats) const {
-  const int W = reference_norm_.cols, H = reference_norm_.rows;
-  const int r = options_.window_px / 2;
-  const int D = options_.search_range_px;
-  const int rows = y_end - y_begin;
-  slab_storage->resize(static_cast<size_t>(rows) * D * W);
-  int16_t* slab = slab_storage->data();
-  // Horizontal window sums of one row's absolute differences, for rows y_begin-r .. y_end+r-1.
-  const int hrows = rows + 2 * r;
-  std::vector<int16_t> hsum(static_cast<size_t>(hrows) * W);
-  std::vector<uint8_t> ad(W);
-  std::vector<int16_t> h3_(W);
-  std::vector<int16_t> band_best(static_cast<size_t>(rows) * W, kMaxCost), band_best_j(static_cast<size_t>(rows) * W, 0);
-
-  for (int j = 0; j < D; ++j) {
-    const int s = options_.min_shift_px + j;
-    for (int h = 0; h < hrows; ++h) {
-      const int y = y_begin - r + h;
-      int16_t* __restrict hs = &hsum[static_cast<size_t>(h) * W];
-      if (y < 0 || y >= H) {
-        std::fill(hs, hs + W, 0);
-        continue;
-      }
-      const uint8_t* obs = frame_norm_.ptr<uint8_t>(y);
-      const uint8_t* ref = reference_norm_.ptr<uint8_t>(y);
-      // Reference column x - s exists for x in [s, W + s).
-      const int x_lo = std::clamp(s, 0, W), x_hi = std::clamp(W + s, 0, W);
-      uint8_t* __restrict adp = ad.data();
-      for (int x = 0; x < x_lo; ++x) adp[x] = kOutsideReference;
-      {
-        const uint8_t* __restrict o = obs + x_lo;
-        const uint8_t* __restrict q = ref + x_lo - s;
-        uint8_t* __restrict a = adp + x_lo;
-        const int n = x_hi - x_lo;
-        for (int x = 0; x < n; ++x) {
-          const uint8_t hi = std::max(o[x], q[x]), lo = std::min(o[x], q[x]);
-          a[x] = static_cast<uint8_t>(hi - lo);
-        }
-      }
-      for (int x = x_hi; x < W; ++x) adp[x] = kOutsideReference;
-      // Window sum along the row in two separable steps of 3 (window 9) or directly.
-      int16_t* __restrict h3 = h3_.data();
-      std::fill(hs, hs + r, 0);
-      std::fill(hs + W - r, hs + W, 0);
-      if (r == 4) {
-        for (int x = 1; x < W - 1; ++x) h3[x] = static_cast<int16_t>(adp[x - 1] + adp[x] + adp[x + 1]);
-        for (int x = 4; x < W - 4; ++x) hs[x] = static_cast<int16_t>(h3[x - 3] + h3[x] + h3[x + 3]);
-      } else {
-        for (int x = r; x < W - r; ++x) {
-          int16_t sum = 0;
-          for (int k = -r; k <= r; ++k) sum = static_cast<int16_t>(sum + adp[x + k]);
-          hs[x] = sum;
-        }
-      }
-    }
-    // Vertical running sums down the band, straight into the slab.
-    int16_t* __restrict first = slab + static_cast<size_t>(j) * W;
-    std::fill(first, first + W, 0);
-    for (int h = 0; h < 2 * r + 1; ++h) {
-      const int16_t* __restrict hs = &hsum[static_cast<size_t>(h) * W];
-      for (int x = 0; x < W; ++x) first[x] = static_cast<int16_t>(first[x] + hs[x]);
-    }
-    for (int i = 1; i < rows; ++i) {
-      const int16_t* __restrict prev = slab + (static_cast<size_t>(i - 1) * D + j) * W;
-      int16_t* __restrict cost = slab + (static_cast<size_t>(i) * D + j) * W;
-      const int16_t* __restrict add = &hsum[static_cast<size_t>(i + 2 * r) * W];
-      const int16_t* __restrict sub = &hsum[static_cast<size_t>(i - 1) * W];
-      for (int x = 0; x < W; ++x) cost[x] = static_cast<int16_t>(prev[x] + add[x] - sub[x]);
-    }
-    // The best shift so far, per pixel of the band, while the rows are hot in cache.
-    const int16_t jj = static_cast<int16_t>(j);
-    for (int i = 0; i < rows; ++i) {
-      const int16_t* __restrict c = slab + (static_cast<size_t>(i) * D + j) * W;
-      int16_t* __restrict bc = &band_best[static_cast<size_t>(i) * W];
-      int16_t* __restrict bj = &band_best_j[static_cast<size_t>(i) * W];
-      for (int x = 0; x < W; ++x) {
-        const bool better = c[x] < bc[x];
-        bc[x] = better ? c[x] : bc[x];
-        bj[x] = better ? jj : bj[x];
-      }
-    }
-  }
-
-  // Decisions, vectorizable over x: best, then best outside +-1 of it.
-  std::vector<int16_t> second(W);
-  const int window_area = (2 * r + 1) * (2 * r + 1);
-  const float max_cost_sum = static_cast<float>(options_.max_cost * window_area);
-  const float min_texture = static_cast<float>(options_.min_texture);
-  const float uniqueness = static_cast<float>(options_.uniqueness);
-  for (int i = 0; i < rows; ++i) {
-    const int y = y_begin + i;
-    const int16_t* costs = slab + static_cast<size_t>(i) * D * W;
-    const int16_t* __restrict bc = &band_best[static_cast<size_t>(i) * W];
-    const int16_t* __restrict bj = &band_best_j[static_cast<size_t>(i) * W];
-    int16_t* __restrict sc = second.data();
-    std::fill(sc, sc + W, kMaxCost);
-    for (int j = 0; j < D; ++j) {
-      const int16_t* __restrict c = costs + static_cast<size_t>(j) * W;
-      const int16_t jp1 = static_cast<int16_t>(j + 1);
-      for (int x = 0; x < W; ++x) {
-        // |j - best_j| > 1 in signed 16 bits, so that it vectorizes (SSE2 has signed compares).
-        const int16_t t = static_cast<int16_t>(jp1 - bj[x]);
-        const int16_t near_mask = static_cast<int16_t>(-((t >= 0) & (t < 3)));
-        const int16_t candidate = static_cast<int16_t>(c[x] | (near_mask & kMaxCost));
-        sc[x] = std::min(candidate, sc[x]);
-      }
-    }
-    uint16_t* raw_row = out->raw.ptr<uint16_t>(y);
-    float* depth_row = out->depth_m.ptr<float>(y);
-    float* shift_row = out->shift_px.ptr<float>(y);
-    const float* sigma_row = frame_sigma_.ptr<float>(y);
-    for (int x = 0; x < W; ++x) {
-      raw_row[x] = kRawInvalid;
-      depth_row[x] = 0.f;
-      shift_row[x] = std::numeric_limits<float>::quiet_NaN();
-      if (y < r || y >= H - r || x < r || x >= W - r) {
-        ++stats->border;
-        continue;
-      }
-      if (sigma_row[x] < min_texture) {
-        ++stats->flat;
-        continue;
-      }
-      const int j = bj[x];
-      const float c0 = bc[x];
-      if (c0 > max_cost_sum) {
-        ++stats->weak;
-        continue;
-      }
-      if (second[x] < c0 * (1.f + uniqueness)) {
-        ++stats->ambiguous;
-        continue;
-      }
-      if (j == 0 || j == D - 1) {
-        ++stats->out_of_range;
-        continue;
-      }
-      const float cm = costs[static_cast<size_t>(j - 1) * W + x];
-      const float cp = costs[static_cast<size_t>(j + 1) * W + x];
-      const float denom = 2.f * (cm + cp - 2.f * c0);
-      const float delta = denom > 0.f ? (cm - cp) / denom : 0.f;
-      const long s8 = static_cast<long>(std::floor(8.f * (static_cast<float>(options_.min_shift_px + j) + delta) + 0.5f));
-      const long raw = raw_at_reference_rounded_ - s8;
-      if (raw < 0 || raw >= kRawInvalid || raw >= options_.chip.raw_offset) {
-        ++stats->out_of_range;
-        continue;
-      }
-      ++stats->valid;
-      raw_row[x] = static_cast<uint16_t>(raw);
-      shift_row[x] = static_cast<float>(s8) / 8.f;
-      depth_row[x] = chip_depth_lut_[raw];
-    }
-  }
-}
 
 void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
   const auto start = std::chrono::steady_clock::now();
@@ -283,20 +241,59 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
   out->raw.create(ir.size(), CV_16U);
   out->depth_m.create(ir.size(), CV_32F);
   out->shift_px.create(ir.size(), CV_32F);
-  const int bands = (ir.rows + kBandRows - 1) / kBandRows;
-  const int threads = std::min(options_.threads, bands);
-  std::vector<DepthEngineStats> band_stats(threads);
-  ParallelRows(threads, bands, [&](int band_begin, int band_end) {
-    // Which thread: the block that starts at band_begin.
+  const int W = ir.cols, H = ir.rows, r = options_.window_px / 2;
+  // Rows the window leaves: border. The kernel does the rest, including the side columns.
+  for (const cv::Range rows : {cv::Range(0, r), cv::Range(H - r, H)}) {
+    out->raw.rowRange(rows).setTo(kRawInvalid);
+    out->depth_m.rowRange(rows).setTo(0.f);
+    out->shift_px.rowRange(rows).setTo(std::numeric_limits<float>::quiet_NaN());
+  }
+  internal::KernelArgs args;
+  args.width = W;
+  args.radius = r;
+  args.range = options_.search_range_px;
+  args.blocks = search_lanes_ / internal::kLanesPerBlock;
+  args.min_shift_px = options_.min_shift_px;
+  args.obs = frame_norm_.ptr<uint8_t>();
+  args.obs_step = frame_norm_.step1();
+  args.sigma = frame_sigma_.ptr<float>();
+  args.sigma_step = frame_sigma_.step1();
+  args.ref_rev = reference_reversed_.data();
+  args.ref_step = reference_row_length_;
+  args.outside = reference_outside_.data();
+  args.clean_begin = clean_begin_;
+  args.clean_end = clean_end_;
+  args.min_texture = static_cast<float>(options_.min_texture);
+  args.max_cost_sum = static_cast<float>(options_.max_cost * options_.window_px * options_.window_px);
+  args.uniqueness = static_cast<float>(options_.uniqueness);
+  args.raw_at_reference = raw_at_reference_rounded_;
+  // raw < raw_offset (a double) and below kRawInvalid.
+  args.raw_limit = static_cast<int>(std::clamp(std::ceil(options_.chip.raw_offset), 0.0, double{kRawInvalid}));
+  args.chip_depth_lut = chip_depth_lut_.data();
+  args.raw = out->raw.ptr<uint16_t>();
+  args.raw_step = out->raw.step1();
+  args.depth_m = out->depth_m.ptr<float>();
+  args.shift_px = out->shift_px.ptr<float>();
+  args.float_step = out->depth_m.step1();
+  ROMUNECT_CHECK(out->shift_px.step1() == args.float_step);
+  const KernelFn match_rows = KernelFunction(kernel_);
+  const int rows = H - 2 * r;
+  const int threads = std::clamp(options_.threads, 1, rows);
+  std::vector<internal::KernelStats> thread_stats(threads);
+  ParallelRows(threads, rows, [&](int row_begin, int row_end) {
+    // Which thread: the block that starts at row_begin (ParallelRows' split).
     int t = 0;
-    while (t + 1 < threads && bands * (t + 1) / threads <= band_begin) ++t;
-    std::vector<int16_t> slab;
-    for (int b = band_begin; b < band_end; ++b) {
-      ComputeBand(b * kBandRows, std::min(ir.rows, (b + 1) * kBandRows), &slab, out, &band_stats[t]);
-    }
+    while (t + 1 < threads && rows * (t + 1) / threads <= row_begin) ++t;
+    std::vector<int16_t> scratch(internal::KernelScratchSize(W, args.blocks));
+    internal::KernelArgs band = args;
+    band.scratch = scratch.data();
+    band.y_begin = r + row_begin;
+    band.y_end = r + row_end;
+    match_rows(band, &thread_stats[t]);
   });
   out->stats = DepthEngineStats{};
-  for (const DepthEngineStats& s : band_stats) {
+  out->stats.border = 2 * r * W;
+  for (const internal::KernelStats& s : thread_stats) {
     out->stats.valid += s.valid;
     out->stats.flat += s.flat;
     out->stats.weak += s.weak;

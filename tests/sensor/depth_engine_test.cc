@@ -1,6 +1,8 @@
 #include "romunect/sensor/depth_engine.h"
 
 #include <cmath>
+#include <random>
+#include <string>
 
 #include <gtest/gtest.h>
 
@@ -41,29 +43,136 @@ TEST(DepthEngineTest, RawFormulaMatchesTheKinectLiterature) {
   EXPECT_NEAR(engine.ChipDepthM(raw + 1) - engine.ChipDepthM(raw), z * z / (8 * 580 * 0.075), 0.01e-3);
 }
 
-TEST(DepthEngineTest, FastPathEqualsTheFullSearchReference) {
-  const Rig rig = RigPreset("kinect-v1");
-  DepthEngine& engine = Engine("kinect-v1");
-  // A tilted plane with a sphere in front: edges, shadows and a range of shifts.
+// A tilted plane with a sphere in front (edges, shadows and a range of shifts) and a box, as the
+// kinect-v1 preset sees it.
+cv::Mat KinectTestIr(uint64_t seed) {
   testing::AnalyticScene scene = testing::AnalyticScene::TiltedPlane(1.3, 0.4);
   scene.spheres.push_back({Eigen::Vector3d(0.0, 0.0, 0.8), 0.12, 0, 2});
+  scene.boxes.push_back({Eigen::Vector3d(-0.3, 0.1, 0.9), Eigen::Vector3d(-0.1, 0.3, 1.0), 0, 2});
   GeometryBuffer g;
-  const cv::Mat ir = RenderIr(rig, scene, 3, &g);
+  return RenderIr(RigPreset("kinect-v1"), scene, seed, &g);
+}
+
+// Every `step`-th pixel of the engine's output against the full-search reference, on the
+// reference's own prefilter (cv::boxFilter). Returns how many of them are valid.
+int ExpectEqualsReference(DepthEngine& engine, const cv::Mat& ir, int step_y, int step_x) {
   DepthEngineOutput out;
   engine.Compute(ir, &out);
   cv::Mat n_obs, sigma, n_ref, ref_sigma;
-  DepthEngine::Prefilter(ir, engine.options().prefilter_px, &n_obs, &sigma);
-  DepthEngine::Prefilter(engine.reference_ir(), engine.options().prefilter_px, &n_ref, &ref_sigma);
-  int compared = 0, valid = 0;
-  for (int y = 0; y < ir.rows; y += 5) {
-    for (int x = 0; x < ir.cols; x += 7) {
+  testing::ReferencePrefilter(ir, engine.options().prefilter_px, &n_obs, &sigma);
+  testing::ReferencePrefilter(engine.reference_ir(), engine.options().prefilter_px, &n_ref, &ref_sigma);
+  int valid = 0;
+  for (int y = 0; y < ir.rows; y += step_y) {
+    for (int x = 0; x < ir.cols; x += step_x) {
       const uint16_t expected = testing::ReferenceMatchRaw(engine, n_obs, sigma, n_ref, x, y);
-      ASSERT_EQ(out.raw.at<uint16_t>(y, x), expected) << "pixel " << x << ", " << y;
-      ++compared;
+      EXPECT_EQ(out.raw.at<uint16_t>(y, x), expected) << "pixel " << x << ", " << y;
+      if (out.raw.at<uint16_t>(y, x) != expected) return valid;
       valid += expected != kRawInvalid;
     }
   }
-  EXPECT_GT(valid, compared / 2);  // the comparison covers real matches, not just rejections
+  return valid;
+}
+
+TEST(DepthEngineTest, FastPathEqualsTheFullSearchReference) {
+  DepthEngine& engine = Engine("kinect-v1");
+  const int valid = ExpectEqualsReference(engine, KinectTestIr(3), 5, 7);
+  // The comparison covers real matches, not just rejections.
+  EXPECT_GT(valid, (480 / 5) * (640 / 7) / 2);
+}
+
+TEST(DepthEngineTest, FastPathEqualsTheReferenceOnOtherWindowsRangesAndRules) {
+  // Search ranges that are not a multiple of the 32 SIMD lanes, other windows, both ends of the
+  // uniqueness rule, a search that starts at a positive shift: each against the reference.
+  struct Case {
+    int window_px, min_shift_px, search_range_px;
+    double uniqueness;
+  };
+  const cv::Mat ir = KinectTestIr(4);
+  for (const Case c : {Case{5, -20, 40, 0.0}, Case{11, -32, 96, 0.5}, Case{7, 3, 29, 0.2}, Case{9, -40, 70, 0.1}}) {
+    DepthEngineOptions options = RigPreset("kinect-v1").depth_engine;
+    options.window_px = c.window_px;
+    options.min_shift_px = c.min_shift_px;
+    options.search_range_px = c.search_range_px;
+    options.uniqueness = c.uniqueness;
+    ASSERT_EQ(options.Problem(), "");
+    DepthEngine engine(options, Engine("kinect-v1").reference_ir());
+    SCOPED_TRACE("window " + std::to_string(c.window_px) + ", shifts from " + std::to_string(c.min_shift_px) +
+                 ", range " + std::to_string(c.search_range_px));
+    EXPECT_GT(ExpectEqualsReference(engine, ir, 11, 13), 0);
+  }
+}
+
+TEST(DepthEngineTest, EveryKernelAndThreadCountGivesTheSameBytes) {
+  // Scalar, SSE2 and AVX2 (those this CPU runs) at 1, 2 and 3 threads, both presets (two and
+  // three blocks of 32 shifts): the same raw, depth, shift and counts.
+  for (const std::string preset : {"romunect", "kinect-v1"}) {
+    const Rig rig = RigPreset(preset);
+    testing::AnalyticScene scene = preset == "romunect" ? testing::AnalyticScene::TiltedPlane(0.2, 0.12)
+                                                        : testing::AnalyticScene::TiltedPlane(1.3, 0.4);
+    scene.spheres.push_back(preset == "romunect" ? testing::AnalyticScene::Sphere{Eigen::Vector3d(0.004, -0.002, 0.205), 0.008, 0, 2}
+                                                 : testing::AnalyticScene::Sphere{Eigen::Vector3d(0.0, 0.0, 0.8), 0.12, 0, 2});
+    GeometryBuffer g;
+    const cv::Mat ir = RenderIr(rig, scene, 9, &g);
+    DepthEngineOutput first;
+    int runs = 0;
+    for (MatchKernel kernel : {MatchKernel::kScalar, MatchKernel::kSse2, MatchKernel::kAvx2}) {
+      if (!MatchKernelAvailable(kernel)) continue;
+      for (int threads : {1, 2, 3}) {
+        DepthEngineOptions options = rig.depth_engine;
+        options.threads = threads;
+        DepthEngine engine(options, Engine(preset).reference_ir());
+        engine.set_kernel(kernel);
+        DepthEngineOutput out;
+        engine.Compute(ir, &out);
+        ++runs;
+        if (first.raw.empty()) {
+          first = out;
+          continue;
+        }
+        SCOPED_TRACE(preset + ", " + MatchKernelName(kernel) + ", " + std::to_string(threads) + " threads");
+        EXPECT_TRUE(testing::ImagesBitEqual(out.raw, first.raw));
+        EXPECT_TRUE(testing::ImagesBitEqual(out.depth_m, first.depth_m));
+        EXPECT_TRUE(testing::ImagesBitEqual(out.shift_px, first.shift_px));
+        EXPECT_EQ(out.stats.valid, first.stats.valid);
+        EXPECT_EQ(out.stats.flat, first.stats.flat);
+        EXPECT_EQ(out.stats.weak, first.stats.weak);
+        EXPECT_EQ(out.stats.ambiguous, first.stats.ambiguous);
+        EXPECT_EQ(out.stats.out_of_range, first.stats.out_of_range);
+        EXPECT_EQ(out.stats.border, first.stats.border);
+      }
+    }
+    EXPECT_GE(runs, 3);
+    EXPECT_GT(first.stats.valid, static_cast<int>(ir.total() / 2));
+    EXPECT_EQ(first.stats.valid + first.stats.flat + first.stats.weak + first.stats.ambiguous +
+                  first.stats.out_of_range + first.stats.border,
+              static_cast<int>(ir.total()));
+  }
+#if defined(__x86_64__)
+  EXPECT_TRUE(MatchKernelAvailable(MatchKernel::kSse2));  // the x86-64 baseline
+#endif
+}
+
+TEST(DepthEngineTest, PrefilterEqualsTheBoxFilterReference) {
+  // Exact integer box sums against cv::boxFilter on floats: the same bytes, on 10-bit images,
+  // on full 16-bit ones (squares above 2^24 round in float) and on flat ones, at odd sizes.
+  std::mt19937 rng(5);
+  for (int trial = 0; trial < 6; ++trial) {
+    const int width = 40 + static_cast<int>(rng() % 300), height = 33 + static_cast<int>(rng() % 200);
+    const int window = 3 + 2 * static_cast<int>(rng() % 15);
+    const int max_value = trial % 3 == 0 ? 65535 : 1023;
+    cv::Mat ir(height, width, CV_16U);
+    for (int y = 0; y < height; ++y) {
+      for (int x = 0; x < width; ++x) {
+        ir.at<uint16_t>(y, x) = trial == 5 ? static_cast<uint16_t>(300 + x % 3) : static_cast<uint16_t>(rng() % (max_value + 1));
+      }
+    }
+    cv::Mat n, sigma, n_ref, sigma_ref;
+    DepthEngine::Prefilter(ir, window, &n, &sigma);
+    testing::ReferencePrefilter(ir, window, &n_ref, &sigma_ref);
+    SCOPED_TRACE("trial " + std::to_string(trial) + ", window " + std::to_string(window));
+    EXPECT_TRUE(testing::ImagesBitEqual(n, n_ref));
+    EXPECT_TRUE(testing::ImagesBitEqual(sigma, sigma_ref));
+  }
 }
 
 TEST(DepthEngineTest, StockDeviceMeasuresAPlaneWithinQuantization) {

@@ -1,11 +1,34 @@
 #include "reference_matcher.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <limits>
 #include <vector>
 
+#include <opencv2/imgproc.hpp>
+
 namespace romunect::testing {
+
+void ReferencePrefilter(const cv::Mat& ir, int window_px, cv::Mat* normalized, cv::Mat* local_sigma) {
+  cv::Mat f, mean, mean2;
+  ir.convertTo(f, CV_32F);
+  const cv::Size k(window_px, window_px);
+  cv::boxFilter(f, mean, CV_32F, k, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
+  cv::boxFilter(f.mul(f), mean2, CV_32F, k, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
+  local_sigma->create(ir.size(), CV_32F);
+  normalized->create(ir.size(), CV_8U);
+  for (int y = 0; y < ir.rows; ++y) {
+    for (int x = 0; x < ir.cols; ++x) {
+      const float m = mean.at<float>(y, x);
+      const float sigma = std::sqrt(std::max(mean2.at<float>(y, x) - m * m, 0.f));
+      local_sigma->at<float>(y, x) = sigma;
+      // The engine's constants: 48 levels per standard deviation, sigma floored at 2 DN.
+      const float value = 128.f + 48.f * (f.at<float>(y, x) - m) / std::max(sigma, 2.f);
+      normalized->at<uint8_t>(y, x) = static_cast<uint8_t>(std::clamp(value, 0.f, 255.f) + 0.5f);
+    }
+  }
+}
 
 uint16_t ReferenceMatchRaw(const DepthEngine& engine, const cv::Mat& n_obs, const cv::Mat& sigma,
                            const cv::Mat& n_ref, int x, int y) {

@@ -22,9 +22,11 @@
 // invalid when the window is flat (raw standard deviation < min_texture DN), the match weak
 // (mean difference > max_cost), ambiguous (another shift > 1 px away within `uniqueness` of the
 // best), at the end of the search range, or the raw value leaves 11 bits. Edge fattening,
-// shadows and quantization come out of this process. The fast path runs signed 16-bit cost
-// slabs per band of 32 rows (AVX2 where available) on `threads` threads; results are the same
-// bytes at any thread count and instruction set.
+// shadows and quantization come out of this process. The fast path keeps the search range in
+// signed 16-bit SIMD lanes and slides the window with running column and row sums (the cost per
+// pixel does not depend on the window size); flat pixels skip the search. It runs on `threads`
+// threads over row bands, on the best instruction set of the CPU (MatchKernel); results are the
+// same bytes at any thread count and on every kernel.
 #pragma once
 
 #include <string>
@@ -60,6 +62,13 @@ struct DepthEngineOutput {
 // the stock geometry, without noise (CV_16U, 10 bits).
 cv::Mat ChipReferenceImage(const ChipGeometry& chip);
 
+// The code that runs the search. Every kernel gives the same bytes (tests/sensor compare them).
+enum class MatchKernel { kScalar, kSse2, kAvx2 };
+const char* MatchKernelName(MatchKernel kernel);  // "scalar", "sse2", "avx2"
+// Compiled in, and supported by this CPU.
+bool MatchKernelAvailable(MatchKernel kernel);
+MatchKernel FastestMatchKernel();
+
 class DepthEngine {
  public:
   // Renders the chip's reference image once (ChipReferenceImage).
@@ -72,6 +81,9 @@ class DepthEngine {
   void Compute(const cv::Mat& ir, DepthEngineOutput* out);
 
   const DepthEngineOptions& options() const { return options_; }
+  // The kernel Compute uses: FastestMatchKernel() unless set. set_kernel needs an available one.
+  MatchKernel kernel() const { return kernel_; }
+  void set_kernel(MatchKernel kernel);
   const cv::Mat& reference_ir() const { return reference_ir_; }
   // The raw value of shift s = 0 (the reference plane), unrounded: raw_offset - 8 f b / Z_ref.
   double RawAtReference() const;
@@ -85,15 +97,19 @@ class DepthEngine {
   static void Prefilter(const cv::Mat& ir, int window_px, cv::Mat* normalized, cv::Mat* local_sigma);
 
  private:
-  void ComputeBand(int y_begin, int y_end, std::vector<int16_t>* slab, DepthEngineOutput* out,
-                   DepthEngineStats* stats) const;
-
   DepthEngineOptions options_;
+  MatchKernel kernel_;
   cv::Mat reference_ir_;
-  cv::Mat reference_norm_;  // CV_8U prefiltered reference
   cv::Mat frame_norm_, frame_sigma_;
   int raw_at_reference_rounded_ = 0;
   std::vector<float> chip_depth_lut_;  // ChipDepthM per raw value
+  // Tables of the search (depth_engine_kernel.h): the prefiltered reference rows reversed and
+  // padded (rows x reference_row_length_), where each padded index has no reference column, and
+  // the columns that always have one; the search range padded to 32 lanes.
+  int search_lanes_ = 0;
+  int reference_row_length_ = 0;
+  std::vector<uint8_t> reference_reversed_, reference_outside_;
+  int clean_begin_ = 0, clean_end_ = 0;
 };
 
 // Per-pixel conversion of the chip's output to metric depth (paper eqs. 2-3). The one
