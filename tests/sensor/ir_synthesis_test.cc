@@ -1,8 +1,10 @@
 #include "romunect/sensor/ir_synthesis.h"
 
 #include <cmath>
+#include <random>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
 
 #include "analytic_geometry.h"
 #include "romunect/sensor/pattern.h"
@@ -140,6 +142,152 @@ TEST(IrSynthesisTest, ThreadsGiveTheSameBytes) {
   a.Synthesize(rig, g, 9, &ir_a, nullptr);
   b.Synthesize(rig, g, 9, &ir_b, nullptr);
   EXPECT_TRUE(testing::ImagesBitEqual(ir_a, ir_b));
+}
+
+
+// The slow obvious pattern lookup: the displayed image blurred by a Gaussian of exactly sigma
+// (OpenCV's kernel for that sigma, zero outside), sampled bilinearly at (x, y), tap by tap.
+double ExactPattern(const cv::Mat& displayed, double x, double y, double sigma) {
+  const int ksize = cvRound(sigma * 4 * 2 + 1) | 1, r = ksize / 2;
+  const cv::Mat k = cv::getGaussianKernel(ksize, sigma, CV_64F);
+  auto blurred = [&](int row, int col) {
+    double sum = 0.0;
+    for (int a = 0; a < ksize; ++a) {
+      for (int b = 0; b < ksize; ++b) {
+        const int yy = row + a - r, xx = col + b - r;
+        if (yy < 0 || xx < 0 || yy >= displayed.rows || xx >= displayed.cols) continue;
+        sum += k.at<double>(a) * k.at<double>(b) * displayed.at<float>(yy, xx);
+      }
+    }
+    return sum;
+  };
+  const int x0 = static_cast<int>(std::floor(x)), y0 = static_cast<int>(std::floor(y));
+  const double fx = x - x0, fy = y - y0;
+  return (1 - fy) * ((1 - fx) * blurred(y0, x0) + fx * blurred(y0, x0 + 1)) +
+         fy * ((1 - fx) * blurred(y0 + 1, x0) + fx * blurred(y0 + 1, x0 + 1));
+}
+
+// Blending two pre-blurred levels 1.5x apart in sigma instead of blurring at sigma: for an
+// isolated dot the peak goes as 1 / sigma^2, and the linear blend overshoots it by at most
+// ~13 % of the peak midway between levels; on the dot pattern (dots of 0.6, spots of 1.0 on
+// 0) that stays below 0.06 of the brightest pattern value.
+constexpr double kLevelBlendTolerance = 0.06;
+
+TEST(IrSynthesisTest, PatternBlurLevelsStayCloseToTheExactBlur) {
+  Rig rig = RigPreset("romunect");
+  rig.optics.psf_sigma_px = 0.0;
+  rig.optics.ambient_e_per_s = 0.0;
+  IrSynthesisOptions options = NoNoise();
+  options.camera_defocus = false;
+  IrSynthesizer synth(options);
+  const cv::Mat displayed = ProjectorImage(rig);
+  const Pose T_P_C = rig.T_C_P.inverse();
+  const ProjectorModel& pr = rig.projector;
+  const Eigen::Vector3d c_P = rig.T_C_P.translation();
+  std::mt19937 rng(3);
+  std::uniform_int_distribution<int> column(0, rig.camera.width - 1), row(0, rig.camera.height - 1);
+  double worst = 0.0, sigma_min = 1e9, sigma_max = 0.0;
+  cv::Mat ir;
+  // In focus (0.206 m) to far out of it: sigmas from the pixel footprint up to ~5 px.
+  for (double z : {0.15, 0.185, 0.2, 0.206, 0.212, 0.25}) {
+    const GeometryBuffer g = FrontoParallelPlane(rig.camera, z, IrMaterial{1.0f, 0.0f, 50.0f});
+    synth.Synthesize(rig, g, 1, &ir, nullptr);
+    for (int i = 0; i < 150; ++i) {
+      const int u = column(rng), v = row(rng);
+      const cv::Vec3f p = g.layers[0].p_C.at<cv::Vec3f>(v, u);
+      const Eigen::Vector3d p_C(p[0], p[1], p[2]);
+      const Eigen::Vector3d p_P = T_P_C * p_C;
+      const double xp = pr.fx * p_P.x() / p_P.z() + pr.cx, yp = pr.fy * p_P.y() / p_P.z() + pr.cy;
+      const double coc = pr.fx * pr.aperture_m * std::abs(1.0 / p_P.z() - 1.0 / pr.focus_distance_m);
+      const double footprint = pr.fx / rig.camera.fx / std::sqrt(12.0) * p_C.z() / p_P.z();
+      const double sigma = std::sqrt(0.29 * 0.29 + footprint * footprint + coc * coc / 16.0);
+      sigma_min = std::min(sigma_min, sigma);
+      sigma_max = std::max(sigma_max, sigma);
+      const Eigen::Vector3d to_light = c_P - p_C;
+      const double cos_in = to_light.normalized().dot(Eigen::Vector3d(0, 0, -1));
+      const double unit_e = rig.optics.exposure_s * pr.brightness_e_per_s * cos_in / to_light.squaredNorm();
+      const double pattern = synth.expected_electrons().at<float>(v, u) / unit_e;
+      worst = std::max(worst, std::abs(pattern - ExactPattern(displayed, xp, yp, sigma)));
+    }
+  }
+  EXPECT_LT(sigma_min, 0.6);  // the comparison covers sharp dots ...
+  EXPECT_GT(sigma_max, 4.0);  // ... and strongly defocused ones
+  EXPECT_LT(worst, kLevelBlendTolerance);
+}
+
+TEST(IrSynthesisTest, NoiseIsGaussianOutToItsTails) {
+  Rig rig = UniformRig();
+  rig.camera = RigPreset("kinect-v1").camera;  // 640 x 480: enough samples for the tails
+  rig.optics.shot_noise = false;
+  rig.optics.read_noise_e = 160.0;  // 40 DN: quantization (1 DN) is negligible
+  IrSynthesizer quiet(NoNoise()), noisy;
+  cv::Mat clean, ir;
+  const GeometryBuffer g = FrontoParallelPlane(rig.camera, 2.0, IrMaterial{0.5f, 0, 50});
+  // ~2000 e (0.03 s x 0.5 / 4 m^2 x brightness): 5 sigma from 0 and from the full well.
+  rig.projector.brightness_e_per_s = 2000.0 / (0.03 * 0.5 / 4.0);
+  quiet.Synthesize(rig, g, 1, &clean, nullptr);
+  noisy.Synthesize(rig, g, 7, &ir, nullptr);
+  const double sigma_dn = rig.optics.read_noise_e * rig.optics.gain_dn_per_e;
+  // Integer differences: one exactly at k sigma (k sigma is a whole DN) counts half, the
+  // midpoint of the rounded values on either side.
+  double beyond[4] = {0, 0, 0, 0};
+  int used = 0;
+  double sum = 0.0, sum2 = 0.0;
+  for (int v = 0; v < ir.rows; ++v) {
+    for (int u = 0; u < ir.cols; ++u) {
+      const int level = clean.at<uint16_t>(v, u);
+      if (level < 5 * sigma_dn || level > rig.optics.MaxDn() - 5 * sigma_dn) continue;  // no clipping
+      ++used;
+      const int diff = ir.at<uint16_t>(v, u) - level;
+      const double d = diff / sigma_dn;
+      sum += d;
+      sum2 += d * d;
+      for (int k = 1; k <= 3; ++k) {
+        const int at = static_cast<int>(k * sigma_dn);
+        beyond[k] += std::abs(diff) > at ? 1.0 : (std::abs(diff) == at ? 0.5 : 0.0);
+      }
+    }
+  }
+  ASSERT_GT(used, 250000);
+  const double n = used;
+  // ~300000 samples: standard errors 0.002 (mean), 0.003 (variance), 0.0008, 0.0004 and 0.0001
+  // (tail shares); the tolerances are about 4 of them.
+  EXPECT_NEAR(sum / n, 0.0, 0.01);
+  EXPECT_NEAR(sum2 / n, 1.0, 0.012);
+  EXPECT_NEAR(beyond[1] / n, 0.3173, 0.0035);
+  EXPECT_NEAR(beyond[2] / n, 0.0455, 0.0016);
+  EXPECT_NEAR(beyond[3] / n, 0.0027, 0.0004);
+}
+
+// Quality-mode layers are averaged; a layer that repeats layer 0's hit in a pixel (adaptive
+// sampling away from edges) reuses its radiance, which must give the same average.
+TEST(IrSynthesisTest, LayersAreAveragedAndRepeatedSamplesReuseTheCentre) {
+  const Rig rig = RigPreset("kinect-v1");
+  testing::AnalyticScene scene = testing::AnalyticScene::TiltedPlane(1.2, 0.3);
+  scene.spheres.push_back({Eigen::Vector3d(0.05, 0, 1.0), 0.1, 0, 2});
+  const GeometryBuffer g = testing::RenderAnalytic(scene, rig.camera, rig.T_C_P.translation());
+  GeometryBuffer other = FrontoParallelPlane(rig.camera, 1.5, IrMaterial{0.7f, 0.2f, 30.0f});
+  other.layers[0].pixel_offset_px = Eigen::Vector2f(0.3f, 0.1f);
+  // Layers: g, g, g (repeats), and one that differs everywhere but shares g's materials.
+  GeometryBuffer mixed = g;
+  mixed.layers.push_back(g.layers[0]);
+  mixed.layers.push_back(g.layers[0]);
+  mixed.materials.push_back(other.materials[0]);
+  other.layers[0].material.setTo(static_cast<int>(mixed.materials.size()) - 1);
+  mixed.layers.push_back(other.layers[0]);
+  GeometryBuffer only_other = other;
+  only_other.materials = mixed.materials;
+  IrSynthesisOptions options = NoNoise();
+  options.camera_defocus = false;
+  IrSynthesizer a(options), b(options), c(options);
+  cv::Mat ir;
+  a.Synthesize(rig, mixed, 1, &ir, nullptr);
+  b.Synthesize(rig, g, 1, &ir, nullptr);
+  c.Synthesize(rig, only_other, 1, &ir, nullptr);
+  // Before the camera PSF (a linear blur), the average is (3 e_g + e_other) / 4; float sums of
+  // a few hundred electrons: 1e-4 relative.
+  cv::Mat expected = (3.0 * b.expected_electrons() + c.expected_electrons()) / 4.0;
+  EXPECT_LT(cv::norm(a.expected_electrons(), expected, cv::NORM_INF), 1e-4 * cv::norm(expected, cv::NORM_INF));
 }
 
 }  // namespace

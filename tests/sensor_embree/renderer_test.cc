@@ -265,19 +265,47 @@ TEST(RendererTest, ThinLensSamplesConvergeAtTheFocusDistanceAndSpreadOffIt) {
   }
 }
 
-TEST(RendererTest, ResultsAreBitIdenticalAtAnyThreadCountAndTileSize) {
-  BinSceneOptions bin;
-  bin.triangle_count = 20000;
-  const TriangleMesh mesh = MakeBinScene(bin);
+// A pile in a bin and a tilted plate (a moving part) above it, seen from 0.2 m.
+struct PileScene {
   RayScene scene;
-  scene.AddStatic(mesh, kIdentity, IrMaterial{}, 1);
-  const int lid = scene.AddMoving(MakePlaneTarget(0.0, 0.02), kIdentity, IrMaterial{0.9f}, 2);
-  scene.SetPose(lid, MakePose(Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitY()).toRotationMatrix(),
-                              Eigen::Vector3d(0.005, 0.0, 0.17)));
-  scene.Commit();
-  const CameraModel camera = PinholeCamera(96, 72, 320.0);
-  const Pose T_C_P = MakePose(Eigen::AngleAxisd(-0.26, Eigen::Vector3d::UnitY()).toRotationMatrix(),
-                              Eigen::Vector3d(0.05, 0.0, 0.0));
+  CameraModel camera = PinholeCamera(96, 72, 320.0);
+  Pose T_C_P = MakePose(Eigen::AngleAxisd(-0.26, Eigen::Vector3d::UnitY()).toRotationMatrix(),
+                        Eigen::Vector3d(0.05, 0.0, 0.0));
+  PileScene() {
+    BinSceneOptions bin;
+    bin.triangle_count = 20000;
+    scene.AddStatic(MakeBinScene(bin), kIdentity, IrMaterial{}, 1);
+    const int lid = scene.AddMoving(MakePlaneTarget(0.0, 0.02), kIdentity, IrMaterial{0.9f}, 2);
+    scene.SetPose(lid, MakePose(Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitY()).toRotationMatrix(),
+                                Eigen::Vector3d(0.005, 0.0, 0.17)));
+    scene.Commit();
+  }
+};
+
+bool SameSample(const GeometryLayer& a, const GeometryLayer& b, int v, int u) {
+  const cv::Vec3f pa = a.p_C.at<cv::Vec3f>(v, u), pb = b.p_C.at<cv::Vec3f>(v, u);
+  const bool same_point = (pa == pb) || (std::isnan(pa[2]) && std::isnan(pb[2]));
+  return same_point && a.normal_C.at<cv::Vec3f>(v, u) == b.normal_C.at<cv::Vec3f>(v, u) &&
+         a.material.at<int>(v, u) == b.material.at<int>(v, u) &&
+         a.object_id.at<int>(v, u) == b.object_id.at<int>(v, u) && a.lit.at<uint8_t>(v, u) == b.lit.at<uint8_t>(v, u);
+}
+
+void ExpectBitEqual(const GeometryBuffer& a, const GeometryBuffer& b) {
+  ASSERT_EQ(a.layers.size(), b.layers.size());
+  for (size_t k = 0; k < a.layers.size(); ++k) {
+    EXPECT_TRUE(ImagesBitEqual(a.layers[k].p_C, b.layers[k].p_C)) << k;
+    EXPECT_TRUE(ImagesBitEqual(a.layers[k].normal_C, b.layers[k].normal_C)) << k;
+    EXPECT_TRUE(ImagesBitEqual(a.layers[k].material, b.layers[k].material)) << k;
+    EXPECT_TRUE(ImagesBitEqual(a.layers[k].object_id, b.layers[k].object_id)) << k;
+    EXPECT_TRUE(ImagesBitEqual(a.layers[k].lit, b.layers[k].lit)) << k;
+  }
+}
+
+TEST(RendererTest, ResultsAreBitIdenticalAtAnyThreadCountAndTileSize) {
+  PileScene pile;
+  RayScene& scene = pile.scene;
+  const CameraModel& camera = pile.camera;
+  const Pose& T_C_P = pile.T_C_P;
   RenderOptions options;
   options.samples_per_pixel = 4;
   options.aperture_radius_m = 0.003;
@@ -291,16 +319,67 @@ TEST(RendererTest, ResultsAreBitIdenticalAtAnyThreadCountAndTileSize) {
   renderer.Render(scene, camera, kIdentity, T_C_P, options, &small_tiles);
   EXPECT_GT(stats.hits, stats.camera_rays / 2);
   EXPECT_LT(stats.lit, stats.hits);  // the pile shadows itself: a non-trivial lit mask
-  for (const GeometryBuffer* other : {&two, &small_tiles}) {
-    ASSERT_EQ(other->layers.size(), 4u);
-    for (int k = 0; k < 4; ++k) {
-      EXPECT_TRUE(ImagesBitEqual(one.layers[k].p_C, other->layers[k].p_C)) << k;
-      EXPECT_TRUE(ImagesBitEqual(one.layers[k].normal_C, other->layers[k].normal_C)) << k;
-      EXPECT_TRUE(ImagesBitEqual(one.layers[k].material, other->layers[k].material)) << k;
-      EXPECT_TRUE(ImagesBitEqual(one.layers[k].object_id, other->layers[k].object_id)) << k;
-      EXPECT_TRUE(ImagesBitEqual(one.layers[k].lit, other->layers[k].lit)) << k;
+  ASSERT_EQ(one.layers.size(), 4u);
+  for (const GeometryBuffer* other : {&two, &small_tiles}) ExpectBitEqual(one, *other);
+}
+
+// A sample 1/3 px off the centre crosses an edge that neither neighbour pair shows only at
+// corners and sub-pixel features (a sliver of a sphere's rim): at most this share of the
+// pixels whose samples see another object or shadow state than their centre.
+constexpr double kMaxMissedEdgeFraction = 0.05;
+
+TEST(RendererTest, AdaptiveSamplingTracesEdgePixelsExactlyAndRepeatsTheCentreElsewhere) {
+  PileScene pile;
+  GeometryRenderer renderer;
+  // Reference: all four samples everywhere, through the pinhole (adaptive leaves the lens to
+  // image synthesis).
+  RenderOptions full;
+  full.samples_per_pixel = 4;
+  GeometryBuffer reference, adaptive, adaptive_two, adaptive_small_tiles;
+  renderer.Render(pile.scene, pile.camera, kIdentity, pile.T_C_P, full, &reference);
+  RenderOptions options = full;
+  options.adaptive = true;
+  options.aperture_radius_m = 0.003;  // ignored by adaptive sampling
+  const RenderStats stats = renderer.Render(pile.scene, pile.camera, kIdentity, pile.T_C_P, options, &adaptive);
+  options.threads = 2;
+  renderer.Render(pile.scene, pile.camera, kIdentity, pile.T_C_P, options, &adaptive_two);
+  options.tile_size_px = 8;
+  renderer.Render(pile.scene, pile.camera, kIdentity, pile.T_C_P, options, &adaptive_small_tiles);
+  ExpectBitEqual(adaptive, adaptive_two);
+  ExpectBitEqual(adaptive, adaptive_small_tiles);
+
+  ASSERT_EQ(adaptive.layers.size(), 4u);
+  const int pixels = pile.camera.width * pile.camera.height;
+  int refined = 0, edge_pixels = 0, missed = 0;
+  for (int v = 0; v < pile.camera.height; ++v) {
+    for (int u = 0; u < pile.camera.width; ++u) {
+      ASSERT_TRUE(SameSample(adaptive.layers[0], reference.layers[0], v, u)) << u << "," << v;
+      const bool traced = SameSample(adaptive.layers[1], reference.layers[1], v, u) &&
+                          !SameSample(adaptive.layers[1], adaptive.layers[0], v, u);
+      bool crosses = false;
+      for (int k = 1; k < 4; ++k) {
+        const GeometryLayer& a = adaptive.layers[k];
+        // Each extra sample is either the reference's sample or a copy of the centre's.
+        EXPECT_TRUE(SameSample(a, reference.layers[k], v, u) || SameSample(a, adaptive.layers[0], v, u))
+            << u << "," << v << " layer " << k;
+        crosses |= reference.layers[k].object_id.at<int>(v, u) != reference.layers[0].object_id.at<int>(v, u) ||
+                   reference.layers[k].lit.at<uint8_t>(v, u) != reference.layers[0].lit.at<uint8_t>(v, u);
+      }
+      refined += traced;
+      edge_pixels += crosses;
+      missed += crosses && SameSample(adaptive.layers[1], adaptive.layers[0], v, u) &&
+                SameSample(adaptive.layers[2], adaptive.layers[0], v, u) &&
+                SameSample(adaptive.layers[3], adaptive.layers[0], v, u);
     }
   }
+  EXPECT_GT(edge_pixels, 100);
+  EXPECT_LE(missed, kMaxMissedEdgeFraction * edge_pixels) << missed << " of " << edge_pixels;
+  // Samples that happen to equal the centre's bit for bit are rare but possible.
+  EXPECT_LE(refined, stats.refined_pixels);
+  EXPECT_GT(refined, stats.refined_pixels * 9 / 10);
+  EXPECT_LT(stats.refined_pixels, pixels / 2);  // the point: most pixels get one sample
+  EXPECT_EQ(stats.camera_rays, pixels + 3 * stats.refined_pixels);
+  for (int k = 1; k < 4; ++k) EXPECT_TRUE(adaptive.layers[k].lens_offset_m.isZero());
 }
 
 TEST(RendererTest, OptionsNameTheFieldValueAndRule) {
@@ -320,6 +399,13 @@ TEST(RendererTest, OptionsNameTheFieldValueAndRule) {
   o = RenderOptions{};
   o.aperture_radius_m = -1.0;
   EXPECT_NE(o.Problem().find("aperture_radius_m = -1"), std::string::npos);
+  o = RenderOptions{};
+  o.adaptive = true;
+  EXPECT_EQ(o.Problem(), "adaptive = true: needs samples_per_pixel = 4 (the samples it adds at edges)");
+  o.samples_per_pixel = 4;
+  EXPECT_EQ(o.Problem(), "");
+  o.edge_slope = 0.0;
+  EXPECT_EQ(o.Problem(), "edge_slope = 0: must be positive");
 }
 
 }  // namespace
