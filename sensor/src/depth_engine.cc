@@ -197,6 +197,17 @@ DepthEngine::DepthEngine(const DepthEngineOptions& options, const cv::Mat& refer
       reference_reversed_[static_cast<size_t>(y) * reference_row_length_ + p] = reference_norm.at<uint8_t>(y, col);
     }
   }
+  // The decision rules on integer window costs, in the float arithmetic of depth_engine.h: a
+  // best cost c0 is weak when float(c0) > max_cost x area, ambiguous when another cost is below
+  // c0 (1 + uniqueness), i.e. below ceil of it (costs are integers; all are below kCostMax).
+  const float max_cost_sum = static_cast<float>(options_.max_cost * options_.window_px * options_.window_px);
+  const int max_best_cost = static_cast<int>(std::min(std::floor(max_cost_sum), float{internal::kCostMax}));
+  const float uniqueness = static_cast<float>(options_.uniqueness);
+  ambiguous_below_.resize(max_best_cost + 1);
+  for (int c0 = 0; c0 <= max_best_cost; ++c0) {
+    const float t = static_cast<float>(c0) * (1.f + uniqueness);
+    ambiguous_below_[c0] = static_cast<int16_t>(std::ceil(std::min(t, float{internal::kCostMax})));
+  }
   // Columns x whose shifts j < D all read a reference column (an interval).
   auto clean = [&](int x) {
     for (int j = 0; j < D; ++j) {
@@ -264,8 +275,8 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
   args.clean_begin = clean_begin_;
   args.clean_end = clean_end_;
   args.min_texture = static_cast<float>(options_.min_texture);
-  args.max_cost_sum = static_cast<float>(options_.max_cost * options_.window_px * options_.window_px);
-  args.uniqueness = static_cast<float>(options_.uniqueness);
+  args.max_best_cost = static_cast<int>(ambiguous_below_.size()) - 1;
+  args.ambiguous_below = ambiguous_below_.data();
   args.raw_at_reference = raw_at_reference_rounded_;
   // raw < raw_offset (a double) and below kRawInvalid.
   args.raw_limit = static_cast<int>(std::clamp(std::ceil(options_.chip.raw_offset), 0.0, double{kRawInvalid}));

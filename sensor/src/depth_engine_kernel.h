@@ -48,7 +48,11 @@ struct KernelArgs {
   size_t ref_step = 0;
   const uint8_t* outside = nullptr;  // per p: 0xFF where the reference has no column x - s
   int clean_begin = 0, clean_end = 0;  // columns x whose shifts j < D all have a reference column
-  float min_texture = 0.f, max_cost_sum = 0.f, uniqueness = 0.f;
+  float min_texture = 0.f;
+  int max_best_cost = 0;  // weak above this window cost
+  // Per best cost c0 <= max_best_cost: costs below this (beyond +-1 of the best) make the pixel
+  // ambiguous (the integer form of "float(cost) < c0 (1 + uniqueness)").
+  const int16_t* ambiguous_below = nullptr;
   int raw_at_reference = 0, raw_limit = 0;  // raw valid in [0, raw_limit)
   const float* chip_depth_lut = nullptr;
   uint16_t* raw = nullptr;

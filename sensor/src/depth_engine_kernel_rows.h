@@ -128,13 +128,10 @@ void MatchRows(const KernelArgs& args, KernelStats* stats_out) {
         for (int b = 0; b < NB - 1; ++b) m = V::Min(m, s[b]);
         const int c0 = V::HorizontalMin(m);
         best_cost[x] = static_cast<int16_t>(c0);
-        if (static_cast<float>(c0) > a.max_cost_sum) {
+        if (c0 > a.max_best_cost) {
           code[x] = kWeak;
         } else {
-          // Ambiguous: a cost beyond +-1 of the best below c0 (1 + uniqueness); costs are
-          // integers, so "float(cost) < t" is "cost < ceil(t)".
-          const float t = static_cast<float>(c0) * (1.f + a.uniqueness);
-          const int below = static_cast<int>(std::ceil(t < kCostMax ? t : static_cast<float>(kCostMax)));
+          const int below = a.ambiguous_below[c0];
           uint64_t equal[kWords], less[kWords];
           for (int w = 0; w < kWords; ++w) {
             const int b = 2 * w;
@@ -156,8 +153,9 @@ void MatchRows(const KernelArgs& args, KernelStats* stats_out) {
           }
           uint64_t beyond = 0;
           for (int w = 0; w < kWords; ++w) {
-            uint64_t near = 0;  // bits j - 1 .. j + 1 within this word
-            for (int k = j - 1; k <= j + 1; ++k) near |= (k >= 64 * w && k < 64 * w + 64) ? uint64_t{1} << (k - 64 * w) : 0;
+            // Bits j - 1 .. j + 1 within this word.
+            const int lo = j - 1 - 64 * w;
+            const uint64_t near = lo >= 64 || lo < -2 ? 0 : lo >= 0 ? uint64_t{7} << lo : uint64_t{7} >> -lo;
             beyond |= less[w] & ~near;
           }
           if (beyond != 0) {

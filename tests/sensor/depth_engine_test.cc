@@ -85,15 +85,18 @@ TEST(DepthEngineTest, FastPathEqualsTheReferenceOnOtherWindowsRangesAndRules) {
   // uniqueness rule, a search that starts at a positive shift: each against the reference.
   struct Case {
     int window_px, min_shift_px, search_range_px;
-    double uniqueness;
+    double uniqueness, max_cost;
   };
   const cv::Mat ir = KinectTestIr(4);
-  for (const Case c : {Case{5, -20, 40, 0.0}, Case{11, -32, 96, 0.5}, Case{7, 3, 29, 0.2}, Case{9, -40, 70, 0.1}}) {
+  // The last case accepts every cost and its ambiguity threshold saturates 16 bits.
+  for (const Case c : {Case{5, -20, 40, 0.0, 25}, Case{11, -32, 96, 0.5, 25}, Case{7, 3, 29, 0.2, 25},
+                       Case{9, -40, 70, 0.1, 25}, Case{9, -32, 64, 0.7, 255}}) {
     DepthEngineOptions options = RigPreset("kinect-v1").depth_engine;
     options.window_px = c.window_px;
     options.min_shift_px = c.min_shift_px;
     options.search_range_px = c.search_range_px;
     options.uniqueness = c.uniqueness;
+    options.max_cost = c.max_cost;
     ASSERT_EQ(options.Problem(), "");
     DepthEngine engine(options, Engine("kinect-v1").reference_ir());
     SCOPED_TRACE("window " + std::to_string(c.window_px) + ", shifts from " + std::to_string(c.min_shift_px) +

@@ -110,6 +110,7 @@ class DepthEngine {
   int reference_row_length_ = 0;
   std::vector<uint8_t> reference_reversed_, reference_outside_;
   int clean_begin_ = 0, clean_end_ = 0;
+  std::vector<int16_t> ambiguous_below_;  // per best window cost that is not weak
 };
 
 // Per-pixel conversion of the chip's output to metric depth (paper eqs. 2-3). The one
