@@ -7,6 +7,8 @@
 #include <limits>
 #include <sstream>
 
+#include <time.h>
+
 #include <opencv2/imgproc.hpp>
 
 #include "depth_engine_kernel.h"
@@ -95,17 +97,19 @@ cv::Mat ChipReferenceImage(const ChipGeometry& chip) {
   return ir;
 }
 
+namespace {
+
 // Box sums are exact integers (squares rounded to float first, as a float image's are), slid
 // down the image by columns and along each row, so the means are the bytes cv::boxFilter gives
 // on float images (its sums run in double, exact for these integers): float(sum * (1.0 / area)).
 // Borders reflect (cv::BORDER_REFLECT). The float arithmetic per pixel runs in a loop of its own
 // so that it vectorizes.
-void DepthEngine::Prefilter(const cv::Mat& ir, int window_px, cv::Mat* normalized, cv::Mat* local_sigma) {
-  ROMUNECT_CHECK(ir.type() == CV_16UC1);
+// Rows [y_begin, y_end) of DepthEngine::Prefilter, into allocated outputs: row bands give the
+// same bytes as the whole image (exact sums), so threads can split it.
+void PrefilterRows(const cv::Mat& ir, int window_px, int y_begin, int y_end, cv::Mat* normalized,
+                   cv::Mat* local_sigma) {
   const int W = ir.cols, H = ir.rows, r = window_px / 2;
   const double inv_area = 1.0 / (window_px * window_px);
-  local_sigma->create(ir.size(), CV_32F);
-  normalized->create(ir.size(), CV_8U);
   // Per column, the sums over the window's rows; r reflected columns added on each side.
   std::vector<int32_t> sum(W + 2 * r, 0);
   std::vector<double> sum_sq(W + 2 * r, 0.0);  // integers below 2^53: exact
@@ -121,9 +125,9 @@ void DepthEngine::Prefilter(const cv::Mat& ir, int window_px, cv::Mat* normalize
       q[x] += add ? f2 : -f2;
     }
   };
-  for (int dy = -r; dy <= r; ++dy) add_row(dy, true);
-  for (int y = 0; y < H; ++y) {
-    if (y > 0) {
+  for (int dy = -r; dy <= r; ++dy) add_row(y_begin + dy, true);
+  for (int y = y_begin; y < y_end; ++y) {
+    if (y > y_begin) {
       add_row(y + r, true);
       add_row(y - r - 1, false);
     }
@@ -163,6 +167,21 @@ void DepthEngine::Prefilter(const cv::Mat& ir, int window_px, cv::Mat* normalize
       n[x] = static_cast<uint8_t>(static_cast<int32_t>(std::min(std::max(value + 0.5f, 0.5f), 255.5f)));
     }
   }
+}
+
+double ThreadCpuSeconds() {
+  timespec t;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+  return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
+}
+
+}  // namespace
+
+void DepthEngine::Prefilter(const cv::Mat& ir, int window_px, cv::Mat* normalized, cv::Mat* local_sigma) {
+  ROMUNECT_CHECK(ir.type() == CV_16UC1);
+  local_sigma->create(ir.size(), CV_32F);
+  normalized->create(ir.size(), CV_8U);
+  PrefilterRows(ir, window_px, 0, ir.rows, normalized, local_sigma);
 }
 
 DepthEngine::DepthEngine(const DepthEngineOptions& options)
@@ -248,16 +267,31 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
                      "image is " + std::to_string(ir.cols) + " x " + std::to_string(ir.rows) + ", the chip takes " +
                          std::to_string(cam.width) + " x " + std::to_string(cam.height));
   }
-  Prefilter(ir, options_.prefilter_px, &frame_norm_, &frame_sigma_);
+  const int W = ir.cols, H = ir.rows, r = options_.window_px / 2;
+  const int rows = H - 2 * r;  // rows the window fits in
+  const int threads = std::clamp(options_.threads, 1, rows);
+  // Thread t of ParallelRows' split of n rows: the one whose block starts at `begin`.
+  auto thread_of = [threads](int begin, int n) {
+    int t = 0;
+    while (t + 1 < threads && n * (t + 1) / threads <= begin) ++t;
+    return t;
+  };
+  std::vector<double> thread_cpu_s(threads, 0.0);
+  frame_norm_.create(ir.size(), CV_8U);
+  frame_sigma_.create(ir.size(), CV_32F);
+  ParallelRows(threads, H, [&](int row_begin, int row_end) {
+    const double cpu_start = ThreadCpuSeconds();
+    PrefilterRows(ir, options_.prefilter_px, row_begin, row_end, &frame_norm_, &frame_sigma_);
+    thread_cpu_s[thread_of(row_begin, H)] += ThreadCpuSeconds() - cpu_start;
+  });
   out->raw.create(ir.size(), CV_16U);
   out->depth_m.create(ir.size(), CV_32F);
   out->shift_px.create(ir.size(), CV_32F);
-  const int W = ir.cols, H = ir.rows, r = options_.window_px / 2;
   // Rows the window leaves: border. The kernel does the rest, including the side columns.
-  for (const cv::Range rows : {cv::Range(0, r), cv::Range(H - r, H)}) {
-    out->raw.rowRange(rows).setTo(kRawInvalid);
-    out->depth_m.rowRange(rows).setTo(0.f);
-    out->shift_px.rowRange(rows).setTo(std::numeric_limits<float>::quiet_NaN());
+  for (const cv::Range border : {cv::Range(0, r), cv::Range(H - r, H)}) {
+    out->raw.rowRange(border).setTo(kRawInvalid);
+    out->depth_m.rowRange(border).setTo(0.f);
+    out->shift_px.rowRange(border).setTo(std::numeric_limits<float>::quiet_NaN());
   }
   internal::KernelArgs args;
   args.width = W;
@@ -288,19 +322,17 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
   args.float_step = out->depth_m.step1();
   ROMUNECT_CHECK(out->shift_px.step1() == args.float_step);
   const KernelFn match_rows = KernelFunction(kernel_);
-  const int rows = H - 2 * r;
-  const int threads = std::clamp(options_.threads, 1, rows);
   std::vector<internal::KernelStats> thread_stats(threads);
   ParallelRows(threads, rows, [&](int row_begin, int row_end) {
-    // Which thread: the block that starts at row_begin (ParallelRows' split).
-    int t = 0;
-    while (t + 1 < threads && rows * (t + 1) / threads <= row_begin) ++t;
+    const double cpu_start = ThreadCpuSeconds();
+    const int t = thread_of(row_begin, rows);
     std::vector<int16_t> scratch(internal::KernelScratchSize(W, args.blocks));
     internal::KernelArgs band = args;
     band.scratch = scratch.data();
     band.y_begin = r + row_begin;
     band.y_end = r + row_end;
     match_rows(band, &thread_stats[t]);
+    thread_cpu_s[t] += ThreadCpuSeconds() - cpu_start;
   });
   out->stats = DepthEngineStats{};
   out->stats.border = 2 * r * W;
@@ -312,6 +344,7 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
     out->stats.out_of_range += s.out_of_range;
     out->stats.border += s.border;
   }
+  out->stats.busiest_thread_cpu_s = *std::max_element(thread_cpu_s.begin(), thread_cpu_s.end());
   out->stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 

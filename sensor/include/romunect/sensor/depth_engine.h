@@ -47,7 +47,9 @@ struct DepthEngineStats {
   int ambiguous = 0;   // second best too close
   int out_of_range = 0;  // best at the end of the search range, or raw outside 11 bits
   int border = 0;      // window leaves the image
-  double seconds = 0.0;
+  double seconds = 0.0;  // wall time of Compute
+  // CPU time of the busiest thread (prefilter and search): at `threads` = 1 the frame's CPU time.
+  double busiest_thread_cpu_s = 0.0;
   std::string BriefReport() const;
 };
 
