@@ -27,7 +27,7 @@ struct RecordArgs {
   std::string source, out_dir, oni, camera, calibration, pose_log, depth_unit;
   int frames = 0, width = 0, height = 0, fps = 0;
   double timeout_s = 2.0, pose_offset_s = 0.0;
-  bool no_ir = false, list_devices = false, list_modes = false;
+  bool no_ir = false, raw = false, list_devices = false, list_modes = false;
 };
 
 // The camera and T_H_C of a romunect calibration file (calib/calibration_file.h: OpenCV's camera
@@ -65,7 +65,7 @@ std::string ExtraJson(const RecordArgs& args, FrameSource& source, const std::st
   if (!incomplete.empty()) extra["recording"]["incomplete"] = incomplete;
   if (auto* device = openni2::FindOpenNI2Source(&source)) {
     const openni2::PS1080Properties& c = device->chip();
-    extra["recording"]["depth_unit"] = openni2::ToString(device->depth_unit());
+    extra["recording"]["depth_unit"] = args.raw ? "raw shift9.2" : openni2::ToString(device->depth_unit());
     nlohmann::json chip = nlohmann::json::object();
     if (c.zero_plane_distance_m) chip["zero_plane_distance_mm"] = std::llround(*c.zero_plane_distance_m * 1e3);
     if (c.zero_plane_pixel_size_m) chip["zero_plane_pixel_size_mm"] = *c.zero_plane_pixel_size_m * 1e3;
@@ -108,6 +108,7 @@ void RunRecord(const RecordArgs& args) {
   device.height = args.height;
   device.fps = args.fps;
   device.ir = !args.no_ir;
+  device.raw = args.raw;
   device.timeout_s = args.timeout_s;
   device.max_frames = args.frames;
   device.record_oni = args.oni;
@@ -147,7 +148,7 @@ void RunRecord(const RecordArgs& args) {
         std::fprintf(stderr, "romunect: warning: frame skipped: %s\n", error.c_str());
         continue;
       }
-      if (frame.depth_m.empty()) {
+      if (frame.depth_m.empty() && frame.raw.empty()) {
         ++skipped;
         std::fprintf(stderr, "romunect: warning: frame %d has no depth, skipped\n", frame.index);
         continue;
@@ -193,6 +194,8 @@ void AddRecordCommand(CLI::App& app) {
   cmd->add_option("--fps", args->fps, "Video mode rate (default 30 when offered)")->check(CLI::NonNegativeNumber);
   cmd->add_option("--depth-unit", args->depth_unit, "Depth on the wire: 100um (default when offered) or 1mm");
   cmd->add_flag("--no-ir", args->no_ir, "Do not open the IR stream");
+  cmd->add_flag("--raw", args->raw,
+                "Record the chip's raw 11-bit shifts (PS1080 shift9.2, frames' raw images) instead of metric depth");
   cmd->add_option("--camera", args->camera, "Camera model (OpenCV YAML/JSON) of the frames; default: from the fields of view");
   cmd->add_option("--calibration", args->calibration,
                   "romunect calibration file: its camera replaces the fields-of-view camera, and with --pose-log its "

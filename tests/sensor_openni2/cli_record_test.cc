@@ -17,6 +17,14 @@ using testing::ScratchDir;
 
 std::string Quote(const std::string& s) { return "'" + s + "'"; }
 
+// The quoted URI of `dir` as a step-paced virtual device that stops after stop_after frames.
+std::string StepDevice(const std::filesystem::path& dir, int stop_after = -1) {
+  VirtualDeviceOptions step;
+  step.pace = VirtualDeviceOptions::Pace::kStep;
+  step.stop_after = stop_after;
+  return Quote(VirtualDeviceUri(dir, step));
+}
+
 // Every frame of `recorded` equals the source directory's, depth after 100 um quantization.
 void ExpectSameFrames(const std::filesystem::path& recorded, const std::filesystem::path& truth, size_t count) {
   FrameDirectorySource a(recorded), b(truth);
@@ -47,10 +55,8 @@ TEST(CliRecord, RecordsTheVirtualDeviceToAFrameDirectoryAndOniAndPlaysTheOniBack
   ScratchDir dir("frames");
   ScratchDir out("out");
   testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 4, 31);
-  VirtualDeviceOptions step;
-  step.pace = VirtualDeviceOptions::Pace::kStep;
-  const std::string uri = VirtualDeviceUri(dir.path(), step);
-  const auto r = RunRomunect("record " + Quote(uri) + " " + (out / "live").string() + " --oni " + (out / "live.oni").string());
+  const std::string uri = StepDevice(dir.path());
+  const auto r = RunRomunect("record " + uri + " " + (out / "live").string() + " --oni " + (out / "live.oni").string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("recorded 4 frames (0 skipped, 0 dropped by the device)"), std::string::npos) << r.output;
   ExpectSameFrames(out / "live", dir.path(), 4);
@@ -63,20 +69,33 @@ TEST(CliRecord, RecordsTheVirtualDeviceToAFrameDirectoryAndOniAndPlaysTheOniBack
   ExpectSameFrames(out / "replayed", dir.path(), 4);
   EXPECT_EQ(RunRomunect("info " + (out / "replayed").string()).exit_code, 0);
 
-  const auto modes = RunRomunect("record " + Quote(uri) + " --list-modes");
+  const auto modes = RunRomunect("record " + uri + " --list-modes");
   EXPECT_EQ(modes.exit_code, 0);
   EXPECT_NE(modes.output.find("depth 80x60 @30 Hz 100um"), std::string::npos) << modes.output;
+}
+
+TEST(CliRecord, RawShiftsGoToTheFrameDirectorysRawImages) {
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 3, 33);
+  const auto r = RunRomunect("record " + StepDevice(dir.path()) + " " + (out / "raw").string() + " --raw --no-ir");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  FrameDirectorySource recorded(out / "raw"), truth(dir.path());
+  ASSERT_EQ(recorded.manifest().frames.size(), 3u);
+  for (size_t i = 0; i < 3; ++i) {
+    const Frame a = LoadFrame(out / "raw", recorded.manifest(), i), b = LoadFrame(dir.path(), truth.manifest(), i);
+    EXPECT_TRUE(ImagesBitEqual(a.raw, b.raw)) << i;
+    EXPECT_TRUE(a.depth_m.empty()) << i;
+  }
+  const auto doc = nlohmann::json::parse(testing::ReadText(out / "raw" / "frames.json"));
+  EXPECT_EQ(doc["recording"]["depth_unit"], "raw shift9.2");
 }
 
 TEST(CliRecord, ADeviceThatStopsKeepsTheFramesSoFarAndFails) {
   ScratchDir dir("frames");
   ScratchDir out("out");
   testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 5, 32);
-  VirtualDeviceOptions device;
-  device.pace = VirtualDeviceOptions::Pace::kStep;
-  device.stop_after = 2;
-  const auto r = RunRomunect("record " + Quote(VirtualDeviceUri(dir.path(), device)) + " " + (out / "cut").string() +
-                             " --timeout 0.5");
+  const auto r = RunRomunect("record " + StepDevice(dir.path(), 2) + " " + (out / "cut").string() + " --timeout 0.5");
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_NE(r.output.find("no frame for 0.5 s (device unplugged or stalled)"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("kept 2 frames"), std::string::npos) << r.output;
@@ -100,9 +119,7 @@ TEST(CliRecord, PoseLogAndCalibrationGiveFusableFrames) {
     for (int i = 0; i < 16; ++i) m.at<double>(i / 4, i % 4) = T_H_C.matrix()(i / 4, i % 4);
     fs << "T_H_C" << m;
   }
-  VirtualDeviceOptions step;
-  step.pace = VirtualDeviceOptions::Pace::kStep;
-  const auto r = RunRomunect("record " + Quote(VirtualDeviceUri(dir.path(), step)) + " " + (out / "rec").string() +
+  const auto r = RunRomunect("record " + StepDevice(dir.path()) + " " + (out / "rec").string() +
                              " --pose-log " + (out / "poses.csv").string() + " --calibration " + (out / "calib.yml").string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
   FrameDirectorySource rec(out / "rec");

@@ -146,6 +146,47 @@ TEST(VirtualDevice, OneMillimetreUnitAndDepthOnly) {
   }
 }
 
+// The chip's raw shifts (PS1080 SHIFT_9_2) pass through OpenNI2 as sent, live and from a
+// recording, so the calibration's exact depth model can run on captures.
+TEST(VirtualDevice, RawShiftsComeThroughOpenNI2AndRecordingsBitForBit) {
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 3, 18);
+  const std::filesystem::path oni = out / "raw.oni";
+  FrameDirectorySource truth(dir.path());
+  auto expect_raw = [&](const std::vector<Frame>& frames) {
+    ASSERT_EQ(frames.size(), 3u);
+    for (const Frame& f : frames) {
+      const Frame expected = LoadFrame(dir.path(), truth.manifest(), f.index);
+      EXPECT_TRUE(ImagesBitEqual(f.raw, expected.raw)) << f.index;
+      EXPECT_TRUE(ImagesBitEqual(f.ir, expected.ir)) << f.index;
+      EXPECT_TRUE(f.depth_m.empty());
+    }
+  };
+  OpenNI2SourceOptions options;
+  options.uri = VirtualDeviceUri(dir.path(), Step());
+  options.raw = true;
+  options.record_oni = oni;
+  {
+    OpenNI2Source live(options);
+    EXPECT_NE(live.Describe().find("raw shifts"), std::string::npos) << live.Describe();
+    expect_raw(ReadAll(live));
+    live.FinishRecording();
+  }
+  options.uri = oni.string();
+  options.record_oni.clear();
+  OpenNI2Source playback(options);
+  expect_raw(ReadAll(playback));
+  // Metric depth from a recording of raw shifts is a clear error, not garbage.
+  options.raw = false;
+  try {
+    OpenNI2Source wrong(options);
+    ADD_FAILURE() << "opened";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("holds the chip's raw shifts (shift9.2)"), std::string::npos) << e.what();
+  }
+}
+
 TEST(VirtualDevice, RealtimePaceDeliversMatchingFramesAndCountsDrops) {
   ScratchDir dir("frames");
   testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 4, 13);
@@ -264,10 +305,11 @@ TEST(OpenNI2SourceErrors, UnsupportedModeListsTheOfferedModes) {
   options.fps = 30;
   const std::string m = OpenError(options);
   EXPECT_NE(m.find("video mode: depth 1280x1024 @30 Hz in 100um or 1mm is not offered; the device offers: "
-                   "depth 80x60 @30 Hz 100um, depth 80x60 @30 Hz 1mm"), std::string::npos) << m;
+                   "depth 80x60 @30 Hz 100um, depth 80x60 @30 Hz 1mm, depth 80x60 @30 Hz shift9.2"),
+            std::string::npos) << m;
   const auto modes = ListVideoModes(options.uri);
-  ASSERT_EQ(modes.size(), 3u);
-  EXPECT_EQ(modes[2], "ir 80x60 @30 Hz gray16");
+  ASSERT_EQ(modes.size(), 4u);
+  EXPECT_EQ(modes[3], "ir 80x60 @30 Hz gray16");
 }
 
 TEST(OpenNI2SourceErrors, InvalidOptionsNameTheField) {

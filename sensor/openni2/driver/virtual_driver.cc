@@ -36,6 +36,7 @@
 #include "romunect/openni2/depth_units.h"
 #include "romunect/openni2/feed_abi.h"
 #include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/rig.h"
 #include "virtual_device_uri.h"
@@ -97,6 +98,7 @@ class FrameFeed {
   virtual const CameraModel& camera() const = 0;
   virtual bool has_depth() const = 0;
   virtual bool has_ir() const = 0;
+  virtual bool has_raw() const { return false; }  // the chip's raw shifts (Frame::raw)
   virtual int frame_count() const = 0;   // frames it will deliver; 0 = endless
   virtual double fps() const = 0;        // 0 = unknown
   virtual std::string extra_json() const { return ""; }
@@ -110,13 +112,12 @@ class DirectoryFeed : public FrameFeed {
  public:
   DirectoryFeed(const std::filesystem::path& dir, bool loop) : dir_(dir), loop_(loop) {
     manifest_ = ReadFrameDirectoryManifest(dir_);  // throws InputError
-    for (FrameRecord& r : manifest_.frames) {
-      r.raw.clear();  // a PS1080 sends neither raw shifts nor ground truth: don't decode them
-      r.gt_depth.clear();
-    }
+    for (FrameRecord& r : manifest_.frames) r.gt_depth.clear();  // no device sends ground truth
+
     const auto& frames = manifest_.frames;
     has_depth_ = !frames.empty() && std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.depth.empty(); });
     has_ir_ = !frames.empty() && std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.ir.empty(); });
+    has_raw_ = !frames.empty() && std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.raw.empty(); });
     if (frames.size() >= 2) {
       std::vector<double> dt;
       for (size_t i = 1; i < frames.size(); ++i) dt.push_back(frames[i].time_s - frames[i - 1].time_s);
@@ -127,6 +128,7 @@ class DirectoryFeed : public FrameFeed {
   const CameraModel& camera() const override { return manifest_.camera; }
   bool has_depth() const override { return has_depth_; }
   bool has_ir() const override { return has_ir_; }
+  bool has_raw() const override { return has_raw_; }
   int frame_count() const override { return loop_ ? 0 : static_cast<int>(manifest_.frames.size()); }
   double fps() const override { return fps_; }
   std::string extra_json() const override { return manifest_.extra_json; }
@@ -153,7 +155,7 @@ class DirectoryFeed : public FrameFeed {
   std::filesystem::path dir_;
   bool loop_;
   FrameDirectoryManifest manifest_;
-  bool has_depth_ = false, has_ir_ = false;
+  bool has_depth_ = false, has_ir_ = false, has_raw_ = false;
   double fps_ = 0.0;
   size_t next_ = 0;
   double loop_offset_s_ = 0.0;  // time added on each pass when looping
@@ -172,7 +174,8 @@ class LibraryFeed : public FrameFeed {
  public:
   LibraryFeed(const std::string& library, const std::string& query) {
     const std::string path = library.empty() ? DefaultFeedLibrary() : library;
-    handle_ = dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL);
+    // Never unloaded (NODELETE): its renderer's and physics' threads and statics may outlive the feed.
+    handle_ = dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL | RTLD_NODELETE);
     if (handle_ == nullptr) throw std::runtime_error("cannot load the feed library " + path + ": " + dlerror());
     create_ = reinterpret_cast<RomunectFeedCreateFn>(dlsym(handle_, ROMUNECT_FEED_CREATE_SYMBOL));
     next_ = reinterpret_cast<RomunectFeedNextFn>(dlsym(handle_, ROMUNECT_FEED_NEXT_SYMBOL));
@@ -296,12 +299,17 @@ class VirtualDevice : public oni::driver::DeviceBase {
   VirtualDevice(const ParsedVirtualDeviceUri& parsed, oni::driver::DriverServices* services)
       : options_(parsed.options), services_(services), feed_(MakeFeed(parsed)) {  // MakeFeed throws
     chip_ = ReadChipParameters(feed_->extra_json());
-    has_depth_ = feed_->has_depth();
     has_ir_ = feed_->has_ir();
     fps_ = static_cast<int>(std::lround(options_.fps > 0.0 ? options_.fps : feed_->fps()));
     if (fps_ <= 0) fps_ = 30;
     const int w = feed_->camera().width, h = feed_->camera().height;
-    depth_modes_ = {{ONI_PIXEL_FORMAT_DEPTH_100_UM, w, h, fps_}, {ONI_PIXEL_FORMAT_DEPTH_1_MM, w, h, fps_}};
+    // Metric depth in two units when frames hold depth; the chip's raw shifts (the PS1080's
+    // SHIFT_9_2: 11 bits, 2047 = none) when they hold raw.
+    if (feed_->has_depth()) {
+      depth_modes_ = {{ONI_PIXEL_FORMAT_DEPTH_100_UM, w, h, fps_}, {ONI_PIXEL_FORMAT_DEPTH_1_MM, w, h, fps_}};
+    }
+    if (feed_->has_raw()) depth_modes_.push_back({ONI_PIXEL_FORMAT_SHIFT_9_2, w, h, fps_});
+    has_depth_ = !depth_modes_.empty();
     ir_modes_ = {{ONI_PIXEL_FORMAT_GRAY16, w, h, fps_}};
     if (has_depth_) sensors_.push_back({ONI_SENSOR_DEPTH, static_cast<int>(depth_modes_.size()), depth_modes_.data()});
     if (has_ir_) sensors_.push_back({ONI_SENSOR_IR, static_cast<int>(ir_modes_.size()), ir_modes_.data()});
@@ -439,6 +447,8 @@ class VirtualDevice : public oni::driver::DeviceBase {
       if (!s->started()) continue;
       if (s->type() == ONI_SENSOR_IR) {
         s->Send(frame.ir, frame_index, timestamp_us);
+      } else if (s->mode().pixelFormat == ONI_PIXEL_FORMAT_SHIFT_9_2) {
+        s->Send(frame.raw, frame_index, timestamp_us);
       } else {
         const DepthUnit unit = s->mode().pixelFormat == ONI_PIXEL_FORMAT_DEPTH_1_MM ? DepthUnit::k1mm : DepthUnit::k100um;
         cv::Mat counts(frame.depth_m.size(), CV_16U);
@@ -567,6 +577,7 @@ OniStatus VirtualStream::getProperty(int id, void* data, int* size) {
     case ONI_STREAM_PROPERTY_VERTICAL_FOV:
       return Answer(static_cast<float>(2.0 * std::atan(c.height / (2.0 * c.fy))), data, size);
     case ONI_STREAM_PROPERTY_MAX_VALUE:
+      if (depth && mode_.pixelFormat == ONI_PIXEL_FORMAT_SHIFT_9_2) return Answer(static_cast<int>(kRawInvalid), data, size);
       return Answer(depth ? (mode_.pixelFormat == ONI_PIXEL_FORMAT_DEPTH_1_MM ? 10000 : 65535) : 1023, data, size);
     case ONI_STREAM_PROPERTY_MIN_VALUE:
       return Answer(0, data, size);

@@ -133,6 +133,7 @@ std::string OpenNI2SourceOptions::Problem() const {
   if (width < 0 || height < 0 || fps < 0) return bad("width/height/fps", std::to_string(width) + "/" + std::to_string(height) + "/" + std::to_string(fps), "must be >= 0 (0 = default)");
   if ((width == 0) != (height == 0)) return bad("width/height", std::to_string(width) + "/" + std::to_string(height), "give both or neither");
   if (!depth && !ir) return bad("depth/ir", "false/false", "at least one stream must be opened");
+  if (raw && !depth) return bad("raw", "true", "reads the depth stream: needs depth = true");
   if (!(timeout_s > 0.0 && timeout_s <= 3600.0)) return bad("timeout_s", std::to_string(timeout_s), "must be in (0, 3600]");
   if (max_frames < 0) return bad("max_frames", std::to_string(max_frames), "must be >= 0 (0 = no limit)");
   if (camera) {
@@ -221,6 +222,8 @@ struct OpenNI2Source::Impl {
     std::vector<openni::PixelFormat> formats;
     if (type == openni::SENSOR_IR) {
       formats = {openni::PIXEL_FORMAT_GRAY16};
+    } else if (options.raw) {
+      formats = {openni::PIXEL_FORMAT_SHIFT_9_2};
     } else if (options.depth_unit) {
       formats = {*options.depth_unit == DepthUnit::k100um ? openni::PIXEL_FORMAT_DEPTH_100_UM : openni::PIXEL_FORMAT_DEPTH_1_MM};
     } else {
@@ -317,8 +320,16 @@ OpenNI2Source::OpenNI2Source(const OpenNI2SourceOptions& options) : impl_(std::m
       throw InputError(s.name, "video mode", "the device refused " + ModeString(primary_type, s.mode) + ": " + ExtendedError());
     }
   }
-  if (options.depth) {
+  if (options.depth && options.raw) {
     const openni::PixelFormat f = s.depth.getVideoMode().getPixelFormat();
+    if (f != openni::PIXEL_FORMAT_SHIFT_9_2) {
+      throw InputError(s.name, "depth stream", std::string("pixel format ") + FormatName(f) + ", not the raw shifts (shift9.2) asked for");
+    }
+  } else if (options.depth) {
+    const openni::PixelFormat f = s.depth.getVideoMode().getPixelFormat();
+    if (f == openni::PIXEL_FORMAT_SHIFT_9_2) {
+      throw InputError(s.name, "depth stream", "holds the chip's raw shifts (shift9.2); read them with raw = true (--raw)");
+    }
     if (!IsDepthFormat(f)) throw InputError(s.name, "depth stream", std::string("pixel format ") + FormatName(f) + " is not a depth unit (1mm or 100um)");
     s.unit = f == openni::PIXEL_FORMAT_DEPTH_100_UM ? DepthUnit::k100um : DepthUnit::k1mm;
     if (s.file && options.depth_unit && *options.depth_unit != s.unit) {
@@ -442,7 +453,7 @@ std::string OpenNI2Source::Describe() const {
   d << (s.file ? "OpenNI2 recording " : "OpenNI2 device ") << info.getUri() << " (" << info.getVendor() << ' '
     << info.getName() << "), " << s.mode.getResolutionX() << 'x' << s.mode.getResolutionY() << " @"
     << s.mode.getFps() << " Hz";
-  if (s.options.depth) d << ", depth in " << ToString(s.unit);
+  if (s.options.depth) d << (s.options.raw ? std::string(", raw shifts") : std::string(", depth in ") + ToString(s.unit));
   if (s.options.ir) d << ", IR";
   if (s.total_frames > 0) d << ", " << s.total_frames << " frames";
   if (s.chip.zero_plane_distance_m || s.chip.emitter_camera_distance_m) d << "; chip: " << s.chip.Describe();
@@ -496,11 +507,15 @@ FrameStatus OpenNI2Source::Next(Frame* frame, std::string* error) {
   if (s.options.depth) {
     if (!check_size(primary, "depth")) return FrameStatus::kBadFrame;
     const cv::Mat counts = copy16(primary);
-    frame->depth_m.create(h, w, CV_32F);
-    for (int v = 0; v < h; ++v) {
-      const uint16_t* in = counts.ptr<uint16_t>(v);
-      float* out = frame->depth_m.ptr<float>(v);
-      for (int u = 0; u < w; ++u) out[u] = DequantizeDepth(in[u], s.unit);
+    if (s.options.raw) {
+      frame->raw = counts;  // the chip's shifts as sent
+    } else {
+      frame->depth_m.create(h, w, CV_32F);
+      for (int v = 0; v < h; ++v) {
+        const uint16_t* in = counts.ptr<uint16_t>(v);
+        float* out = frame->depth_m.ptr<float>(v);
+        for (int u = 0; u < w; ++u) out[u] = DequantizeDepth(in[u], s.unit);
+      }
     }
     if (s.options.ir) {
       // Pair by frame number: older IR frames are skipped, a newer one waits for its depth.

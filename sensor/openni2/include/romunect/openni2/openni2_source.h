@@ -4,7 +4,8 @@
 // mirroring off, leaves depth in the IR camera's geometry (registration off: the PS1080 computes
 // depth in that camera), and reads the chip's geometry (zero plane, baseline) for calibration.
 //
-// Frames: depth_m CV_32F metres from the wire's 1 mm or 100 um counts (depth_units.h), ir
+// Frames: depth_m CV_32F metres from the wire's 1 mm or 100 um counts (depth_units.h) (or,
+// with `raw`, raw CV_16U: the chip's 11-bit shifts as sent), ir
 // CV_16U as sent (GRAY16), index = device frame number - first one (or - 1 for sources that
 // announce their length, which number frames from 1; gaps = dropped frames),
 // time_s = (device timestamp - first timestamp), exact to OpenNI2's microsecond. No poses: wrap
@@ -32,6 +33,10 @@ struct OpenNI2SourceOptions {
   int width = 0, height = 0, fps = 0;
   bool depth = true;  // open the depth stream
   bool ir = true;     // open the IR stream (GRAY16, same size as depth)
+  // Read the depth stream in the PS1080's raw shift format (ONI_PIXEL_FORMAT_SHIFT_9_2: the
+  // chip's 11-bit values, 2047 = none) into Frame::raw instead of metric depth_m, for the
+  // calibration's exact depth model. Recordings play in the format they hold.
+  bool raw = false;
   // Wire unit of depth; nullopt = 100 um when offered, else 1 mm.
   std::optional<DepthUnit> depth_unit;
   double timeout_s = 2.0;  // longest wait for a frame before the device counts as gone
