@@ -105,22 +105,24 @@ namespace {
 // Borders reflect (cv::BORDER_REFLECT). The float arithmetic per pixel runs in a loop of its own
 // so that it vectorizes.
 // Rows [y_begin, y_end) of DepthEngine::Prefilter, into allocated outputs: row bands give the
-// same bytes as the whole image (exact sums), so threads can split it.
-void PrefilterRows(const cv::Mat& ir, int window_px, int y_begin, int y_end, cv::Mat* normalized,
-                   cv::Mat* local_sigma) {
+// same bytes as the whole image (exact sums), so threads can split it. Sums of squares per
+// column in SqColumn, per window in SqWindow (see PrefilterRows).
+template <typename SqColumn, typename SqWindow>
+void PrefilterRowsIn(const cv::Mat& ir, int window_px, int y_begin, int y_end, cv::Mat* normalized,
+                     cv::Mat* local_sigma) {
   const int W = ir.cols, H = ir.rows, r = window_px / 2;
   const double inv_area = 1.0 / (window_px * window_px);
   // Per column, the sums over the window's rows; r reflected columns added on each side.
   std::vector<int32_t> sum(W + 2 * r, 0);
-  std::vector<double> sum_sq(W + 2 * r, 0.0);  // integers below 2^53: exact
+  std::vector<SqColumn> sum_sq(W + 2 * r, 0);
   std::vector<float> mean(W), mean_sq(W);
   auto add_row = [&](int y, bool add) {
     const uint16_t* v = ir.ptr<uint16_t>(cv::borderInterpolate(y, H, cv::BORDER_REFLECT));
     int32_t* s = sum.data() + r;
-    double* q = sum_sq.data() + r;
+    SqColumn* q = sum_sq.data() + r;
     for (int x = 0; x < W; ++x) {
       const float f = v[x];
-      const double f2 = f * f;
+      const SqColumn f2 = static_cast<SqColumn>(f * f);
       s[x] += add ? v[x] : -v[x];
       q[x] += add ? f2 : -f2;
     }
@@ -140,18 +142,18 @@ void PrefilterRows(const cv::Mat& ir, int window_px, int y_begin, int y_end, cv:
       sum_sq[r + W + k] = sum_sq[right];
     }
     int32_t window = 0;
-    int64_t window_sq = 0;
+    SqWindow window_sq = 0;
     for (int k = 0; k < 2 * r; ++k) {
       window += sum[k];
-      window_sq += static_cast<int64_t>(sum_sq[k]);
+      window_sq += static_cast<SqWindow>(sum_sq[k]);
     }
     for (int x = 0; x < W; ++x) {
       window += sum[x + 2 * r];
-      window_sq += static_cast<int64_t>(sum_sq[x + 2 * r]);
+      window_sq += static_cast<SqWindow>(sum_sq[x + 2 * r]);
       mean[x] = static_cast<float>(window * inv_area);
       mean_sq[x] = static_cast<float>(static_cast<double>(window_sq) * inv_area);
       window -= sum[x];
-      window_sq -= static_cast<int64_t>(sum_sq[x]);
+      window_sq -= static_cast<SqWindow>(sum_sq[x]);
     }
     const uint16_t* v = ir.ptr<uint16_t>(y);
     float* sigma_row = local_sigma->ptr<float>(y);
@@ -169,6 +171,24 @@ void PrefilterRows(const cv::Mat& ir, int window_px, int y_begin, int y_end, cv:
   }
 }
 
+// Whether PrefilterRows may sum squares in 32 bits: values below 2^12 (10-bit IR) square
+// exactly in float, and a window of at most 11 x 11 of them sums below 2^31.
+bool SquaresFit32Bits(const cv::Mat& ir, int window_px) {
+  double max_value = 0.0;
+  cv::minMaxLoc(ir, nullptr, &max_value);
+  return max_value < 4096.0 && window_px <= 11;
+}
+
+void PrefilterRows(const cv::Mat& ir, int window_px, bool squares_fit_32_bits, int y_begin, int y_end,
+                   cv::Mat* normalized, cv::Mat* local_sigma) {
+  if (squares_fit_32_bits) {
+    PrefilterRowsIn<int32_t, int32_t>(ir, window_px, y_begin, y_end, normalized, local_sigma);
+  } else {
+    // Float-rounded squares of 16-bit values: integers below 2^53, exact in double and int64.
+    PrefilterRowsIn<double, int64_t>(ir, window_px, y_begin, y_end, normalized, local_sigma);
+  }
+}
+
 double ThreadCpuSeconds() {
   timespec t;
   clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
@@ -181,7 +201,7 @@ void DepthEngine::Prefilter(const cv::Mat& ir, int window_px, cv::Mat* normalize
   ROMUNECT_CHECK(ir.type() == CV_16UC1);
   local_sigma->create(ir.size(), CV_32F);
   normalized->create(ir.size(), CV_8U);
-  PrefilterRows(ir, window_px, 0, ir.rows, normalized, local_sigma);
+  PrefilterRows(ir, window_px, SquaresFit32Bits(ir, window_px), 0, ir.rows, normalized, local_sigma);
 }
 
 DepthEngine::DepthEngine(const DepthEngineOptions& options)
@@ -279,9 +299,10 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
   std::vector<double> thread_cpu_s(threads, 0.0);
   frame_norm_.create(ir.size(), CV_8U);
   frame_sigma_.create(ir.size(), CV_32F);
+  const bool squares_fit_32_bits = SquaresFit32Bits(ir, options_.prefilter_px);
   ParallelRows(threads, H, [&](int row_begin, int row_end) {
     const double cpu_start = ThreadCpuSeconds();
-    PrefilterRows(ir, options_.prefilter_px, row_begin, row_end, &frame_norm_, &frame_sigma_);
+    PrefilterRows(ir, options_.prefilter_px, squares_fit_32_bits, row_begin, row_end, &frame_norm_, &frame_sigma_);
     thread_cpu_s[thread_of(row_begin, H)] += ThreadCpuSeconds() - cpu_start;
   });
   out->raw.create(ir.size(), CV_16U);

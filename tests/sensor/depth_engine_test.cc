@@ -156,17 +156,20 @@ TEST(DepthEngineTest, EveryKernelAndThreadCountGivesTheSameBytes) {
 }
 
 TEST(DepthEngineTest, PrefilterEqualsTheBoxFilterReference) {
-  // Exact integer box sums against cv::boxFilter on floats: the same bytes, on 10-bit images,
-  // on full 16-bit ones (squares above 2^24 round in float) and on flat ones, at odd sizes.
+  // Exact integer box sums against cv::boxFilter on floats: the same bytes, on 10-bit and
+  // 12-bit images (32-bit sums up to 11 x 11 windows), on full 16-bit ones (squares above 2^24
+  // round in float) and on flat ones, at odd sizes.
   std::mt19937 rng(5);
-  for (int trial = 0; trial < 6; ++trial) {
+  const int windows[] = {3, 9, 11, 13, 31, 9, 11, 5};
+  const int max_values[] = {1023, 1023, 4095, 1023, 4095, 65535, 65535, 1023};
+  for (int trial = 0; trial < 8; ++trial) {
     const int width = 40 + static_cast<int>(rng() % 300), height = 33 + static_cast<int>(rng() % 200);
-    const int window = 3 + 2 * static_cast<int>(rng() % 15);
-    const int max_value = trial % 3 == 0 ? 65535 : 1023;
+    const int window = windows[trial];
+    const int max_value = max_values[trial];
     cv::Mat ir(height, width, CV_16U);
     for (int y = 0; y < height; ++y) {
       for (int x = 0; x < width; ++x) {
-        ir.at<uint16_t>(y, x) = trial == 5 ? static_cast<uint16_t>(300 + x % 3) : static_cast<uint16_t>(rng() % (max_value + 1));
+        ir.at<uint16_t>(y, x) = trial == 7 ? static_cast<uint16_t>(300 + x % 3) : static_cast<uint16_t>(rng() % (max_value + 1));
       }
     }
     cv::Mat n, sigma, n_ref, sigma_ref;
