@@ -23,6 +23,7 @@
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/rig.h"
+#include "romunect/sim/frame_pipeline.h"
 #include "romunect/sim/pick.h"
 #include "romunect/sim/scanner.h"
 #include "romunect/sim/sensor_imager.h"
@@ -40,6 +41,7 @@ struct ScanArguments {
   int samples = 1;
   double voxel_m = 0.25e-3;
   bool ideal_depth = false;
+  std::string sweep = "columns";
 };
 
 double Seconds(std::chrono::steady_clock::time_point since) {
@@ -58,13 +60,12 @@ Rig ResolveRig(const std::string& rig) {
   return LoadRig(rig);
 }
 
-// The fusion box: the paper's 150 x 80 mm region centred on the bin, from just under its floor
-// to above its rim.
-fusion::GridOptions FusionBox(const sim::World& world, double voxel_m) {
+// The fusion box: the scan's region (the paper's 150 x 80 mm around the bin) and heights.
+fusion::GridOptions FusionBox(const sim::World& world, const sim::ApproachOptions& approach, double voxel_m) {
+  const sim::ScanBox region = sim::ScanRegionBox(world, approach);
   fusion::GridOptions box;
-  const Eigen::Vector3d floor_W = world.T_W_Bin().translation();
-  box.min_W = floor_W + Eigen::Vector3d(-0.075, -0.040, -0.004);
-  box.max_W = floor_W + Eigen::Vector3d(0.075, 0.040, 0.060);
+  box.min_W = region.min_W;
+  box.max_W = region.max_W;
   box.voxel_m = voxel_m;
   return box;
 }
@@ -107,6 +108,11 @@ void RunScan(const ScanArguments& args) {
   options.seed = args.seed;
   options.threads = args.threads;
   options.samples_per_pixel = args.samples;
+  if (args.sweep != "columns" && args.sweep != "levels") {
+    throw InputError("--sweep", "", "'" + args.sweep + "' is not columns or levels");
+  }
+  options.approach.sweep =
+      args.sweep == "levels" ? sim::ApproachOptions::Sweep::kLevels : sim::ApproachOptions::Sweep::kColumns;
   // A calibration replaces the simulator's truth wherever the real system would use it: the
   // projector's pre-warp, the depth correction, the camera model and the hand-eye pose that
   // fusion uses. The simulated hardware itself stays the rig.
@@ -154,7 +160,8 @@ void RunScan(const ScanArguments& args) {
   const CameraModel camera = calibration ? calibration->camera : scanner.camera();
   const Pose T_W_B = scanner.world().T_W_B();
   FrameDirectoryWriter writer(work_dir / "frames", camera);
-  fusion::VotingGrid grid(FusionBox(scanner.world(), args.voxel_m));
+  const fusion::GridOptions box = FusionBox(scanner.world(), scanner.options().approach, args.voxel_m);
+  fusion::VotingGrid grid(box);
   fusion::FrameInserter inserter(&grid, fusion::InserterOptions{args.threads});
   fusion::InsertStats insert_stats;
 
@@ -164,27 +171,32 @@ void RunScan(const ScanArguments& args) {
                grid.voxel_m() * 1e3);
   const bool interactive = isatty(fileno(stderr));
   const auto t_loop = std::chrono::steady_clock::now();
+  // A two-stage pipeline on the cores: the simulator (physics, rendering, imaging) produces
+  // the next frames on its own thread while this one fuses, and the frame directory is written
+  // on a third. Frames keep their order and content, so a seed gives the same bytes.
+  sim::PrefetchingSource source(&scanner);
+  sim::FrameWorker frame_writer([&writer](const Frame& f) { writer.Add(f); });
   Frame frame;
   std::string error;
   for (;;) {
-    const FrameStatus status = scanner.Next(&frame, &error);
+    const FrameStatus status = source.Next(&frame, &error);
     if (status == FrameStatus::kEndOfStream) break;
     if (status == FrameStatus::kBadFrame) {
-      report.bad_frames.push_back(error);
+      report.fusion.bad_frame_messages.push_back(error);
+      ++report.fusion.bad_frames;
       continue;
     }
     if (calibration) frame.T_W_C = T_W_B * *frame.T_B_H * calibration->T_H_C;
-    auto t = std::chrono::steady_clock::now();
-    writer.Add(frame);
-    report.write_s += Seconds(t);
+    frame_writer.Push(frame);
 
-    t = std::chrono::steady_clock::now();
+    auto t = std::chrono::steady_clock::now();
     inserter.Insert(camera, frame.depth_m, *frame.T_W_C, &insert_stats);
-    report.insert_ms.push_back(1e3 * Seconds(t));
+    report.fusion.insert_ms.push_back(1e3 * Seconds(t));
+    ++report.fusion.frames;
     t = std::chrono::steady_clock::now();
     const cv::Mat height = fusion::ExtractHeightMap(grid);
     report.extract_each_ms.push_back(1e3 * Seconds(t));
-    report.completeness_per_frame.push_back(fusion::Completeness(height));
+    report.fusion.completeness_per_frame.push_back(fusion::Completeness(height));
     report.valid_fraction_per_frame.push_back(static_cast<double>(cv::countNonZero(frame.depth_m)) /
                                               frame.depth_m.total());
     report.sample_depths.Offer(frame, report.valid_fraction_per_frame.back());
@@ -193,21 +205,29 @@ void RunScan(const ScanArguments& args) {
     if (interactive || (frame.index + 1) % 10 == 0 || frame.index + 1 == total) {
       std::fprintf(stderr, "%sscan: frame %3d/%d  valid %5.1f %%  fused completeness %5.1f %%  (%.1f s)%s",
                    interactive ? "\r" : "", frame.index + 1, total, 100.0 * report.valid_fraction_per_frame.back(),
-                   100.0 * report.completeness_per_frame.back(), Seconds(t_loop), interactive ? "" : "\n");
+                   100.0 * report.fusion.completeness_per_frame.back(), Seconds(t_loop), interactive ? "" : "\n");
     }
   }
-  if (interactive) std::fprintf(stderr, "\n");
+  frame_writer.Finish();
   report.loop_wall_s = Seconds(t_loop);
+  if (interactive) std::fprintf(stderr, "\n");
+  report.write_s = frame_writer.busy_s();
+  report.wait_s = source.wait_s();
   writer.Finish();
 
   auto t = std::chrono::steady_clock::now();
   report.height_m = fusion::ExtractHeightMap(grid);
-  report.extract_ms = 1e3 * Seconds(t);
-  report.geometry = grid.geometry();
-  const sim::HeightMapLayout layout{report.geometry.min_x_m, report.geometry.min_y_m, report.geometry.voxel_m,
-                                    report.geometry.nx, report.geometry.ny};
+  report.fusion.extract_ms = 1e3 * Seconds(t);
+  report.fusion.input = "simulation (" + args.rig + " rig, seed " + std::to_string(args.seed) + ")";
+  report.fusion.geometry = grid.geometry();
+  report.fusion.max_x_m = box.max_W.x();
+  report.fusion.max_y_m = box.max_W.y();
+  report.fusion.max_z_m = box.max_W.z();
+  const fusion::HeightMapGeometry& g = report.fusion.geometry;  // the same fields, in sensor/height_map.h
+  const HeightMapGeometry layout{g.min_x_m, g.min_y_m, g.min_z_m, g.voxel_m, g.nx, g.ny, g.nz};
   report.gt_height_m = sim::GroundTruthHeightMap(scanner.world(), layout);
-  report.metrics = fusion::CompareHeightMaps(report.height_m, report.gt_height_m);
+  report.fusion.metrics = fusion::CompareHeightMaps(report.height_m, report.gt_height_m);
+  report.fusion.completeness = report.fusion.metrics->completeness;
   report.overview = sim::OverviewPicture(scanner.world());
 
   std::fprintf(stderr, "scan: picking from the fused height map...\n");
@@ -215,14 +235,15 @@ void RunScan(const ScanArguments& args) {
   std::fprintf(stderr, "scan: %s\n", report.pick.BriefReport().c_str());
 
   report.scan_stats = scanner.stats();
-  report.insert_stats = insert_stats;
+  report.fusion.stats = insert_stats;
   report.scan_description = scanner.Describe();
   report.rig_name = options.rig.name;
   report.seed = args.seed;
   report.objects = args.objects;
-  report.threads = args.threads;
+  report.fusion.threads = args.threads;
   report.samples = args.samples;
-  report.peak_rss_mb = fusion::PeakRssMb();
+  report.fusion.peak_rss_mb = fusion::PeakRssMb();
+  report.fusion.grid_mb = grid.memory_bytes() / 1e6;
   report.total_wall_s = Seconds(t_start);
   WriteScanOutputs(work_dir, report);
 
@@ -250,6 +271,10 @@ void AddScanCommand(CLI::App& app) {
   cmd->add_option("--threads", args->threads, "Threads for rendering, imaging and fusion")->capture_default_str();
   cmd->add_option("--samples", args->samples, "Render samples per pixel: 1, or 4 (thin lens)")->capture_default_str();
   cmd->add_option("--voxel", args->voxel_m, "Fusion voxel size, metres")->capture_default_str();
+  cmd->add_option("--sweep", args->sweep,
+                  "How the approach visits the stand-off levels: columns (through all levels at each pass "
+                  "centre) or levels (a serpentine per level)")
+      ->capture_default_str();
   cmd->add_flag("--ideal-depth", args->ideal_depth, "Fuse ground-truth depth instead of the sensor's (debugging)");
   cmd->callback([args] { RunScan(*args); });
 }

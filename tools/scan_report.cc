@@ -11,6 +11,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "romunect/fusion/outputs.h"
+#include "romunect/sensor/check.h"
 #include "romunect/sensor/image_io.h"
 
 namespace romunect::tools {
@@ -27,43 +28,30 @@ std::string Format(const char* format, double value) {
   return buffer;
 }
 
-json CompletenessAfter(const std::vector<double>& curve, int frames) {
-  if (static_cast<int>(curve.size()) < frames) return nullptr;
-  return curve[frames - 1];
+// Frames are counted from the first that holds depth (SampleDepths' threshold), as the
+// paper counts fused depth maps: the descent from 400 mm starts above the focused range.
+int FirstFrameWithDepth(const ScanReport& r) {
+  for (size_t i = 0; i < r.valid_fraction_per_frame.size(); ++i) {
+    if (r.valid_fraction_per_frame[i] >= SampleDepths::kMinValidFraction) return static_cast<int>(i);
+  }
+  return 0;
 }
 
-// A depth map (CV_32F, metres, 0 or NaN = none) colour-mapped over [lo, hi]; no value is white,
-// as in the paper's figure 2. `flip` puts row 0 at the bottom (height maps: +y up).
-cv::Mat ColourMap(const cv::Mat& depth, double lo, double hi, bool flip) {
-  cv::Mat levels(depth.size(), CV_8UC1), valid(depth.size(), CV_8UC1);
-  for (int r = 0; r < depth.rows; ++r) {
-    const int src = flip ? depth.rows - 1 - r : r;
-    for (int c = 0; c < depth.cols; ++c) {
-      const float z = depth.at<float>(src, c);
-      const bool ok = std::isfinite(z) && z != 0.0f;
-      valid.at<uint8_t>(r, c) = ok;
-      levels.at<uint8_t>(r, c) = ok ? cv::saturate_cast<uint8_t>(255.0 * (z - lo) / (hi - lo)) : 0;
-    }
-  }
-  cv::Mat coloured;
-  cv::applyColorMap(levels, coloured, cv::COLORMAP_TURBO);
-  coloured.setTo(cv::Scalar(255, 255, 255), valid == 0);
-  return coloured;
+json CompletenessAfter(const ScanReport& r, int frames) {
+  const std::vector<double>& curve = r.fusion.completeness_per_frame;
+  const int last = FirstFrameWithDepth(r) + frames - 1;
+  if (static_cast<int>(curve.size()) <= last) return nullptr;
+  return curve[last];
 }
 
-void Range(const cv::Mat& m, double* lo, double* hi) {
-  *lo = std::numeric_limits<double>::infinity();
-  *hi = -*lo;
-  for (int r = 0; r < m.rows; ++r) {
-    for (int c = 0; c < m.cols; ++c) {
-      const float z = m.at<float>(r, c);
-      if (!std::isfinite(z) || z == 0.0f) continue;
-      *lo = std::min<double>(*lo, z);
-      *hi = std::max<double>(*hi, z);
-    }
-  }
-  if (!(*lo <= *hi)) *lo = *hi = 0.0;
-  if (*hi - *lo < 1e-6) *hi = *lo + 1e-6;
+// Figure 2 shows no value in white, as the paper does.
+const cv::Vec3b kWhite(255, 255, 255);
+
+// A depth map (CV_32F, metres, 0 or NaN = none) over its own range.
+cv::Mat ColourDepth(const cv::Mat& depth_m) {
+  double lo, hi;
+  fusion::ValueRange(depth_m, /*zero_is_empty=*/true, &lo, &hi);
+  return fusion::ColourMapped(depth_m, lo, hi, /*flip_rows=*/false, /*zero_is_empty=*/true, kWhite);
 }
 
 // One captioned panel, scaled to `height_px` rows.
@@ -84,16 +72,15 @@ cv::Mat Figure2(const ScanReport& r) {
   for (const auto& [depth, index] : {std::pair{&r.sample_depths.first_m, r.sample_depths.first_index},
                                      std::pair{&r.sample_depths.last_m, r.sample_depths.last_index}}) {
     if (depth->empty()) continue;
-    double lo, hi;
-    Range(*depth, &lo, &hi);
-    panels.push_back(Panel(ColourMap(*depth, lo, hi, false), height_px,
+    panels.push_back(Panel(ColourDepth(*depth), height_px,
                            "frame " + std::to_string(index) + ": " +
                                Format("%.1f %% valid", 100.0 * cv::countNonZero(*depth) / depth->total())));
   }
   double lo, hi;
-  Range(r.height_m, &lo, &hi);
-  panels.push_back(Panel(ColourMap(r.height_m, lo, hi, true), height_px,
-                         "fused, " + std::to_string(r.completeness_per_frame.size()) + " frames: " +
+  fusion::ValueRange(r.height_m, /*zero_is_empty=*/false, &lo, &hi);
+  const cv::Mat fused = fusion::ColourMapped(r.height_m, lo, hi, /*flip_rows=*/true, /*zero_is_empty=*/false, kWhite);
+  panels.push_back(Panel(fused, height_px,
+                         "fused, " + std::to_string(r.fusion.completeness_per_frame.size()) + " frames: " +
                              Format("%.1f %% complete", 100.0 * fusion::Completeness(r.height_m))));
   for (cv::Mat& p : panels) cv::copyMakeBorder(p, p, 0, 0, 0, 12, cv::BORDER_CONSTANT, cv::Scalar(255, 255, 255));
   cv::Mat figure;
@@ -110,7 +97,8 @@ cv::Mat ErrorPicture(const cv::Mat& fused_m, const cv::Mat& gt_m) {
       if (std::isfinite(f) && std::isfinite(g)) error.at<float>(r, c) = f - g;
     }
   }
-  return Panel(ColourMap(error, -2e-3, 2e-3, true), 320, "fused - ground truth, -2 mm (blue) .. +2 mm (red)");
+  return Panel(fusion::ColourMapped(error, -2e-3, 2e-3, /*flip_rows=*/true, /*zero_is_empty=*/false, kWhite), 320,
+               "fused - ground truth, -2 mm (blue) .. +2 mm (red)");
 }
 
 std::string Base64(const std::vector<uchar>& bytes) {
@@ -137,6 +125,7 @@ std::string InlinePng(const fs::path& file) {
 }
 
 std::string Html(const ScanReport& r, const fs::path& dir) {
+  const fusion::HeightMapMetrics& m = *r.fusion.metrics;
   const json j = json::parse(ScanReportJson(r));
   std::ostringstream h;
   auto cell = [](const json& v, const char* format, double scale = 1.0) {
@@ -147,18 +136,20 @@ std::string Html(const ScanReport& r, const fs::path& dir) {
        "td,th{border:1px solid #bbb;padding:4px 10px;text-align:right}th{background:#eee}"
        "img{max-width:100%;border:1px solid #ddd;margin:4px 0}</style></head><body>";
   h << "<h1>romunect scan</h1><p>" << r.scan_description << "<br>rig <b>" << r.rig_name << "</b>, seed "
-    << r.seed << ", " << r.objects << " objects, " << r.threads << " threads, " << r.samples
+    << r.seed << ", " << r.objects << " objects, " << r.fusion.threads << " threads, " << r.samples
     << " sample(s) per pixel.<br>Depth correction: " << r.depth_correction << "</p>";
   h << "<h2>Completeness (the paper's table 1)</h2><table><tr><th>frames</th>";
   for (int n : kTableFrames) h << "<th>" << n << "</th>";
-  h << "<th>all (" << r.completeness_per_frame.size() << ")</th></tr><tr><th>completeness [%]</th>";
-  for (int n : kTableFrames) h << "<td>" << cell(CompletenessAfter(r.completeness_per_frame, n), "%.2f", 100.0) << "</td>";
-  h << "<td>" << Format("%.2f", 100.0 * r.metrics.completeness) << "</td></tr></table>";
+  h << "<th>all (" << r.fusion.completeness_per_frame.size() << ")</th></tr><tr><th>completeness [%]</th>";
+  for (int n : kTableFrames) h << "<td>" << cell(CompletenessAfter(r, n), "%.2f", 100.0) << "</td>";
+  h << "<td>" << Format("%.2f", 100.0 * m.completeness) << "</td></tr></table><p>Frames are counted from "
+    << "frame " << FirstFrameWithDepth(r) << ", the first that holds depth (the descent starts above the focused "
+    << "range).</p>";
   h << InlinePng(dir / "completeness.png");
   h << "<h2>Accuracy against ground truth</h2><table><tr><th>RMSE [mm]</th><th>MAE [mm]</th><th>within 1 mm</th>"
        "<th>cells compared</th></tr><tr><td>"
-    << Format("%.3f", r.metrics.rmse_mm) << "</td><td>" << Format("%.3f", r.metrics.mae_mm) << "</td><td>"
-    << Format("%.1f %%", 100.0 * r.metrics.within_1mm) << "</td><td>" << r.metrics.compared_cells
+    << Format("%.3f", m.rmse_mm) << "</td><td>" << Format("%.3f", m.mae_mm) << "</td><td>"
+    << Format("%.1f %%", 100.0 * m.within_1mm) << "</td><td>" << m.compared_cells
     << "</td></tr></table>";
   h << "<h2>Depth maps</h2>" << InlinePng(dir / "figure2.png") << InlinePng(dir / "fused_depth.png")
     << InlinePng(dir / "error.png");
@@ -178,6 +169,8 @@ std::string Html(const ScanReport& r, const fs::path& dir) {
 }  // namespace
 
 std::string ScanReportJson(const ScanReport& r) {
+  ROMUNECT_CHECK(r.fusion.metrics.has_value());
+  const fusion::HeightMapMetrics& m = *r.fusion.metrics;
   json j;
   j["format"] = "romunect-scan-report";
   j["version"] = 1;
@@ -188,19 +181,17 @@ std::string ScanReportJson(const ScanReport& r) {
   j["rig"] = r.rig_name;
   j["seed"] = r.seed;
   j["objects"] = r.objects;
-  j["threads"] = r.threads;
   j["samples_per_pixel"] = r.samples;
   j["depth_correction"] = r.depth_correction;
-  j["frames"] = r.completeness_per_frame.size();
-  j["bad_frames"] = r.bad_frames;
+  j["frames"] = r.fusion.completeness_per_frame.size();
   json table = json::object();
-  for (int n : kTableFrames) table["after_" + std::to_string(n)] = CompletenessAfter(r.completeness_per_frame, n);
+  for (int n : kTableFrames) table["after_" + std::to_string(n)] = CompletenessAfter(r, n);
   j["table1_completeness"] = table;
-  j["completeness_per_frame"] = r.completeness_per_frame;
+  j["table1_first_frame"] = FirstFrameWithDepth(r);  // frames counted from this one (holds depth)
   j["valid_fraction_per_frame"] = r.valid_fraction_per_frame;
-  j["accuracy"] = {{"completeness", r.metrics.completeness}, {"rmse_mm", r.metrics.rmse_mm},
-                   {"mae_mm", r.metrics.mae_mm},           {"within_1mm", r.metrics.within_1mm},
-                   {"cells", r.metrics.cells},             {"compared_cells", r.metrics.compared_cells}};
+  j["accuracy"] = {{"completeness", m.completeness}, {"rmse_mm", m.rmse_mm},
+                   {"mae_mm", m.mae_mm},           {"within_1mm", m.within_1mm},
+                   {"cells", m.cells},             {"compared_cells", m.compared_cells}};
   json pick = {{"grasp_found", r.pick.grasp_found}, {"contact", r.pick.contact}, {"object", r.pick.object},
                {"success", r.pick.success},         {"failure", r.pick.failure}};
   if (r.pick.grasp_found) {
@@ -212,7 +203,7 @@ std::string ScanReportJson(const ScanReport& r) {
   j["pick"] = pick;
   const sim::ScanStats& s = r.scan_stats;
   double fusion_s = 0.0;
-  for (double ms : r.insert_ms) fusion_s += ms / 1e3;
+  for (double ms : r.fusion.insert_ms) fusion_s += ms / 1e3;
   for (double ms : r.extract_each_ms) fusion_s += ms / 1e3;
   j["timings_s"] = {{"settle_wall", s.settle.wall_s},
                     {"setup", s.setup_s},
@@ -220,24 +211,18 @@ std::string ScanReportJson(const ScanReport& r) {
                     {"rendering", s.render_s},
                     {"imaging (IR synthesis + depth engine)", s.imaging_s},
                     {"fusion (insert + extract per frame)", fusion_s},
-                    {"frame directory writing", r.write_s},
+                    {"frame directory writing (own thread)", r.write_s},
+                    {"fusion waiting for the simulator (pipelined)", r.wait_s},
                     {"picking", r.pick.wall_s},
                     {"total", r.total_wall_s}};
   j["realtime"] = {{"simulated_s", s.simulated_s},
                    {"loop_wall_s", r.loop_wall_s},
                    {"factor", r.loop_wall_s > 0 ? s.simulated_s / r.loop_wall_s : 0.0}};
-  j["fusion"] = {{"voxel_m", r.geometry.voxel_m},
-                 {"grid", {r.geometry.nx, r.geometry.ny, r.geometry.nz}},
-                 {"insert_ms", {{"median", fusion::Quantile(r.insert_ms, 0.5)},
-                                {"p90", fusion::Quantile(r.insert_ms, 0.9)},
-                                {"max", fusion::Quantile(r.insert_ms, 1.0)}}},
-                 {"extract_ms", r.extract_ms},
-                 {"stats", r.insert_stats.BriefReport()}};
+  j["fusion"] = json::parse(fusion::FusionReportJson(r.fusion));
   j["settle"] = s.settle.BriefReport();
   j["tracking"] = {{"max_position_error_mm", 1e3 * s.tracking.max_position_error_m},
                    {"rms_position_error_mm", 1e3 * s.tracking.rms_position_error_m},
                    {"max_angle_error_deg", s.tracking.max_angle_error_rad * 180.0 / M_PI}};
-  j["peak_rss_mb"] = r.peak_rss_mb;
   j["outputs"] = {"frames/", "fused_depth.exr", "fused_depth.png", "fused_points.ply", "gt_height.exr",
                   "figure2.png", "error.png", "overview.png", "completeness.png", "report.html"};
   return j.dump(1) + "\n";
@@ -245,10 +230,10 @@ std::string ScanReportJson(const ScanReport& r) {
 
 void WriteScanOutputs(const fs::path& dir, const ScanReport& r) {
   fusion::WriteHeightMapExr(dir / "fused_depth.exr", r.height_m);
-  fusion::WriteHeightMapPicture(dir / "fused_depth.png", r.height_m, r.geometry);
-  fusion::WriteHeightMapPly(dir / "fused_points.ply", r.height_m, r.geometry);
+  fusion::WriteHeightMapPicture(dir / "fused_depth.png", r.height_m, r.fusion.geometry);
+  fusion::WriteHeightMapPly(dir / "fused_points.ply", r.height_m, r.fusion.geometry);
   fusion::WriteHeightMapExr(dir / "gt_height.exr", r.gt_height_m);
-  fusion::WriteCompletenessPlot(dir / "completeness.png", r.completeness_per_frame);
+  fusion::WriteCompletenessPlot(dir / "completeness.png", r.fusion.completeness_per_frame);
   WritePicture(dir / "figure2.png", Figure2(r));
   WritePicture(dir / "error.png", ErrorPicture(r.height_m, r.gt_height_m));
   if (!r.overview.empty()) WritePicture(dir / "overview.png", r.overview);
@@ -257,16 +242,17 @@ void WriteScanOutputs(const fs::path& dir, const ScanReport& r) {
 }
 
 std::string ScanSummary(const ScanReport& r, const fs::path& run_dir) {
+  const fusion::HeightMapMetrics& m = *r.fusion.metrics;
   std::ostringstream s;
-  s << "completeness after 1 / 20 / 50 frames:";
+  s << "completeness after 1 / 20 / 50 frames (from frame " << FirstFrameWithDepth(r) << ", the first with depth):";
   for (int n : kTableFrames) {
-    const json v = CompletenessAfter(r.completeness_per_frame, n);
+    const json v = CompletenessAfter(r, n);
     s << (v.is_null() ? std::string(" -") : Format(" %.1f %%", 100.0 * v.get<double>()));
   }
-  s << "   (all " << r.completeness_per_frame.size() << " frames: " << Format("%.1f %%", 100.0 * r.metrics.completeness)
+  s << "   (all " << r.fusion.completeness_per_frame.size() << " frames: " << Format("%.1f %%", 100.0 * m.completeness)
     << ")\n";
-  s << "accuracy vs ground truth: RMSE " << Format("%.3f", r.metrics.rmse_mm) << " mm, MAE "
-    << Format("%.3f", r.metrics.mae_mm) << " mm, " << Format("%.1f %%", 100.0 * r.metrics.within_1mm)
+  s << "accuracy vs ground truth: RMSE " << Format("%.3f", m.rmse_mm) << " mm, MAE "
+    << Format("%.3f", m.mae_mm) << " mm, " << Format("%.1f %%", 100.0 * m.within_1mm)
     << " within 1 mm\n";
   s << "pick: " << r.pick.BriefReport() << "\n";
   const double simulated = r.scan_stats.simulated_s;

@@ -13,6 +13,7 @@
 
 #include "romunect/fusion/frame_inserter.h"
 #include "romunect/fusion/metrics.h"
+#include "romunect/fusion/outputs.h"
 #include "romunect/fusion/voting_grid.h"
 #include "romunect/sensor/frame.h"
 #include "romunect/sim/pick.h"
@@ -42,18 +43,18 @@ struct ScanReport {
   std::time_t started_at = 0;
   std::string scan_description, rig_name, depth_correction;
   uint32_t seed = 0;
-  int objects = 0, threads = 0, samples = 0;
-  std::vector<std::string> bad_frames;
+  int objects = 0, samples = 0;
 
-  std::vector<double> insert_ms, extract_each_ms;
-  std::vector<double> completeness_per_frame, valid_fraction_per_frame;
+  // The fusion part as `romunect fuse` reports it (fusion/outputs.h): frames, bad frames,
+  // threads, the grid's geometry, insert and extract times, stats, completeness per frame,
+  // the metrics against ground truth (always set by the scan) and memory.
+  fusion::FusionReport fusion;
+  std::vector<double> extract_each_ms, valid_fraction_per_frame;
   SampleDepths sample_depths;
-  double write_s = 0.0, loop_wall_s = 0.0, extract_ms = 0.0, total_wall_s = 0.0, peak_rss_mb = 0.0;
+  // write_s: the frame directory's writer thread; wait_s: fusion waiting for the simulator.
+  double write_s = 0.0, wait_s = 0.0, loop_wall_s = 0.0, total_wall_s = 0.0;
 
   cv::Mat height_m, gt_height_m, overview;
-  fusion::HeightMapGeometry geometry;
-  fusion::HeightMapMetrics metrics;
-  fusion::InsertStats insert_stats;
   sim::ScanStats scan_stats;
   sim::PickResult pick;
 };

@@ -33,40 +33,68 @@ void WriteHeightMapExr(const std::filesystem::path& path, const cv::Mat& height_
   WriteDepthExr(path, height_m);
 }
 
+namespace {
+
+bool HasValue(float v, bool zero_is_empty) { return std::isfinite(v) && !(zero_is_empty && v == 0.0f); }
+
+}  // namespace
+
+cv::Mat ColourMapped(const cv::Mat& values, double lo, double hi, bool flip_rows, bool zero_is_empty,
+                     const cv::Vec3b& empty_bgr) {
+  ROMUNECT_CHECK(values.type() == CV_32FC1 && hi > lo);
+  cv::Mat levels(values.size(), CV_8UC1), empty(values.size(), CV_8UC1);
+  for (int r = 0; r < values.rows; ++r) {
+    const int src = flip_rows ? values.rows - 1 - r : r;
+    for (int c = 0; c < values.cols; ++c) {
+      const float v = values.at<float>(src, c);
+      const bool valued = HasValue(v, zero_is_empty);
+      empty.at<uint8_t>(r, c) = valued ? 0 : 255;
+      levels.at<uint8_t>(r, c) = valued ? cv::saturate_cast<uint8_t>(255.0 * (v - lo) / (hi - lo)) : 0;
+    }
+  }
+  cv::Mat coloured;
+  cv::applyColorMap(levels, coloured, cv::COLORMAP_TURBO);
+  coloured.setTo(cv::Scalar(empty_bgr[0], empty_bgr[1], empty_bgr[2]), empty);
+  return coloured;
+}
+
+void ValueRange(const cv::Mat& values, bool zero_is_empty, double* lo, double* hi) {
+  ROMUNECT_CHECK(values.type() == CV_32FC1 && lo != nullptr && hi != nullptr);
+  *lo = std::numeric_limits<double>::infinity();
+  *hi = -*lo;
+  for (int r = 0; r < values.rows; ++r) {
+    for (int c = 0; c < values.cols; ++c) {
+      const float v = values.at<float>(r, c);
+      if (!HasValue(v, zero_is_empty)) continue;
+      *lo = std::min<double>(*lo, v);
+      *hi = std::max<double>(*hi, v);
+    }
+  }
+  if (!(*lo <= *hi)) *lo = *hi = 0.0;
+  if (*hi - *lo < 1e-6) *hi = *lo + 1e-6;
+}
+
 void WriteHeightMapPicture(const std::filesystem::path& path, const cv::Mat& height_m,
                            const HeightMapGeometry& geometry) {
-  ROMUNECT_CHECK(height_m.type() == CV_32FC1 && !height_m.empty());
-  double lo = std::numeric_limits<double>::infinity(), hi = -lo;
-  for (int r = 0; r < height_m.rows; ++r) {
-    for (int c = 0; c < height_m.cols; ++c) {
-      const float z = height_m.at<float>(r, c);
-      if (!std::isfinite(z)) continue;
-      lo = std::min<double>(lo, z);
-      hi = std::max<double>(hi, z);
-    }
-  }
-  const bool any = lo <= hi;
-  if (!any) lo = hi = 0.0;
-  if (hi - lo < 1e-6) hi = lo + 1e-6;
+  WritePicture(path, HeightMapPicture(height_m, geometry));
+}
 
-  // Cells to 8-bit levels, colour-mapped; +y up in the picture (row 0 of the map at the bottom).
+cv::Mat HeightMapPicture(const cv::Mat& height_m, const HeightMapGeometry& geometry) {
+  ROMUNECT_CHECK(height_m.type() == CV_32FC1 && !height_m.empty());
+  double lo, hi;
+  ValueRange(height_m, /*zero_is_empty=*/false, &lo, &hi);
+  const bool any = cv::countNonZero(height_m == height_m) > 0;  // NaN != NaN
+
+  // Colour-mapped cells, +y up in the picture (row 0 of the map at the bottom); empty cells
+  // marked (255, 0, 255, no turbo colour) and drawn as a checkerboard.
+  const cv::Vec3b kEmpty(255, 0, 255);
   const int scale = std::clamp(1200 / std::max(1, height_m.cols), 1, 8);
-  cv::Mat levels(height_m.size(), CV_8UC1), empty(height_m.size(), CV_8UC1);
-  for (int r = 0; r < height_m.rows; ++r) {
-    for (int c = 0; c < height_m.cols; ++c) {
-      const float z = height_m.at<float>(height_m.rows - 1 - r, c);
-      const bool valued = std::isfinite(z);
-      empty.at<uint8_t>(r, c) = !valued;
-      levels.at<uint8_t>(r, c) = valued ? cv::saturate_cast<uint8_t>(255.0 * (z - lo) / (hi - lo)) : 0;
-    }
-  }
-  cv::Mat coloured, big, big_empty;
-  cv::applyColorMap(levels, coloured, cv::COLORMAP_TURBO);
-  cv::resize(coloured, big, cv::Size(), scale, scale, cv::INTER_NEAREST);
-  cv::resize(empty, big_empty, cv::Size(), scale, scale, cv::INTER_NEAREST);
+  cv::Mat big;
+  cv::resize(ColourMapped(height_m, lo, hi, /*flip_rows=*/true, /*zero_is_empty=*/false, kEmpty), big, cv::Size(),
+             scale, scale, cv::INTER_NEAREST);
   for (int r = 0; r < big.rows; ++r) {
     for (int c = 0; c < big.cols; ++c) {
-      if (!big_empty.at<uint8_t>(r, c)) continue;
+      if (big.at<cv::Vec3b>(r, c) != kEmpty) continue;
       const uint8_t g = ((r / 6 + c / 6) % 2) ? 235 : 175;  // checkerboard: "no value"
       big.at<cv::Vec3b>(r, c) = cv::Vec3b(g, g, g);
     }
@@ -110,7 +138,7 @@ void WriteHeightMapPicture(const std::filesystem::path& path, const cv::Mat& hei
              cv::Scalar(0, 0, 0), 3);
     Text(canvas, "10 mm", cv::Point(left + 208 + ten_mm_px, legend_y + 13), 0.4);
   }
-  WritePicture(path, canvas);
+  return canvas;
 }
 
 void WriteHeightMapPly(const std::filesystem::path& path, const cv::Mat& height_m,

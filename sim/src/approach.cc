@@ -84,7 +84,27 @@ std::string ApproachOptions::Problem() const {
     return "focused_near_m = " + Num(focused_near_m) + ": must be in (0, focused_far_m = " + Num(focused_far_m) + ")";
   }
   if (!(surface_height_m >= 0)) return "surface_height_m = " + Num(surface_height_m) + ": must be >= 0";
+  if (!(above_rim_m >= 0)) return "above_rim_m = " + Num(above_rim_m) + ": must be >= 0";
+  if (!(surface_low_m <= 0)) return "surface_low_m = " + Num(surface_low_m) + ": must be <= 0 (below the bin floor)";
   return "";
+}
+
+namespace {
+
+// The highest surface the plan measures, above the bin floor (m).
+double TopSurface(const World& world, const ApproachOptions& options) {
+  return options.surface_height_m > 0 ? options.surface_height_m : world.bin_inner_size_m().z() + options.above_rim_m;
+}
+
+}  // namespace
+
+ScanBox ScanRegionBox(const World& world, const ApproachOptions& options) {
+  const Eigen::Vector3d floor_W = world.T_W_Bin().translation();
+  const Eigen::Vector2d half = options.region_size_m / 2;
+  ScanBox box;
+  box.min_W = floor_W + Eigen::Vector3d(-half.x(), -half.y(), options.surface_low_m - 0.004);
+  box.max_W = floor_W + Eigen::Vector3d(half.x(), half.y(), TopSurface(world, options) + 0.010);
+  return box;
 }
 
 ApproachPlan PlanApproach(const World& world, const CameraModel& camera, const ApproachOptions& options,
@@ -102,13 +122,14 @@ ApproachPlan PlanApproach(const World& world, const CameraModel& camera, const A
 
   // Stand-off levels (camera heights above the bin floor), highest first.
   if (options.focused_far_m > 0) {
-    const double top = options.surface_height_m > 0 ? options.surface_height_m : world.bin_inner_size_m().z();
-    // Range centres evenly from the top down to the floor, one level more than the range
-    // widths the height needs: top and floor both lie mid-range, where matching is best.
+    const double top = TopSurface(world, options);
+    const double low = options.surface_low_m, span = top - low;
+    // Range centres evenly from the top down to the lowest surface, one level more than the
+    // range widths the span needs: both ends lie mid-range, where matching is best.
     const double width = options.focused_far_m - options.focused_near_m;
     const double mid = 0.5 * (options.focused_near_m + options.focused_far_m);
-    const int n = static_cast<int>(std::ceil(top / width - 1e-9)) + 1;
-    for (int i = 0; i < n; ++i) plan.levels_m.push_back(mid + top * (n - 1 - i) / (n - 1));
+    const int n = static_cast<int>(std::ceil(span / width - 1e-9)) + 1;
+    for (int i = 0; i < n; ++i) plan.levels_m.push_back(mid + low + span * (n - 1 - i) / (n - 1));
     if (options.start_distance_m < plan.levels_m.front()) {
       throw InputError("approach", "start_distance_m",
                        Num(options.start_distance_m) + " m is below the first stand-off level " +
@@ -118,22 +139,43 @@ ApproachPlan PlanApproach(const World& world, const CameraModel& camera, const A
     plan.levels_m = {options.end_distance_m};
   }
 
-  // Passes: the footprint at the lowest level, with overlap, tiles the region.
-  const double low = plan.levels_m.back();
+  // Passes: the footprint on the lowest surface seen from the lowest level, with overlap,
+  // tiles the region. With stand-off levels the outer centres lie over the bin's walls (one
+  // more pass per axis): seen from straight above, a wall hides and shadows little of the
+  // floor inside it and of the table outside it, while views from further in or out lose a
+  // band beside it on one side.
+  const bool levels = options.focused_far_m > 0;
+  const double low = plan.levels_m.back() - (levels ? options.surface_low_m : 0.0);
   const double foot_x = low * camera.width / camera.fx * (1.0 - options.pass_overlap);
   const double foot_y = low * camera.height / camera.fy * (1.0 - options.pass_overlap);
-  plan.passes_x = std::max(1, static_cast<int>(std::ceil(options.region_size_m.x() / foot_x - 1e-9)));
-  plan.passes_y = std::max(1, static_cast<int>(std::ceil(options.region_size_m.y() / foot_y - 1e-9)));
+  const Eigen::Vector2d span = levels ? Eigen::Vector2d(world.bin_inner_size_m().head<2>()) : options.region_size_m;
+  const int edge = levels ? 1 : 0;
+  plan.passes_x = std::max(1, static_cast<int>(std::ceil(span.x() / foot_x - 1e-9)) + edge);
+  plan.passes_y = std::max(1, static_cast<int>(std::ceil(span.y() / foot_y - 1e-9)) + edge);
+  auto centre = [&](int i, int n, double size) {
+    if (edge && n > 1) return size * (static_cast<double>(i) / (n - 1) - 0.5);
+    return size * ((i + 0.5) / n - 0.5);
+  };
   std::vector<Eigen::Vector2d> centres;
   for (int j = 0; j < plan.passes_y; ++j) {
     for (int i = 0; i < plan.passes_x; ++i) {
       const int ii = (j % 2 == 0) ? i : plan.passes_x - 1 - i;  // serpentine
-      centres.emplace_back(options.region_size_m.x() * ((ii + 0.5) / plan.passes_x - 0.5),
-                           options.region_size_m.y() * ((j + 0.5) / plan.passes_y - 0.5));
+      centres.emplace_back(centre(ii, plan.passes_x, span.x()), centre(j, plan.passes_y, span.y()));
     }
   }
   std::vector<Eigen::Vector3d> polyline;
-  if (options.focused_far_m > 0) {
+  if (options.focused_far_m > 0 && options.sweep == ApproachOptions::Sweep::kColumns) {
+    // Down to the highest level, then through the levels at each centre, alternating
+    // downwards and upwards, moving to the next centre at the level reached.
+    polyline.emplace_back(centres[0].x(), centres[0].y(), options.start_distance_m);
+    for (size_t i = 0; i < centres.size(); ++i) {
+      const bool down = i % 2 == 0;
+      polyline.emplace_back(centres[i].x(), centres[i].y(), down ? plan.levels_m.front() : plan.levels_m.back());
+      polyline.emplace_back(centres[i].x(), centres[i].y(), down ? plan.levels_m.back() : plan.levels_m.front());
+    }
+    // The approach ends at the working distance, ready to pick.
+    if (centres.size() % 2 == 0) polyline.emplace_back(centres.back().x(), centres.back().y(), plan.levels_m.back());
+  } else if (options.focused_far_m > 0) {
     // Straight down to the first level, then the serpentine at each level, back and forth.
     polyline.emplace_back(centres[0].x(), centres[0].y(), options.start_distance_m);
     for (size_t l = 0; l < plan.levels_m.size(); ++l) {

@@ -68,17 +68,17 @@ std::string PickOptions::Problem() const {
   return "";
 }
 
-std::optional<GraspPoint> ChooseGraspPoint(const cv::Mat& height_m, const HeightMapLayout& layout,
+std::optional<GraspPoint> ChooseGraspPoint(const cv::Mat& height_m, const HeightMapGeometry& geometry,
                                            const PickOptions& options) {
-  ROMUNECT_CHECK(height_m.type() == CV_32F && height_m.rows == layout.ny && height_m.cols == layout.nx);
+  ROMUNECT_CHECK(height_m.type() == CV_32F && height_m.rows == geometry.ny && height_m.cols == geometry.nx);
   ROMUNECT_CHECK_MSG(options.Problem().empty(), options.Problem().c_str());
-  const int stride = std::max(1, static_cast<int>(std::lround(options.candidate_step_m / layout.cell_m)));
-  const int r_cells = static_cast<int>(std::ceil(options.cup_radius_m / layout.cell_m));
+  const int stride = std::max(1, static_cast<int>(std::lround(options.candidate_step_m / geometry.voxel_m)));
+  const int r_cells = static_cast<int>(std::ceil(options.cup_radius_m / geometry.voxel_m));
   // Patch samples: every `sample` cells inside the cup's disc (about 15 x 15 samples).
   const int sample = std::max(1, r_cells / 7);
   std::optional<GraspPoint> best;
-  for (int j = r_cells; j + r_cells < layout.ny; j += stride) {
-    for (int i = r_cells; i + r_cells < layout.nx; i += stride) {
+  for (int j = r_cells; j + r_cells < geometry.ny; j += stride) {
+    for (int i = r_cells; i + r_cells < geometry.nx; i += stride) {
       const float centre = height_m.at<float>(j, i);
       if (std::isnan(centre) || (best && centre <= best->p_W.z())) continue;
       // Least-squares plane z = a dx + b dy + c over the patch, in metres about the centre.
@@ -92,7 +92,7 @@ std::optional<GraspPoint> ChooseGraspPoint(const cv::Mat& height_m, const Height
           const float z = height_m.at<float>(j + dj, i + di);
           if (std::isnan(z)) continue;
           ++valid;
-          const Eigen::Vector3d row(di * layout.cell_m, dj * layout.cell_m, 1.0);
+          const Eigen::Vector3d row(di * geometry.voxel_m, dj * geometry.voxel_m, 1.0);
           AtA += row * row.transpose();
           Atz += row * z;
         }
@@ -105,7 +105,7 @@ std::optional<GraspPoint> ChooseGraspPoint(const cv::Mat& height_m, const Height
           if (di * di + dj * dj > r_cells * r_cells) continue;
           const float z = height_m.at<float>(j + dj, i + di);
           if (std::isnan(z)) continue;
-          const double e = z - (abc[0] * di * layout.cell_m + abc[1] * dj * layout.cell_m + abc[2]);
+          const double e = z - (abc[0] * di * geometry.voxel_m + abc[1] * dj * geometry.voxel_m + abc[2]);
           sum_sq += e * e;
         }
       }
@@ -113,7 +113,7 @@ std::optional<GraspPoint> ChooseGraspPoint(const cv::Mat& height_m, const Height
       const Eigen::Vector3d normal = Eigen::Vector3d(-abc[0], -abc[1], 1.0).normalized();
       if (rms > options.max_rms_m || std::acos(std::min(1.0, normal.z())) > options.max_tilt_rad) continue;
       GraspPoint g;
-      g.p_W = Eigen::Vector3d(layout.min_x_m + (i + 0.5) * layout.cell_m, layout.min_y_m + (j + 0.5) * layout.cell_m, abc[2]);
+      g.p_W = Eigen::Vector3d(geometry.CellCentreX_m(i), geometry.CellCentreY_m(j), abc[2]);
       g.normal_W = normal;
       g.rms_m = rms;
       g.row = j;
@@ -135,7 +135,7 @@ std::string PickResult::BriefReport() const {
   return s;
 }
 
-PickResult Pick(World* world, const cv::Mat& height_m, const HeightMapLayout& layout, const PickOptions& options,
+PickResult Pick(World* world, const cv::Mat& height_m, const HeightMapGeometry& geometry, const PickOptions& options,
                 const IkOptions& ik) {
   ROMUNECT_CHECK(world != nullptr);
   const auto wall_start = std::chrono::steady_clock::now();
@@ -146,7 +146,7 @@ PickResult Pick(World* world, const cv::Mat& height_m, const HeightMapLayout& la
     result.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
     return result;
   };
-  const std::optional<GraspPoint> grasp = ChooseGraspPoint(height_m, layout, options);
+  const std::optional<GraspPoint> grasp = ChooseGraspPoint(height_m, geometry, options);
   if (!grasp) {
     result.failure = "no grasp point";
     return finish();

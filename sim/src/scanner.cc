@@ -237,20 +237,20 @@ FrameStatus Scanner::Next(Frame* frame, std::string* error) {
   return FrameStatus::kOk;
 }
 
-cv::Mat GroundTruthHeightMap(const World& world, const HeightMapLayout& layout) {
-  ROMUNECT_CHECK(layout.nx > 0 && layout.ny > 0 && layout.cell_m > 0);
+cv::Mat GroundTruthHeightMap(const World& world, const HeightMapGeometry& geometry) {
+  ROMUNECT_CHECK(geometry.nx > 0 && geometry.ny > 0 && geometry.voxel_m > 0);
   std::vector<int> handles;
   const embree::RayScene scene = MirrorWorld(world, /*with_arm=*/false, &handles);
-  // A camera high above the layout's centre looking straight down, one pixel per cell: x_C
+  // A camera high above the map's centre looking straight down, one pixel per cell: x_C
   // along W's x, y_C along W's -y (so image row 0 is the largest y; flipped below).
   CameraModel camera;
-  camera.width = layout.nx;
-  camera.height = layout.ny;
-  camera.fx = camera.fy = kTruthCameraHeightM / layout.cell_m;
-  camera.cx = (layout.nx - 1) / 2.0;
-  camera.cy = (layout.ny - 1) / 2.0;
-  const Eigen::Vector3d centre(layout.min_x_m + layout.nx * layout.cell_m / 2,
-                               layout.min_y_m + layout.ny * layout.cell_m / 2, kTruthCameraHeightM);
+  camera.width = geometry.nx;
+  camera.height = geometry.ny;
+  camera.fx = camera.fy = kTruthCameraHeightM / geometry.voxel_m;
+  camera.cx = (geometry.nx - 1) / 2.0;
+  camera.cy = (geometry.ny - 1) / 2.0;
+  const Eigen::Vector3d centre(geometry.min_x_m + geometry.size_x_m() / 2,
+                               geometry.min_y_m + geometry.size_y_m() / 2, kTruthCameraHeightM);
   Eigen::Matrix3d R;
   R << 1, 0, 0, 0, -1, 0, 0, 0, -1;
   const Pose T_W_C = MakePose(R, centre);
@@ -258,12 +258,12 @@ cv::Mat GroundTruthHeightMap(const World& world, const HeightMapLayout& layout) 
   GeometryBuffer buffer;
   embree::RenderOptions options;
   renderer.Render(scene, camera, T_W_C, Pose::Identity(), options, &buffer);
-  cv::Mat height(layout.ny, layout.nx, CV_32F);
+  cv::Mat height(geometry.ny, geometry.nx, CV_32F);
   const cv::Mat& p_C = buffer.layers[0].p_C;
-  for (int v = 0; v < layout.ny; ++v) {
-    for (int u = 0; u < layout.nx; ++u) {
+  for (int v = 0; v < geometry.ny; ++v) {
+    for (int u = 0; u < geometry.nx; ++u) {
       const cv::Vec3f p = p_C.at<cv::Vec3f>(v, u);
-      height.at<float>(layout.ny - 1 - v, u) =
+      height.at<float>(geometry.ny - 1 - v, u) =
           std::isnan(p[2]) ? std::numeric_limits<float>::quiet_NaN() : static_cast<float>(kTruthCameraHeightM - p[2]);
     }
   }

@@ -1,12 +1,19 @@
 // The default scan's wall time (issue 5, "Speed"): settle a pile (range(0) objects), plan the
 // approach, then per 30 Hz frame advance the physics, update the instances, render at the
 // romunect rig's full resolution, and (range(1) = 1) image it: IR synthesis, depth engine and
-// ground-truth depth correction (SensorImager). Counters: per-frame milliseconds per stage
-// and the real-time factor (simulated approach time / wall time of its frames).
+// ground-truth depth correction (SensorImager). range(2) = 1 also fuses every frame (insert
+// and the per-frame extraction for the completeness curve, as `romunect scan` does) with the
+// simulator on its own thread ahead of fusion (PrefetchingSource); 2: the same, serially.
+// Counters: per-frame milliseconds per stage, the wall time per frame and the real-time
+// factor (simulated approach time / wall time of its frames).
 #include <benchmark/benchmark.h>
 
 #include <chrono>
+#include <memory>
 
+#include "romunect/fusion/frame_inserter.h"
+#include "romunect/fusion/voting_grid.h"
+#include "romunect/sim/frame_pipeline.h"
 #include "romunect/sim/scanner.h"
 #include "romunect/sim/sensor_imager.h"
 
@@ -26,10 +33,31 @@ void BM_DefaultScan(benchmark::State& state) {
       scanner.SetImager(std::make_unique<SensorImager>(options.rig, imager));
     }
     const double setup_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    const ScanBox region = ScanRegionBox(scanner.world(), scanner.options().approach);
+    fusion::GridOptions box;
+    box.min_W = region.min_W;
+    box.max_W = region.max_W;
+    std::unique_ptr<fusion::VotingGrid> grid;
+    std::unique_ptr<fusion::FrameInserter> inserter;
+    if (state.range(2) > 0) {
+      grid = std::make_unique<fusion::VotingGrid>(box);
+      inserter = std::make_unique<fusion::FrameInserter>(grid.get(), fusion::InserterOptions{2});
+    }
+    std::unique_ptr<PrefetchingSource> prefetching;
+    FrameSource* source = &scanner;
+    if (state.range(2) == 1) source = (prefetching = std::make_unique<PrefetchingSource>(&scanner)).get();
     Frame frame;
     std::string error;
+    double fusion_s = 0.0;
     const auto frames_start = std::chrono::steady_clock::now();
-    while (scanner.Next(&frame, &error) == FrameStatus::kOk) benchmark::DoNotOptimize(frame.gt_depth_m.data);
+    while (source->Next(&frame, &error) == FrameStatus::kOk) {
+      benchmark::DoNotOptimize(frame.gt_depth_m.data);
+      if (!inserter) continue;
+      const auto t = std::chrono::steady_clock::now();
+      inserter->Insert(scanner.camera(), frame.depth_m, *frame.T_W_C, nullptr);
+      benchmark::DoNotOptimize(fusion::ExtractHeightMap(*grid).data);
+      fusion_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+    }
     const double frames_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - frames_start).count();
     const ScanStats& s = scanner.stats();
     const double n = s.frames;
@@ -40,6 +68,8 @@ void BM_DefaultScan(benchmark::State& state) {
     state.counters["physics_ms_per_frame"] = 1e3 * s.physics_s / n;
     state.counters["render_ms_per_frame"] = 1e3 * s.render_s / n;
     state.counters["imaging_ms_per_frame"] = 1e3 * s.imaging_s / n;
+    state.counters["fusion_ms_per_frame"] = 1e3 * fusion_s / n;
+    if (prefetching) state.counters["fusion_wait_ms_per_frame"] = 1e3 * prefetching->wait_s() / n;
     state.counters["frame_ms"] = 1e3 * frames_s / n;
     // Real time: the approach's simulated duration over the wall time of its frames.
     state.counters["realtime_factor"] = s.simulated_s / frames_s;
@@ -47,9 +77,11 @@ void BM_DefaultScan(benchmark::State& state) {
   }
 }
 BENCHMARK(BM_DefaultScan)
-    ->Args({10, 0})
-    ->Args({10, 1})
-    ->Args({20, 0})
+    ->ArgNames({"objects", "imaging", "fusion"})
+    ->Args({12, 0, 0})
+    ->Args({12, 1, 0})
+    ->Args({12, 1, 2})
+    ->Args({12, 1, 1})
     ->Unit(benchmark::kMillisecond)
     ->Iterations(1);
 

@@ -15,16 +15,16 @@ namespace {
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
-HeightMapLayout Layout(int nx, int ny, double cell) {
-  HeightMapLayout layout;
+HeightMapGeometry Layout(int nx, int ny, double cell) {
+  HeightMapGeometry layout;
   layout.nx = nx;
   layout.ny = ny;
-  layout.cell_m = cell;
+  layout.voxel_m = cell;
   return layout;
 }
 
 TEST(PickTest, ChoosesTheHighestPatchWideAndFlatEnoughForTheCup) {
-  const HeightMapLayout layout = Layout(200, 120, 0.5e-3);
+  const HeightMapGeometry layout = Layout(200, 120, 0.5e-3);
   cv::Mat h(layout.ny, layout.nx, CV_32F, cv::Scalar(0.010f));
   h(cv::Rect(120, 40, 40, 40)).setTo(0.030f);  // a 20 x 20 mm block top: fits the 16 mm cup
   h(cv::Rect(30, 30, 6, 6)).setTo(0.050f);     // a 3 mm post: higher, but too small
@@ -41,7 +41,7 @@ TEST(PickTest, ChoosesTheHighestPatchWideAndFlatEnoughForTheCup) {
 }
 
 TEST(PickTest, RejectsSteepAndEmptyMaps) {
-  const HeightMapLayout layout = Layout(100, 100, 0.5e-3);
+  const HeightMapGeometry layout = Layout(100, 100, 0.5e-3);
   cv::Mat steep(layout.ny, layout.nx, CV_32F);
   for (int j = 0; j < layout.ny; ++j) {
     for (int i = 0; i < layout.nx; ++i) steep.at<float>(j, i) = static_cast<float>(i * 0.5e-3 * 1.0);  // 45 degrees
@@ -81,13 +81,8 @@ TEST(PickTest, SmallScanFusesCompletelyAndAccuratelyAndPicksAnObjectOut) {
     inserter.Insert(scanner.camera(), frame.depth_m, *frame.T_W_C, nullptr);
   }
   const cv::Mat fused = fusion::ExtractHeightMap(grid);
-  const fusion::HeightMapGeometry geometry = grid.geometry();
-  HeightMapLayout layout;
-  layout.min_x_m = geometry.min_x_m;
-  layout.min_y_m = geometry.min_y_m;
-  layout.cell_m = geometry.voxel_m;
-  layout.nx = geometry.nx;
-  layout.ny = geometry.ny;
+  const fusion::HeightMapGeometry g = grid.geometry();  // the same fields, in sensor/height_map.h
+  const HeightMapGeometry layout{g.min_x_m, g.min_y_m, g.min_z_m, g.voxel_m, g.nx, g.ny, g.nz};
   const cv::Mat truth = GroundTruthHeightMap(scanner.world(), layout);
   const fusion::HeightMapMetrics metrics = fusion::CompareHeightMaps(fused, truth);
   std::cout << "completeness " << metrics.completeness << ", rmse " << metrics.rmse_mm << " mm, within 1 mm "

@@ -112,8 +112,8 @@ TEST(ScannerTest, GroundTruthHeightMapShowsBinFloorRimAndObjects) {
   ScanOptions options = SmallScan();
   Scanner scanner(options);
   const Pose T_W_Bin = scanner.world().T_W_Bin();
-  HeightMapLayout layout;
-  layout.cell_m = 1e-3;
+  HeightMapGeometry layout;
+  layout.voxel_m = 1e-3;
   layout.nx = 150;
   layout.ny = 80;
   layout.min_x_m = T_W_Bin.translation().x() - 0.075;
@@ -126,7 +126,7 @@ TEST(ScannerTest, GroundTruthHeightMapShowsBinFloorRimAndObjects) {
   int checked = 0;
   for (int j = 3; j < 80; j += 11) {
     for (int i = 2; i < 150; i += 13) {
-      const Eigen::Vector3d o(layout.min_x_m + (i + 0.5) * layout.cell_m, layout.min_y_m + (j + 0.5) * layout.cell_m, 1.0);
+      const Eigen::Vector3d o(layout.CellCentreX_m(i), layout.CellCentreY_m(j), 1.0);
       const double dist = BruteForceDistance(scanner.world(), o, -Eigen::Vector3d::UnitZ(), /*with_arm=*/false);
       ASSERT_FALSE(std::isnan(dist));
       EXPECT_NEAR(h.at<float>(j, i), 1.0 - dist, 2e-4) << "cell " << i << "," << j;

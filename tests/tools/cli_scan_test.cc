@@ -26,6 +26,7 @@ TEST(CliScan, RejectsBadArgumentsBeforeAnyWork) {
   ExpectFailsWith("--threads 0" + out, "--threads: 0 is outside 1..64");
   ExpectFailsWith("--samples 3" + out, "--samples: 3 is not 1 or 4");
   ExpectFailsWith("--voxel 0" + out, "--voxel: expected 0.00005 .. 0.005 metres");
+  ExpectFailsWith("--sweep diagonal" + out, "--sweep: 'diagonal' is not columns or levels");
   ExpectFailsWith("--scene " + (dir / "missing.xml").string() + out, "missing.xml: file not found");
   ExpectFailsWith("--calibration " + (dir / "missing.yaml").string() + out, "missing.yaml: file not found");
   ExpectFailsWith("--rig " + (dir / "missing.json").string() + out, "missing.json");
@@ -63,11 +64,15 @@ TEST(CliScanIntegration, SmallPileEndToEnd) {
   const auto report = nlohmann::json::parse(testing::ReadText(run / "report.json"));
   EXPECT_GT(report["frames"].get<int>(), 20);
   EXPECT_FALSE(report["table1_completeness"]["after_20"].is_null());
-  // The fused map covers part of the region at least (a few objects, one approach).
-  EXPECT_GT(report["accuracy"]["completeness"].get<double>(), 0.05);
-  // Most fused cells lie within 1 mm of the truth (fusion voxels are 0.25 mm, the sensor's
-  // single-scan accuracy about 0.1 mm; outliers at depth edges remain).
-  EXPECT_GT(report["accuracy"]["within_1mm"].get<double>(), 0.8);
+  // The approach's columns cover the region from the table to above the rim: measured 86 % for
+  // this pile (the paper's 85-90 %); 6 points of slack for changes in the sensor model.
+  EXPECT_GT(report["accuracy"]["completeness"].get<double>(), 0.80);
+  EXPECT_FALSE(report["table1_completeness"]["after_50"].is_null());
+  // Nearly all fused cells lie within 1 mm of the truth (measured 99.5 %: fusion voxels are
+  // 0.25 mm, the sensor's single-scan accuracy about 0.1 mm; outliers at depth edges remain).
+  EXPECT_GT(report["accuracy"]["within_1mm"].get<double>(), 0.97);
+  // The fusion section is fusion's own report (as `romunect fuse` writes it).
+  EXPECT_EQ(report["fusion"]["frames"].get<int>(), report["frames"].get<int>());
   EXPECT_TRUE(report["timings_s"].contains("rendering"));
   EXPECT_TRUE(report["pick"].contains("success"));
   // The frame directory of the scan is valid input for `romunect info` (and so `fuse`).

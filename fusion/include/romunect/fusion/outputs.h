@@ -21,8 +21,18 @@ namespace romunect::fusion {
 // fused_depth.exr: single-channel float32 "Z", NaN = empty.
 void WriteHeightMapExr(const std::filesystem::path& path, const cv::Mat& height_m);
 
-// A colour-mapped picture (turbo, low = blue, high = red) drawn with +y up, empty cells in a
-// grey checkerboard, a scale bar in millimetres of world z and a caption.
+// The one colour map of our pictures: values (CV_32F) over [lo, hi] to turbo (low = blue,
+// high = red), CV_8UC3 BGR. Cells without a value (non-finite; also 0 with zero_is_empty, as
+// in depth maps) get `empty_bgr`. flip_rows puts row 0 at the bottom (height maps: +y up).
+cv::Mat ColourMapped(const cv::Mat& values, double lo, double hi, bool flip_rows, bool zero_is_empty,
+                     const cv::Vec3b& empty_bgr);
+// The range of a map's values (as ColourMapped counts them), widened to at least 1 um; 0, 0
+// (then 0, 1e-6) when none.
+void ValueRange(const cv::Mat& values, bool zero_is_empty, double* lo, double* hi);
+
+// A colour-mapped picture (ColourMapped) drawn with +y up, empty cells in a grey
+// checkerboard, a scale bar in millimetres of world z and a caption.
+cv::Mat HeightMapPicture(const cv::Mat& height_m, const HeightMapGeometry& geometry);
 void WriteHeightMapPicture(const std::filesystem::path& path, const cv::Mat& height_m,
                            const HeightMapGeometry& geometry);
 

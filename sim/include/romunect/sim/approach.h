@@ -30,16 +30,25 @@ struct ApproachOptions {
   double joint_speed_rad_s = 1.0;  // peak joint speed of the move to the start
   double hold_before_s = 0.3;      // still time at the start, for the servos to settle
   // Stand-off levels (used when focused_far_m > 0): the sensor measures only depths (along
-  // its axis) in [focused_near_m, focused_far_m] (see MeasurableDepthRange). The camera then
-  // descends straight down to the highest level and passes over the region there, then at
-  // each lower level (serpentine, back and forth). The levels put the middle of the focused
-  // range evenly from the top of the pile (bin floor + surface_height_m; 0: the bin's inner
-  // height, the rim) down to the floor, with one level more than the range widths that height
-  // needs, so the floor and the top both lie mid-range, where the rig matches best.
-  // end_distance_m is unused then.
+  // its axis) in [focused_near_m, focused_far_m] (see MeasurableDepthRange). The levels put
+  // the middle of the focused range evenly from the highest surface (bin floor +
+  // surface_height_m; 0: the rim plus above_rim_m, as piles stand above the rim) down to the
+  // lowest (bin floor + surface_low_m: the table the bin stands on), with one level more than
+  // the range widths that span needs, so both ends lie mid-range, where the rig matches best.
+  // The sweep then visits them (end_distance_m is unused):
+  //  - kColumns: at each pass centre the camera sweeps the levels from the highest to the
+  //    lowest or back (alternating), moving laterally at the lowest or highest level: every
+  //    footprint sees every height early, in the shortest path, ending at the lowest level
+  //    (the default);
+  //  - kLevels: straight down to the highest level, the serpentine over the region there, then
+  //    at each lower level (back and forth).
+  enum class Sweep { kColumns, kLevels };
+  Sweep sweep = Sweep::kColumns;
   double focused_near_m = 0.0;
   double focused_far_m = 0.0;
   double surface_height_m = 0.0;
+  double above_rim_m = 0.015;
+  double surface_low_m = -0.005;  // the default bin's 5 mm floor stands on the table
 
   std::string Problem() const;  // "" when valid; otherwise "field = value: rule"
 };
@@ -53,6 +62,14 @@ struct ApproachPlan {
   double length_m = 0.0;                 // path length
   double duration_s() const { return T_W_C.empty() ? 0.0 : (T_W_C.size() - 1) * timestep_s; }
 };
+
+// The box the scan measures, in W (axes of the bin frame): the region of interest centred on
+// the bin, from 4 mm below the lowest planned surface (the table) to 10 mm above the highest
+// (rim plus above_rim_m, or surface_height_m): the fusion grid's box.
+struct ScanBox {
+  Eigen::Vector3d min_W = Eigen::Vector3d::Zero(), max_W = Eigen::Vector3d::Zero();
+};
+ScanBox ScanRegionBox(const World& world, const ApproachOptions& options);
 
 // Plans the approach over the world's bin for `camera`. Throws InputError("approach", field,
 // ...) when a pose along the way is outside the arm's workspace (IK does not converge).

@@ -38,9 +38,9 @@ struct GraspPoint {
   int row = 0, col = 0;                                 // height-map cell of the centre
 };
 
-// The highest patch of the height map (CV_32F world z, NaN = empty, laid out as `layout`)
+// The highest patch of the height map (CV_32F world z, NaN = empty, laid out as `geometry`)
 // that is complete, flat and level enough for the cup; nullopt when there is none.
-std::optional<GraspPoint> ChooseGraspPoint(const cv::Mat& height_m, const HeightMapLayout& layout,
+std::optional<GraspPoint> ChooseGraspPoint(const cv::Mat& height_m, const HeightMapGeometry& geometry,
                                            const PickOptions& options = {});
 
 struct PickResult {
@@ -58,7 +58,7 @@ struct PickResult {
 
 // Chooses the grasp from the height map and executes it in the world (physics on: the pile
 // is unfrozen). Never throws for a pick that fails; the result says why.
-PickResult Pick(World* world, const cv::Mat& height_m, const HeightMapLayout& layout,
+PickResult Pick(World* world, const cv::Mat& height_m, const HeightMapGeometry& geometry,
                 const PickOptions& options = {}, const IkOptions& ik = {});
 
 }  // namespace romunect::sim

@@ -18,6 +18,7 @@
 
 #include "romunect/sensor/frame_source.h"
 #include "romunect/sensor/geometry_buffer.h"
+#include "romunect/sensor/height_map.h"
 #include "romunect/sensor/rig.h"
 #include "romunect/sim/approach.h"
 #include "romunect/sim/pile.h"
@@ -104,19 +105,11 @@ class Scanner : public FrameSource {
   std::unique_ptr<Impl> impl_;
 };
 
-// Where a height map's cells lie (the fusion's HeightMapGeometry, restated so sim does not
-// depend on fusion): cell (row j, column i) has its centre at (min_x + (i + 0.5) cell,
-// min_y + (j + 0.5) cell) in W; row 0 is the smallest y.
-struct HeightMapLayout {
-  double min_x_m = 0.0, min_y_m = 0.0;
-  double cell_m = 0.25e-3;
-  int nx = 0, ny = 0;
-};
-
 // The ground-truth height map of the world as it is now (world z of the highest surface in
 // each cell's centre column, m; NaN where nothing is hit), ray traced from above. The arm is
-// left out (it is above the bin while scanning). CV_32F, ny x nx.
-cv::Mat GroundTruthHeightMap(const World& world, const HeightMapLayout& layout);
+// left out (it is above the bin while scanning). CV_32F, ny x nx of `geometry` (height_map.h;
+// its z fields are unused).
+cv::Mat GroundTruthHeightMap(const World& world, const HeightMapGeometry& geometry);
 
 // A picture of the arm over the bin for people: the MuJoCo geoms ray traced with simple
 // shading from an oblique viewpoint that frames the arm and the bin. CV_8UC3 (BGR).
