@@ -94,8 +94,9 @@ class DepthEngine {
   // Shift (px) of a raw value: inverse of the raw formula.
   double ShiftOfRaw(int raw) const;
 
-  // The prefilter, public for the reference matcher in tests: CV_8U normalized image, and the
-  // raw local standard deviation (CV_32F, DN) used for the flat test.
+  // The prefilter, public for the tests: from ir (CV_16U), the CV_8U normalized image and the
+  // raw local standard deviation (CV_32F, DN) used for the flat test, in exact integer box sums
+  // (the bytes of cv::boxFilter on float images, tested).
   static void Prefilter(const cv::Mat& ir, int window_px, cv::Mat* normalized, cv::Mat* local_sigma);
 
  private:
