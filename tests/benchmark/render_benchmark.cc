@@ -1,6 +1,7 @@
 // Render benchmark (issue 4, speed table): the Embree renderer on a procedural 300k-triangle
 // bin at 640 x 480 (the `romunect` rig preset: camera at 200 mm above the bin floor), at 1 and
-// 2 threads and 1 and 4 samples per pixel; the one-off static BVH build; a per-frame pose
+// 2 threads and 1 and 4 samples per pixel (samples -4: the adaptive quality mode, 4 samples at
+// edges only); the one-off static BVH build; a per-frame pose
 // update of a moving part; and, when the sensor model's IR synthesis and depth engine are
 // present, the full frame (render + IR synthesis + depth engine), sequential and pipelined
 // (rendering frame n+1 while frame n is synthesized and matched).
@@ -9,6 +10,8 @@
 // render_benchmark.json in the working directory unless --benchmark_out is given.
 #include <benchmark/benchmark.h>
 
+#include <cstdlib>
+#include <ctime>
 #include <future>
 #include <string>
 #include <vector>
@@ -63,10 +66,12 @@ struct Fixture {
   static Pose PlatePose(int frame) {
     return MakePose(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.015, 0.01 - 1e-4 * (frame % 100), 0.19));
   }
+  // samples: 1, 4 (thin lens everywhere) or -4 (adaptive: 4 samples at edges only).
   RenderOptions Options(int threads, int samples) const {
     RenderOptions o;
     o.threads = threads;
-    o.samples_per_pixel = samples;
+    o.samples_per_pixel = std::abs(samples);
+    o.adaptive = samples < 0;
     o.focus_distance_m = rig.optics.focus_distance_m;
     o.aperture_radius_m = 0.5 * rig.optics.aperture_m;
     return o;
@@ -84,6 +89,8 @@ void SetRenderCounters(benchmark::State& state, const RenderStats& stats, int64_
   state.counters["hit_fraction"] = static_cast<double>(stats.hits) / stats.camera_rays;
   state.counters["lit_fraction"] = static_cast<double>(stats.lit) / std::max<int64_t>(1, stats.hits);
   state.counters["triangles"] = kBinTriangles;
+  const CameraModel& camera = GetFixture().rig.camera;
+  state.counters["refined_fraction"] = static_cast<double>(stats.refined_pixels) / (camera.width * camera.height);
 }
 
 void BM_Render(benchmark::State& state) {
@@ -104,6 +111,8 @@ BENCHMARK(BM_Render)
     ->Args({2, 1})
     ->Args({1, 4})
     ->Args({2, 4})
+    ->Args({1, -4})
+    ->Args({2, -4})
     ->UseRealTime()
     ->MeasureProcessCPUTime()
     ->Unit(benchmark::kMillisecond);
@@ -135,6 +144,12 @@ BENCHMARK(BM_PoseUpdate)->UseRealTime()->MeasureProcessCPUTime()->Unit(benchmark
 
 #ifdef ROMUNECT_HAVE_FULL_FRAME
 
+double ProcessCpuSeconds() {
+  timespec t;
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+  return t.tv_sec + 1e-9 * t.tv_nsec;
+}
+
 // IR synthesis alone on the rendered bin (1 or 4 samples), `threads` threads.
 void BM_IrSynthesis(benchmark::State& state) {
   Fixture& f = GetFixture();
@@ -147,6 +162,7 @@ void BM_IrSynthesis(benchmark::State& state) {
   IrSynthesizer synthesizer(options);
   cv::Mat ir;
   uint64_t seed = 0;
+  synthesizer.Synthesize(f.rig, buffer, seed, &ir, nullptr);  // the pattern's blur levels, once
   for (auto _ : state) {
     synthesizer.Synthesize(f.rig, buffer, ++seed, &ir, nullptr);
     benchmark::DoNotOptimize(ir.data);
@@ -157,6 +173,7 @@ BENCHMARK(BM_IrSynthesis)
     ->Args({1, 1})
     ->Args({2, 1})
     ->Args({1, 4})
+    ->Args({1, -4})
     ->UseRealTime()
     ->MeasureProcessCPUTime()
     ->Unit(benchmark::kMillisecond);
@@ -177,20 +194,35 @@ void BM_FullFrame(benchmark::State& state) {
   cv::Mat ir;
   DepthEngineOutput depth;
   uint64_t seed = 0;
-  double render_s = 0.0, synthesis_s = 0.0, matching_s = 0.0;
+  // Warm-up: ray tables, the pattern's blur levels, buffers.
+  renderer.Render(f.scene, f.rig.camera, Pose::Identity(), f.rig.T_C_P, options, &buffer);
+  synthesizer.Synthesize(f.rig, buffer, seed, &ir, nullptr);
+  engine.Compute(ir, &depth);
+  // Per stage: wall time and the process' CPU time (all threads), as the machine is shared.
+  double render_s = 0.0, synthesis_s = 0.0, matching_s = 0.0, cpu_s[3] = {0.0, 0.0, 0.0};
   for (auto _ : state) {
+    const double c0 = ProcessCpuSeconds();
     const RenderStats r = renderer.Render(f.scene, f.rig.camera, Pose::Identity(), f.rig.T_C_P, options, &buffer);
+    const double c1 = ProcessCpuSeconds();
     IrSynthesisStats s;
     synthesizer.Synthesize(f.rig, buffer, ++seed, &ir, &s);
+    const double c2 = ProcessCpuSeconds();
     engine.Compute(ir, &depth);
+    const double c3 = ProcessCpuSeconds();
     render_s += r.seconds;
     synthesis_s += s.seconds;
     matching_s += depth.stats.seconds;
+    cpu_s[0] += c1 - c0;
+    cpu_s[1] += c2 - c1;
+    cpu_s[2] += c3 - c2;
   }
   const double n = static_cast<double>(state.iterations());
   state.counters["render_ms"] = 1e3 * render_s / n;
   state.counters["synthesis_ms"] = 1e3 * synthesis_s / n;
   state.counters["matching_ms"] = 1e3 * matching_s / n;
+  state.counters["render_cpu_ms"] = 1e3 * cpu_s[0] / n;
+  state.counters["synthesis_cpu_ms"] = 1e3 * cpu_s[1] / n;
+  state.counters["matching_cpu_ms"] = 1e3 * cpu_s[2] / n;
   state.counters["valid_fraction"] =
       static_cast<double>(depth.stats.valid) / (f.rig.camera.width * f.rig.camera.height);
   state.counters["fps"] = benchmark::Counter(n, benchmark::Counter::kIsRate);
@@ -200,6 +232,7 @@ BENCHMARK(BM_FullFrame)
     ->Args({1, 1})
     ->Args({2, 1})
     ->Args({2, 4})
+    ->Args({2, -4})
     ->UseRealTime()
     ->MeasureProcessCPUTime()
     ->Unit(benchmark::kMillisecond);
@@ -218,6 +251,7 @@ void BM_FullFramePipelined(benchmark::State& state) {
   uint64_t seed = 0;
   int current = 0;
   renderer.Render(f.scene, f.rig.camera, Pose::Identity(), f.rig.T_C_P, options, &buffers[current]);
+  synthesizer.Synthesize(f.rig, buffers[current], seed, &ir, nullptr);  // warm-up
   for (auto _ : state) {
     auto next = std::async(std::launch::async, [&] {
       renderer.Render(f.scene, f.rig.camera, Pose::Identity(), f.rig.T_C_P, options, &buffers[1 - current]);
@@ -233,6 +267,7 @@ BENCHMARK(BM_FullFramePipelined)
     ->ArgNames({"samples"})
     ->Arg(1)
     ->Arg(4)
+    ->Arg(-4)
     ->UseRealTime()
     ->MeasureProcessCPUTime()
     ->Unit(benchmark::kMillisecond);
