@@ -83,10 +83,12 @@ void MatchRows(const KernelArgs& args, KernelStats* stats_out) {
   for (int y = a.y_begin; y < a.y_end; ++y) {
     const bool first_row = y == a.y_begin;
     // Row pointers; reference pointers at p = W - 1 (x = 0, j = 0), so column x reads at -x.
-    const uint8_t* obs_new = a.obs + (y + r) * a.obs_step;
-    const uint8_t* obs_old = a.obs + (y - r - 1) * a.obs_step;  // used when !first_row
-    const uint8_t* ref_new = a.ref_rev + (y + r) * a.ref_step + (W - 1);
-    const uint8_t* ref_old = a.ref_rev + (y - r - 1) * a.ref_step + (W - 1);
+    // The old row (left by the sliding window) exists from the band's second row on.
+    const size_t row_new = static_cast<size_t>(y + r), row_old = first_row ? row_new : static_cast<size_t>(y - r - 1);
+    const uint8_t* obs_new = a.obs + row_new * a.obs_step;
+    const uint8_t* obs_old = a.obs + row_old * a.obs_step;
+    const uint8_t* ref_new = a.ref_rev + row_new * a.ref_step + (W - 1);
+    const uint8_t* ref_old = a.ref_rev + row_old * a.ref_step + (W - 1);
     const uint8_t* outside = a.outside + (W - 1);
     // Column x's window sums: summed for the band's first row, then + new row - old row.
     // Columns near the image sides also see shifts without a reference column (difference 255).
