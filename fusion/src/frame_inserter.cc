@@ -14,8 +14,8 @@
 #include <thread>
 #include <vector>
 
-#if defined(__SSE2__)
-#include <emmintrin.h>
+#if defined(__x86_64__)
+#include <immintrin.h>
 #endif
 
 #include "romunect/sensor/check.h"
@@ -112,37 +112,6 @@ struct RaySetup {
   bool ends_inside;        // the point is in the grid: the last voxel gets a hit
 };
 
-// Misses for votes [lo, end) of a column of nz votes (saturating at kVoteMin). Runs are short
-// (a handful to a few dozen voxels) and of every length, so the compiler's vectorized loop spends
-// its time in scalar prologue and epilogue; here full 8-lane blocks and one masked last block.
-// The masked block may cover votes of the same column outside the run: it rewrites them with
-// their own value, and the column belongs to this thread (threads own rows), so that is safe.
-inline void ApplyMissRun(Vote* column, int lo, int end, int nz) {
-#if defined(__SSE2__)
-  if (nz >= 8 && nz <= 32760) {  // lane indices must fit signed 16 bits
-    const __m128i floor_v = _mm_set1_epi16(kVoteMin);
-    int k = lo;
-    for (; k + 8 <= end; k += 8) {
-      __m128i* p = reinterpret_cast<__m128i*>(column + k);
-      const __m128i v = _mm_loadu_si128(p);
-      _mm_storeu_si128(p, _mm_max_epi16(_mm_sub_epi16(v, _mm_set1_epi16(1)), floor_v));
-    }
-    if (k < end) {
-      const int s = std::max(end - 8, 0);  // [s, s + 8) lies in the column since nz >= 8
-      const __m128i lane = _mm_add_epi16(_mm_set1_epi16(static_cast<int16_t>(s)), _mm_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7));
-      const __m128i active = _mm_and_si128(_mm_cmpgt_epi16(lane, _mm_set1_epi16(static_cast<int16_t>(k - 1))),
-                                           _mm_cmplt_epi16(lane, _mm_set1_epi16(static_cast<int16_t>(end))));
-      __m128i* p = reinterpret_cast<__m128i*>(column + s);
-      const __m128i v = _mm_loadu_si128(p);
-      // Active lanes are -1: v - 1 >= -32768 cannot wrap; inactive lanes keep v >= kVoteMin.
-      _mm_storeu_si128(p, _mm_max_epi16(_mm_add_epi16(v, active), floor_v));
-    }
-    return;
-  }
-#endif
-  for (int k = lo; k < end; ++k) column[k] = static_cast<Vote>(std::max(column[k] - 1, int{kVoteMin}));
-}
-
 double ThreadCpuMs() {
   timespec ts;
   clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
@@ -150,6 +119,30 @@ double ThreadCpuMs() {
 }
 
 inline void ApplyHit(Vote* v) { *v = static_cast<Vote>(std::min(*v + 1, int{kVoteMax})); }
+
+// A run of misses: votes [lo, end) of a column.
+struct RunEntry {
+  Vote* column;
+  int32_t lo, end;
+};
+
+// Misses for the lanes of one SIMD block that the kernel's lane mask table selects at `mask`.
+struct BlockRun {
+  Vote* block;
+  int64_t mask;  // the kernel's lane mask table offset
+};
+
+// One ray's votes, planned before they are applied: its runs and its hit (if in the grid).
+struct RayPlan {
+  RunEntry* runs = nullptr;  // runs that need the general kernel
+  int count = 0;
+  BlockRun* blocks = nullptr;  // runs of one block
+  int block_count = 0;
+  size_t misses = 0;
+  Vote* hit = nullptr;
+  size_t hit_column = 0;
+  uint16_t hit_z = 0;
+};
 
 struct WalkContext {
   double ox, oy, oz;  // camera centre, grid units
@@ -159,88 +152,135 @@ struct WalkContext {
   uint16_t* hit_lo;
   uint16_t* hit_hi;
   size_t hits, misses;
+  // kPlanDepth rays' runs: a ray crosses <= nx + ny - 1 columns, and its runs split into at most
+  // one block per column plus one per kLanes votes.
+  RunEntry* run_buffer;
+  BlockRun* block_buffer;
+  size_t run_capacity, block_capacity;
 };
 
 // The start voxel on one axis: clamp(floor(x)) into [0, n).
 inline int StartIndex(double x, int n) { return static_cast<int>(std::clamp(std::floor(x), 0.0, n - 1.0)); }
 
-// Walks one ray through the columns of the thread's rows (voting_grid.h semantics). State is in
-// scalars and the x/y step is branch-free: the walk is dominated by per-column overhead.
-inline void WalkRay(const RaySetup& ray, WalkContext* c) {
-  constexpr double kInf = std::numeric_limits<double>::infinity();
-  constexpr double kNearPlane = 1e-7;  // voxel units; rounding errors are below 1e-11
-  const double ox = c->ox, oy = c->oy, oz = c->oz;
-  const int nx = c->nx, ny = c->ny, nz = c->nz, ya = c->ya, yb = c->yb;
-  const double dx = ray.p_g[0] - ox, dy = ray.p_g[1] - oy, dz = ray.p_g[2] - oz;
-  const double inv_x = 1.0 / dx, inv_y = 1.0 / dy, inv_z = 1.0 / dz;
-  int ix = StartIndex(ox + ray.t_enter * dx, nx);
-  int iy = StartIndex(oy + ray.t_enter * dy, ny);
-  int iz = StartIndex(oz + ray.t_enter * dz, nz);
-  const int sx = dx > 0.0 ? 1 : (dx < 0.0 ? -1 : 0);
-  const int sy = dy > 0.0 ? 1 : (dy < 0.0 ? -1 : 0);
-  const int sz = dz > 0.0 ? 1 : (dz < 0.0 ? -1 : 0);
-  const int bx = dx > 0.0, by = dy > 0.0, bz = dz > 0.0;  // next plane = index + b
-  // Crossing out of voxel k on an axis: the exact expression of the 3D walk.
-  auto t_x = [&](int k) { return sx != 0 ? (static_cast<double>(k + bx) - ox) * inv_x : kInf; };
-  auto t_y = [&](int k) { return sy != 0 ? (static_cast<double>(k + by) - oy) * inv_y : kInf; };
-  auto t_z = [&](int k) { return (static_cast<double>(k + bz) - oz) * inv_z; };
-  double tx = t_x(ix), ty = t_y(iy);
-  const double t_exit = ray.t_exit;
-  const int z_end = sz > 0 ? nz - 1 : 0;
-  for (;;) {
-    const double t_column = std::min(tx, ty);
-    const double limit = std::min(t_column, t_exit);
-    // The last z voxel in this column: the first k (from iz on) whose crossing is not < limit.
-    // Crossings grow monotonically along the walk, so estimate from the z at `limit` and settle
-    // with the exact comparisons.
-    int iz_last = iz;
-    if (sz != 0) {
-      const double z_at_limit = oz + limit * dz;
-      const double z_limit = std::floor(z_at_limit);
-      iz_last = static_cast<int>(sz > 0 ? std::clamp(z_limit, static_cast<double>(iz), nz - 1.0)
-                                        : std::clamp(z_limit, 0.0, static_cast<double>(iz)));
-      // Away from a plane, the comparisons cannot disagree with the floor (their rounding is
-      // ~1e-12 voxel); only near one do they decide.
-      const double fraction = z_at_limit - z_limit;
-      if (fraction < kNearPlane || fraction > 1.0 - kNearPlane) {
-        while (iz_last != iz && !(t_z(iz_last - sz) < limit)) iz_last -= sz;
-        while (iz_last != z_end && t_z(iz_last) < limit) iz_last += sz;
-      }
-    }
-    const bool ends_here = !(t_column < t_exit);
-    if (iy >= ya && iy < yb) {
-      const size_t column_index = static_cast<size_t>(iy) * nx + ix;
-      Vote* column = c->votes + column_index * nz;
-      const int lo = std::min(iz, iz_last), hi = std::max(iz, iz_last);
-      if (ends_here && ray.ends_inside) {  // the last voxel gets the hit, the rest misses
-        ApplyMissRun(column, lo + (sz < 0), lo + (sz < 0) + hi - lo, nz);
-        ApplyHit(column + iz_last);
-        c->misses += hi - lo;
-        ++c->hits;
-        c->hit_lo[column_index] = std::min<uint16_t>(c->hit_lo[column_index], static_cast<uint16_t>(iz_last));
-        c->hit_hi[column_index] = std::max<uint16_t>(c->hit_hi[column_index], static_cast<uint16_t>(iz_last));
-      } else {
-        ApplyMissRun(column, lo, hi + 1, nz);
-        c->misses += hi - lo + 1;
-      }
-    }
-    if (ends_here) break;
-    iz = iz_last;
-    const int step_x = tx <= ty;  // ties: x first, as in the 3D walk
-    ix += step_x * sx;
-    iy += (1 - step_x) * sy;
-    if (static_cast<unsigned>(ix) >= static_cast<unsigned>(nx) ||
-        static_cast<unsigned>(iy) >= static_cast<unsigned>(ny)) {
-      break;  // cannot happen before t_exit; a guard
-    }
-    if (sy > 0 ? iy >= yb : iy < ya) break;  // left this thread's rows for good
-    __builtin_prefetch(c->votes + (static_cast<size_t>(iy) * nx + ix) * nz + iz);
-    // Only the stepped axis gets a new crossing (the same expression as t_x / t_y).
-    const double plane = static_cast<double>(step_x ? ix + bx : iy + by);
-    const double t_new = (plane - (step_x ? ox : oy)) * (step_x ? inv_x : inv_y);
-    tx = step_x ? t_new : tx;
-    ty = step_x ? ty : t_new;
+inline void ApplyMissRunScalar(Vote* column, int lo, int end) {
+  for (int k = lo; k < end; ++k) column[k] = static_cast<Vote>(std::max(column[k] - 1, int{kVoteMin}));
+}
+
+// Lane masks for runs of misses: loading kLanes entries at mask + kLanes - a gives -1 in lanes
+// >= a, at mask + 2 kLanes - b gives -1 in lanes < b; their AND selects the lanes [a, b) of a
+// block, and the second alone the first b lanes.
+template <int kLanes>
+struct LaneMaskTable {
+  int16_t mask[3 * kLanes];
+  constexpr LaneMaskTable() : mask() {
+    for (int i = kLanes; i < 2 * kLanes; ++i) mask[i] = -1;
   }
+};
+
+// The SIMD kernels apply a run of misses [lo, end) of a column of nz >= kLanes votes. Most runs
+// are shorter than a block and start at least a block below the column's end: ApplyMissBlock,
+// one block from lo with its first end - lo lanes active. Otherwise ApplyMissRun: full blocks,
+// then a last block shifted back to stay inside the column (other columns may belong to other
+// threads) with lanes [a, b) active.
+// Inactive lanes add 0; active lanes add -1: v >= kVoteMin, so v - 1 cannot wrap, and the max
+// saturates.
+// Rays planned ahead of the one being applied, plus one.
+constexpr int kPlanDepth = 3;
+
+namespace scalar {
+constexpr int kLanes = 1;
+constexpr int kFirstLanes = 2;
+constexpr int kAllLanes = 1;
+inline void ApplyMissRun(Vote* column, int lo, int end, int /*nz*/) { ApplyMissRunScalar(column, lo, end); }
+inline void ApplyMissBlock(Vote* block, int64_t /*mask*/) { ApplyMissRunScalar(block, 0, 1); }
+#include "ray_walk.inc"
+}  // namespace scalar
+
+#if defined(__x86_64__)
+namespace sse2 {
+constexpr int kLanes = 8;
+constexpr int kFirstLanes = 2 * kLanes;
+constexpr int kAllLanes = kLanes;
+constexpr LaneMaskTable<kLanes> kMasks;
+inline void ApplyMissBlock(Vote* block, int64_t mask) {
+  const __m128i active = _mm_loadu_si128(reinterpret_cast<const __m128i*>(kMasks.mask + mask));
+  __m128i* p = reinterpret_cast<__m128i*>(block);
+  _mm_storeu_si128(p, _mm_max_epi16(_mm_add_epi16(_mm_loadu_si128(p), active), _mm_set1_epi16(kVoteMin)));
+}
+inline void ApplyMissRun(Vote* column, int lo, int end, int nz) {
+  const __m128i floor_v = _mm_set1_epi16(kVoteMin);
+  int k = lo;
+  for (; end - k > kLanes; k += kLanes) {
+    __m128i* p = reinterpret_cast<__m128i*>(column + k);
+    _mm_storeu_si128(p, _mm_max_epi16(_mm_add_epi16(_mm_loadu_si128(p), _mm_set1_epi16(-1)), floor_v));
+  }
+  const int s = std::min(k, nz - kLanes);
+  const __m128i active =
+      _mm_and_si128(_mm_loadu_si128(reinterpret_cast<const __m128i*>(kMasks.mask + kLanes - (k - s))),
+                    _mm_loadu_si128(reinterpret_cast<const __m128i*>(kMasks.mask + 2 * kLanes - (end - s))));
+  __m128i* p = reinterpret_cast<__m128i*>(column + s);
+  _mm_storeu_si128(p, _mm_max_epi16(_mm_add_epi16(_mm_loadu_si128(p), active), floor_v));
+}
+#include "ray_walk.inc"
+}  // namespace sse2
+
+#pragma GCC push_options
+#pragma GCC target("avx2")
+namespace avx2 {
+constexpr int kLanes = 16;
+constexpr int kFirstLanes = 2 * kLanes;
+constexpr int kAllLanes = kLanes;
+constexpr LaneMaskTable<kLanes> kMasks;
+inline void ApplyMissBlock(Vote* block, int64_t mask) {
+  const __m256i active = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(kMasks.mask + mask));
+  __m256i* p = reinterpret_cast<__m256i*>(block);
+  _mm256_storeu_si256(p, _mm256_max_epi16(_mm256_add_epi16(_mm256_loadu_si256(p), active), _mm256_set1_epi16(kVoteMin)));
+}
+inline void ApplyMissRun(Vote* column, int lo, int end, int nz) {
+  const __m256i floor_v = _mm256_set1_epi16(kVoteMin);
+  int k = lo;
+  for (; end - k > kLanes; k += kLanes) {
+    __m256i* p = reinterpret_cast<__m256i*>(column + k);
+    _mm256_storeu_si256(p, _mm256_max_epi16(_mm256_add_epi16(_mm256_loadu_si256(p), _mm256_set1_epi16(-1)), floor_v));
+  }
+  const int s = std::min(k, nz - kLanes);
+  const __m256i active =
+      _mm256_and_si256(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(kMasks.mask + kLanes - (k - s))),
+                       _mm256_loadu_si256(reinterpret_cast<const __m256i*>(kMasks.mask + 2 * kLanes - (end - s))));
+  __m256i* p = reinterpret_cast<__m256i*>(column + s);
+  _mm256_storeu_si256(p, _mm256_max_epi16(_mm256_add_epi16(_mm256_loadu_si256(p), active), floor_v));
+}
+#include "ray_walk.inc"
+}  // namespace avx2
+#pragma GCC pop_options
+#endif  // __x86_64__
+
+constexpr bool CompiledForX86() {
+#if defined(__x86_64__)
+  return true;
+#else
+  return false;
+#endif
+}
+
+bool CpuHasAvx2() {
+#if defined(__x86_64__)
+  return __builtin_cpu_supports("avx2");
+#else
+  return false;
+#endif
+}
+
+using WalkRaysFn = void (*)(const RaySetup*, size_t, WalkContext*);
+
+// The kernel's walk for columns of nz votes: a narrower one where a column is shorter than a
+// block (the votes do not depend on the kernel).
+WalkRaysFn KernelWalk(InsertKernel kernel, int nz) {
+#if defined(__x86_64__)
+  if (kernel == InsertKernel::kAvx2 && nz >= avx2::kLanes) return &avx2::WalkRays;
+  if ((kernel == InsertKernel::kAvx2 || kernel == InsertKernel::kSse2) && nz >= sse2::kLanes) return &sse2::WalkRays;
+#endif
+  return &scalar::WalkRays;
 }
 
 }  // namespace
@@ -267,9 +307,26 @@ std::string InsertStats::BriefReport() const {
   return s.str();
 }
 
+const char* InsertKernelName(InsertKernel kernel) {
+  switch (kernel) {
+    case InsertKernel::kAuto:
+      return "auto";
+    case InsertKernel::kAvx2:
+      return "avx2";
+    case InsertKernel::kSse2:
+      return "sse2";
+    case InsertKernel::kScalar:
+      return "scalar";
+  }
+  return "?";
+}
+
 std::string InserterOptions::Problem() const {
   if (threads < 1 || threads > 256) {
     return "threads = " + std::to_string(threads) + ": must be in [1, 256]";
+  }
+  if ((kernel == InsertKernel::kAvx2 && !CpuHasAvx2()) || (kernel == InsertKernel::kSse2 && !CompiledForX86())) {
+    return std::string("kernel = ") + InsertKernelName(kernel) + ": this CPU does not support it";
   }
   return "";
 }
@@ -287,6 +344,9 @@ struct FrameInserter::Workspace {
     void operator()(void* p) const { std::free(p); }
   };
   std::unique_ptr<RaySetup[], Free> rays;
+  std::vector<std::vector<RunEntry>> run_buffers;  // per thread, reused
+  std::vector<std::vector<BlockRun>> block_buffers;
+  std::vector<size_t> chunk_begin;     // chunk c's first ray slot (its first pixel)
   std::vector<size_t> chunk_count;     // rays set up by chunk c
   std::vector<InsertStats> chunk_stats;
   std::vector<uint32_t> row_weight;    // threads x ny: rays per row, for balancing slabs
@@ -298,7 +358,14 @@ FrameInserter::FrameInserter(VotingGrid* grid, const InserterOptions& options)
   ROMUNECT_CHECK(grid != nullptr);
   const std::string problem = options.Problem();
   if (!problem.empty()) throw InputError("fusion inserter", "options", problem);
+  kernel_ = options.kernel;
+  if (kernel_ == InsertKernel::kAuto) {
+    kernel_ = CpuHasAvx2() ? InsertKernel::kAvx2 : (CompiledForX86() ? InsertKernel::kSse2 : InsertKernel::kScalar);
+  }
   ws_ = std::make_unique<Workspace>(options.threads);
+  ws_->chunk_begin.assign(options.threads, 0);
+  ws_->run_buffers.resize(options.threads);
+  ws_->block_buffers.resize(options.threads);
   ws_->chunk_count.assign(options.threads, 0);
   ws_->chunk_stats.assign(options.threads, InsertStats{});
   ws_->row_weight.assign(static_cast<size_t>(options.threads) * grid->ny(), 0);
@@ -341,21 +408,27 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
   double o_g[3];
   for (int a = 0; a < 3; ++a) o_g[a] = (o_W[a] - min_W[a]) / voxel;
 
-  // Phase 1: per pixel rows, classify each pixel and set its ray up (clip to the box).
+  // Phase 1: per band of tile rows, in the order of casting (voting_grid.h), classify each
+  // pixel and set its ray up (clip to the box).
   double thread_cpu_ms[256] = {};  // per thread, both phases: the frame's critical path
+  constexpr int kTile = kInsertionTilePx;
+  const int tile_rows = (height + kTile - 1) / kTile;
   auto setup = [&](int chunk) {
     const double cpu0 = ThreadCpuMs();
-    const int v0 = static_cast<int>(static_cast<int64_t>(height) * chunk / threads);
-    const int v1 = static_cast<int>(static_cast<int64_t>(height) * (chunk + 1) / threads);
+    const int v0 = std::min(height, kTile * static_cast<int>(static_cast<int64_t>(tile_rows) * chunk / threads));
+    const int v1 = std::min(height, kTile * static_cast<int>(static_cast<int64_t>(tile_rows) * (chunk + 1) / threads));
     InsertStats& s = ws.chunk_stats[chunk];
     s = InsertStats{};
     uint32_t* weight = &ws.row_weight[static_cast<size_t>(chunk) * n[1]];
     std::fill(weight, weight + n[1], 0u);
-    RaySetup* out = &ws.rays[static_cast<size_t>(v0) * width];
+    ws.chunk_begin[chunk] = static_cast<size_t>(v0) * width;
+    RaySetup* out = &ws.rays[ws.chunk_begin[chunk]];
     size_t count = 0;
-    for (int v = v0; v < v1; ++v) {
+    for (int tv = v0; tv < v1; tv += kTile) {
+     for (int tu = 0; tu < width; tu += kTile) {
+      for (int v = tv; v < std::min(tv + kTile, v1); ++v) {
       const float* row = depth_m.ptr<float>(v);
-      for (int u = 0; u < width; ++u) {
+      for (int u = tu; u < std::min(tu + kTile, width); ++u) {
         const float depth = row[u];
         if (depth == 0.0f) {
           ++s.no_measurement;
@@ -406,6 +479,8 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
         ++weight[(ray.iy_lo + ray.iy_hi) / 2];
         ++count;
       }
+      }
+     }
     }
     ws.chunk_count[chunk] = count;
     s.pixels = static_cast<size_t>(v1 - v0) * width;
@@ -428,26 +503,27 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     while (t < threads) ws.slab[t++] = n[1];
   }
 
-  // Phase 2: each thread walks every ray in pixel order and votes only in its own rows.
+  // Phase 2: each thread walks every ray in casting order and votes only in its own rows.
   size_t thread_hits[256] = {}, thread_misses[256] = {};
   VotingGrid* mutable_grid = grid_;
   uint16_t* hit_lo = mutable_grid->mutable_hit_lo();
   uint16_t* hit_hi = mutable_grid->mutable_hit_hi();
+  const WalkRaysFn walk_rays = KernelWalk(kernel_, n[2]);
   auto walk = [&](int thread) {
     const int ya = ws.slab[thread], yb = ws.slab[thread + 1];
     if (ya >= yb) return;
     const double cpu0 = ThreadCpuMs();
-    WalkContext context{o_g[0], o_g[1], o_g[2], n[0], n[1], n[2], ya, yb, mutable_grid->mutable_column(0),
-                        hit_lo, hit_hi, 0, 0};
+    const size_t run_capacity = static_cast<size_t>(n[0]) + n[1];
+    const size_t block_capacity = run_capacity + n[2];
+    std::vector<RunEntry>& run_buffer = ws.run_buffers[thread];
+    std::vector<BlockRun>& block_buffer = ws.block_buffers[thread];
+    run_buffer.resize(kPlanDepth * run_capacity);
+    block_buffer.resize(kPlanDepth * block_capacity);
+    WalkContext context{o_g[0],    o_g[1], o_g[2], n[0], n[1], n[2], ya, yb, mutable_grid->mutable_column(0),
+                        hit_lo,    hit_hi, 0,      0,    run_buffer.data(), block_buffer.data(), run_capacity,
+                        block_capacity};
     for (int chunk = 0; chunk < threads; ++chunk) {
-      const int v0 = static_cast<int>(static_cast<int64_t>(height) * chunk / threads);
-      const RaySetup* rays = &ws.rays[static_cast<size_t>(v0) * width];
-      const size_t count = ws.chunk_count[chunk];
-      for (size_t i = 0; i < count; ++i) {
-        const RaySetup& ray = rays[i];
-        if (ray.iy_hi < ya || ray.iy_lo >= yb) continue;
-        WalkRay(ray, &context);
-      }
+      walk_rays(&ws.rays[ws.chunk_begin[chunk]], ws.chunk_count[chunk], &context);
     }
     thread_hits[thread] = context.hits;
     thread_misses[thread] = context.misses;

@@ -2,8 +2,12 @@
 
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <random>
+#include <string>
+#include <vector>
 
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
 #include "reference_fusion.h"
@@ -45,6 +49,60 @@ ReferenceGrid MakeReference(const VotingGrid& grid) {
   return ::testing::AssertionFailure() << differences << " votes differ, first at " << first;
 }
 
+// Every kernel this CPU runs (AVX2, SSE2, scalar), each with 1, 2 and 3 threads: they must all
+// give the reference's votes.
+struct Config {
+  int threads;
+  InsertKernel kernel;
+};
+std::vector<Config> AllConfigs(std::vector<int> thread_counts = {1, 2, 3}) {
+  std::vector<Config> configs;
+  for (const InsertKernel kernel : {InsertKernel::kAvx2, InsertKernel::kSse2, InsertKernel::kScalar}) {
+    const InserterOptions options{1, kernel};
+    if (!options.Problem().empty()) continue;
+    for (const int threads : thread_counts) configs.push_back({threads, kernel});
+  }
+  return configs;
+}
+std::string Describe(const Config& c) {
+  return std::string("kernel ") + InsertKernelName(c.kernel) + ", threads " + std::to_string(c.threads);
+}
+
+// One fast grid per configuration, fed the same frames.
+struct FastGrids {
+  FastGrids(const GridOptions& options, const std::vector<Config>& all) : configs(all) {
+    for (const Config& c : configs) {
+      grids.push_back(std::make_unique<VotingGrid>(options));
+      inserters.push_back(std::make_unique<FrameInserter>(grids.back().get(), InserterOptions{c.threads, c.kernel}));
+      stats.emplace_back();
+    }
+  }
+  void Insert(const CameraModel& camera, const cv::Mat& depth, const Pose& T_W_C) {
+    for (size_t i = 0; i < configs.size(); ++i) inserters[i]->Insert(camera, depth, T_W_C, &stats[i]);
+  }
+  std::vector<Config> configs;
+  std::vector<std::unique_ptr<VotingGrid>> grids;
+  std::vector<std::unique_ptr<FrameInserter>> inserters;
+  std::vector<InsertStats> stats;
+};
+
+TEST(FrameInserterTest, KernelsAreOfferedAsTheCpuAllows) {
+  const InserterOptions scalar{1, InsertKernel::kScalar}, automatic{1, InsertKernel::kAuto};
+  const InserterOptions avx2{1, InsertKernel::kAvx2};
+  EXPECT_EQ(scalar.Problem(), "");
+  EXPECT_EQ(automatic.Problem(), "");
+  GridOptions options;
+  options.voxel_m = 0.004;
+  VotingGrid grid(options);
+  EXPECT_NE(FrameInserter(&grid, InserterOptions{}).kernel(), InsertKernel::kAuto);  // resolved
+  EXPECT_EQ(FrameInserter(&grid, scalar).kernel(), InsertKernel::kScalar);
+  if (!__builtin_cpu_supports("avx2")) {
+    EXPECT_THAT(avx2.Problem(), ::testing::HasSubstr("kernel = avx2"));
+  } else {
+    EXPECT_EQ(FrameInserter(&grid, InserterOptions{}).kernel(), InsertKernel::kAvx2);
+  }
+}
+
 // A 1-pixel camera looking straight down at depth d: the column under it gets misses from the
 // box top down to the voxel holding the point, which gets the hit; nothing below changes.
 TEST(FrameInserterTest, SingleRayMissesAboveAndHitsTheMeasuredVoxel) {
@@ -74,7 +132,8 @@ TEST(FrameInserterTest, SingleRayMissesAboveAndHitsTheMeasuredVoxel) {
 }
 
 // The fast path against the reference on the analytic bin: identical votes, identical maps,
-// identical counters, for 1, 2 and 3 threads, with and without lens distortion.
+// identical counters, for every kernel with 1, 2 and 3 threads, with and without lens distortion.
+// nz = 43: runs of one block, of several blocks and at the column top (AVX2 end-aligned block).
 TEST(FrameInserterTest, MatchesReferenceVoteForVoteOnAnalyticBin) {
   for (const bool distorted : {false, true}) {
     AnalyticBinOptions bin_options;
@@ -88,21 +147,24 @@ TEST(FrameInserterTest, MatchesReferenceVoteForVoteOnAnalyticBin) {
     options.min_W = AnalyticBin::RegionMin();
     options.max_W = AnalyticBin::RegionMax();
     options.voxel_m = 0.0015;  // coarse, so the reference stays fast
-    for (const int threads : {1, 2, 3}) {
-      VotingGrid grid(options);
-      ReferenceGrid ref = MakeReference(grid);
-      FrameInserter inserter(&grid, InserterOptions{threads});
-      InsertStats stats;
-      ReferenceCounts counts;
-      for (int i = 0; i < bin.frames(); ++i) {
-        const Frame frame = bin.RenderFrame(i);
-        inserter.Insert(bin.camera(), frame.depth_m, *frame.T_W_C, &stats);
-        reference::ReferenceInsert(bin.camera(), frame.depth_m, *frame.T_W_C, &ref, &counts);
-        // Extraction at any time gives the reference's map.
-        ASSERT_TRUE(ImagesBitEqual(ExtractHeightMap(grid), reference::ReferenceExtract(ref)))
-            << "frame " << i << ", threads " << threads << ", distorted " << distorted;
+    FastGrids fast(options, AllConfigs());
+    ReferenceGrid ref = MakeReference(*fast.grids[0]);
+    ReferenceCounts counts;
+    for (int i = 0; i < bin.frames(); ++i) {
+      const Frame frame = bin.RenderFrame(i);
+      fast.Insert(bin.camera(), frame.depth_m, *frame.T_W_C);
+      reference::ReferenceInsert(bin.camera(), frame.depth_m, *frame.T_W_C, &ref, &counts);
+      // Extraction at any time gives the reference's map.
+      const cv::Mat expected = reference::ReferenceExtract(ref);
+      for (size_t c = 0; c < fast.configs.size(); ++c) {
+        ASSERT_TRUE(ImagesBitEqual(ExtractHeightMap(*fast.grids[c]), expected))
+            << "frame " << i << ", " << Describe(fast.configs[c]) << ", distorted " << distorted;
       }
-      EXPECT_TRUE(VotesEqual(grid, ref)) << "threads " << threads << ", distorted " << distorted;
+    }
+    for (size_t c = 0; c < fast.configs.size(); ++c) {
+      const InsertStats& stats = fast.stats[c];
+      SCOPED_TRACE(Describe(fast.configs[c]) + ", distorted " + std::to_string(distorted));
+      EXPECT_TRUE(VotesEqual(*fast.grids[c], ref));
       EXPECT_EQ(stats.rays, counts.rays);
       EXPECT_EQ(stats.hits, counts.hits);
       EXPECT_EQ(stats.misses, counts.misses);
@@ -114,25 +176,25 @@ TEST(FrameInserterTest, MatchesReferenceVoteForVoteOnAnalyticBin) {
 }
 
 // Random cameras inside, outside and around a small box, looking every way, with depths that end
-// inside, beyond and before the box: every clipping and tie case the reference knows.
+// inside, beyond and before the box: every clipping and tie case the reference knows. Two box
+// heights: nz = 24 (shorter than two AVX2 blocks: the general run kernel) and nz = 40.
 TEST(FrameInserterTest, MatchesReferenceOnRandomRaysThroughTheBoxFaces) {
-  GridOptions options;
-  options.min_W = Eigen::Vector3d(-0.01, -0.008, -0.006);
-  options.max_W = Eigen::Vector3d(0.01, 0.008, 0.006);
-  options.voxel_m = 0.0005;
-  CameraModel camera = testing::SmallCamera();
-  camera.width = 24;
-  camera.height = 18;
-  camera.cx = 11.5;
-  camera.cy = 8.5;
-  camera.fx = camera.fy = 20.0;  // wide: rays leave through every face
-  std::mt19937 rng(11);
-  std::uniform_real_distribution<double> position(-0.02, 0.02), angle(-M_PI, M_PI), depth(0.0, 0.05);
-  for (const int threads : {1, 2}) {
-    VotingGrid grid(options);
-    ReferenceGrid ref = MakeReference(grid);
-    FrameInserter inserter(&grid, InserterOptions{threads});
-    InsertStats stats;
+  for (const int nz : {24, 40}) {
+    GridOptions options;
+    options.min_W = Eigen::Vector3d(-0.01, -0.008, -0.00025 * nz);
+    options.max_W = Eigen::Vector3d(0.01, 0.008, 0.00025 * nz);
+    options.voxel_m = 0.0005;
+    CameraModel camera = testing::SmallCamera();
+    camera.width = 24;
+    camera.height = 18;
+    camera.cx = 11.5;
+    camera.cy = 8.5;
+    camera.fx = camera.fy = 20.0;  // wide: rays leave through every face
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<double> position(-0.02, 0.02), angle(-M_PI, M_PI), depth(0.0, 0.05);
+    FastGrids fast(options, AllConfigs({1, 2}));
+    ASSERT_EQ(fast.grids[0]->nz(), nz);
+    ReferenceGrid ref = MakeReference(*fast.grids[0]);
     ReferenceCounts counts;
     for (int frame = 0; frame < 40; ++frame) {
       const Eigen::Matrix3d R = (Eigen::AngleAxisd(angle(rng), Eigen::Vector3d::UnitZ()) *
@@ -145,16 +207,20 @@ TEST(FrameInserterTest, MatchesReferenceOnRandomRaysThroughTheBoxFaces) {
       const Pose T_W_C = MakePose(R, t);
       cv::Mat d(camera.height, camera.width, CV_32F);
       for (auto it = d.begin<float>(); it != d.end<float>(); ++it) *it = static_cast<float>(depth(rng));
-      inserter.Insert(camera, d, T_W_C, &stats);
+      fast.Insert(camera, d, T_W_C);
       reference::ReferenceInsert(camera, d, T_W_C, &ref, &counts);
     }
-    EXPECT_TRUE(VotesEqual(grid, ref)) << "threads " << threads;
-    EXPECT_TRUE(ImagesBitEqual(ExtractHeightMap(grid), reference::ReferenceExtract(ref)));
-    EXPECT_EQ(stats.hits, counts.hits);
-    EXPECT_EQ(stats.misses, counts.misses);
-    EXPECT_GT(stats.rays_missing_box, 0u);
-    EXPECT_GT(stats.points_outside_box, stats.rays_missing_box);  // some rays cross and leave
-    EXPECT_GT(stats.hits, 100u);
+    for (size_t c = 0; c < fast.configs.size(); ++c) {
+      const InsertStats& stats = fast.stats[c];
+      SCOPED_TRACE(Describe(fast.configs[c]) + ", nz " + std::to_string(nz));
+      EXPECT_TRUE(VotesEqual(*fast.grids[c], ref));
+      EXPECT_TRUE(ImagesBitEqual(ExtractHeightMap(*fast.grids[c]), reference::ReferenceExtract(ref)));
+      EXPECT_EQ(stats.hits, counts.hits);
+      EXPECT_EQ(stats.misses, counts.misses);
+      EXPECT_GT(stats.rays_missing_box, 0u);
+      EXPECT_GT(stats.points_outside_box, stats.rays_missing_box);  // some rays cross and leave
+      EXPECT_GT(stats.hits, 100u);
+    }
   }
 }
 
@@ -215,13 +281,14 @@ TEST(FrameInserterTest, CountsInvalidPixelsAndSkipsThem) {
   EXPECT_EQ(stats.hits, stats.rays - 1);
 }
 
-// Votes saturate at +-32767 (voting_grid.h): a 40 x 30 camera looking down into a 2 x 2 x 8 box
+// Votes saturate at +-32767 (voting_grid.h): a 40 x 30 camera looking down into a 2 x 2 x nz box
 // of coarse voxels sends ~300 rays per column per frame, so within 200 frames the top voxels
 // reach -32767 and the surface voxels +32767 and keep receiving votes. Saturation is where the
-// order of votes could matter; the fast path must still equal the reference vote for vote, with
-// SIMD runs of every length (nz = 8 and nz = 11: runs crossing 8-lane blocks and column ends).
+// order of votes could matter; every kernel must still equal the reference vote for vote, with
+// runs of every length (nz = 8 and 11: runs crossing 8-lane blocks and column ends; nz = 40:
+// 16-lane blocks, several per run, and end-aligned blocks at the column top).
 TEST(FrameInserterTest, SaturatedVotesMatchReference) {
-  for (const int nz : {8, 11}) {
+  for (const int nz : {8, 11, 40}) {
     GridOptions options;
     options.min_W = Eigen::Vector3d(0.0, 0.0, 0.0);
     options.max_W = Eigen::Vector3d(0.002, 0.002, 0.001 * nz);
@@ -231,39 +298,86 @@ TEST(FrameInserterTest, SaturatedVotesMatchReference) {
     camera.height = 30;
     camera.cx = 19.5;
     camera.cy = 14.5;
-    camera.fx = camera.fy = 400.0;  // 40 px span 2 mm at 20 mm
+    // The camera 20 mm above the floor, above the box top for nz = 40; 40 px span 2 mm at 20 mm.
+    const double height_m = nz <= 11 ? 0.020 : 0.010 + 0.001 * nz;
+    camera.fx = camera.fy = 400.0 * height_m / 0.020;
     const Pose T_W_C = MakePose(Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix(),
-                                Eigen::Vector3d(0.001, 0.001, 0.020));
-    for (const int threads : {1, 2}) {
-      VotingGrid grid(options);
-      ReferenceGrid ref = MakeReference(grid);
-      FrameInserter inserter(&grid, InserterOptions{threads});
-      InsertStats stats;
-      ReferenceCounts counts;
-      std::mt19937 rng(5);
-      // Depths put the points at z in [0.5, nz - 0.5] mm: some columns hit at every level.
-      std::uniform_real_distribution<double> depth(0.020 - 0.001 * (nz - 0.5), 0.0195);
-      for (int frame = 0; frame < 200; ++frame) {
-        cv::Mat d(camera.height, camera.width, CV_32F);
-        // Most pixels on one plane (the surface saturates positive), the rest scattered.
-        for (auto it = d.begin<float>(); it != d.end<float>(); ++it) {
-          *it = static_cast<float>(rng() % 4 != 0 ? 0.020 - 0.0042 : depth(rng));
-        }
-        inserter.Insert(camera, d, T_W_C, &stats);
-        reference::ReferenceInsert(camera, d, T_W_C, &ref, &counts);
+                                Eigen::Vector3d(0.001, 0.001, height_m));
+    FastGrids fast(options, AllConfigs({1, 2}));
+    ReferenceGrid ref = MakeReference(*fast.grids[0]);
+    ReferenceCounts counts;
+    std::mt19937 rng(5);
+    // Depths put the points at z in [0.5, nz - 0.5] mm: some columns hit at every level.
+    std::uniform_real_distribution<double> depth(height_m - 0.001 * (nz - 0.5), height_m - 0.0005);
+    for (int frame = 0; frame < 200; ++frame) {
+      cv::Mat d(camera.height, camera.width, CV_32F);
+      // Most pixels on one plane (the surface saturates positive), the rest scattered.
+      for (auto it = d.begin<float>(); it != d.end<float>(); ++it) {
+        *it = static_cast<float>(rng() % 4 != 0 ? height_m - 0.0042 : depth(rng));
       }
-      EXPECT_TRUE(VotesEqual(grid, ref)) << "nz " << nz << ", threads " << threads;
-      EXPECT_TRUE(ImagesBitEqual(ExtractHeightMap(grid), reference::ReferenceExtract(ref)));
-      EXPECT_EQ(stats.hits, counts.hits);
-      EXPECT_EQ(stats.misses, counts.misses);
-      int saturated_low = 0, saturated_high = 0;
-      for (const int16_t v : ref.votes) {
-        saturated_low += v == -32767;
-        saturated_high += v == 32767;
-      }
-      EXPECT_GT(saturated_low, 0) << "the workload must saturate misses";
-      EXPECT_GT(saturated_high, 0) << "the workload must saturate hits";
+      fast.Insert(camera, d, T_W_C);
+      reference::ReferenceInsert(camera, d, T_W_C, &ref, &counts);
     }
+    for (size_t c = 0; c < fast.configs.size(); ++c) {
+      SCOPED_TRACE(Describe(fast.configs[c]) + ", nz " + std::to_string(nz));
+      EXPECT_TRUE(VotesEqual(*fast.grids[c], ref));
+      EXPECT_TRUE(ImagesBitEqual(ExtractHeightMap(*fast.grids[c]), reference::ReferenceExtract(ref)));
+      EXPECT_EQ(fast.stats[c].hits, counts.hits);
+      EXPECT_EQ(fast.stats[c].misses, counts.misses);
+    }
+    int saturated_low = 0, saturated_high = 0;
+    for (const int16_t v : ref.votes) {
+      saturated_low += v == -32767;
+      saturated_high += v == 32767;
+    }
+    EXPECT_GT(saturated_low, 0) << "the workload must saturate misses";
+    EXPECT_GT(saturated_high, 0) << "the workload must saturate hits";
+  }
+}
+
+// The casting order is tile order (voting_grid.h), and it shows once a voxel saturates: a camera
+// of kInsertionTilePx + 1 by 2 pixels looks down one column. After the voxel at z index 3 is
+// saturated at +32767, a frame casts a hit into it from pixel (u = kInsertionTilePx, v = 0) and
+// misses through it from pixels (0, 1) and (1, 1). Tile order casts the misses first (the second
+// tile holds only column kInsertionTilePx): 32767 - 2 + 1 = 32766. Pixel order would cast the
+// hit first, lost to saturation: 32767 - 2 = 32765.
+TEST(FrameInserterTest, CastsInTileOrder) {
+  GridOptions options;
+  options.min_W = Eigen::Vector3d(0.0, 0.0, 0.0);
+  options.max_W = Eigen::Vector3d(0.001, 0.001, 0.008);
+  options.voxel_m = 0.001;
+  CameraModel camera = testing::SmallCamera();
+  camera.width = kInsertionTilePx + 1;
+  camera.height = 2;
+  camera.cx = kInsertionTilePx / 2.0;
+  camera.cy = 0.5;
+  camera.fx = camera.fy = 20000.0;  // every ray stays inside the one column
+  const Pose T_W_C = MakePose(Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix(),
+                              Eigen::Vector3d(0.0005, 0.0005, 0.020));
+  const float hit_depth = 0.020f - 0.0035f, miss_depth = 0.020f - 0.0015f;  // z 3.5 mm, 1.5 mm
+  for (const Config& config : AllConfigs({1, 2})) {
+    SCOPED_TRACE(Describe(config));
+    VotingGrid grid(options);
+    ReferenceGrid ref = MakeReference(grid);
+    ReferenceCounts counts;
+    FrameInserter inserter(&grid, InserterOptions{config.threads, config.kernel});
+    const cv::Mat saturate(camera.height, camera.width, CV_32F, cv::Scalar(hit_depth));
+    for (int frame = 0; frame * camera.width * camera.height < 32767; ++frame) {
+      inserter.Insert(camera, saturate, T_W_C, nullptr);
+      reference::ReferenceInsert(camera, saturate, T_W_C, &ref, &counts);
+    }
+    ASSERT_EQ(grid.vote(0, 0, 3), 32767);
+    cv::Mat d(camera.height, camera.width, CV_32F, cv::Scalar(0.0f));
+    d.at<float>(0, kInsertionTilePx) = hit_depth;
+    d.at<float>(1, 0) = miss_depth;
+    d.at<float>(1, 1) = miss_depth;
+    InsertStats stats;
+    inserter.Insert(camera, d, T_W_C, &stats);
+    reference::ReferenceInsert(camera, d, T_W_C, &ref, &counts);
+    EXPECT_EQ(stats.hits, 3u);  // the misses through z index 3 end in hits at index 1
+    EXPECT_EQ(grid.vote(0, 0, 3), 32766);
+    EXPECT_EQ(ref.at(0, 0, 3), 32766);
+    EXPECT_TRUE(VotesEqual(grid, ref));
   }
 }
 

@@ -1,5 +1,7 @@
 #include "reference_fusion.h"
 
+#include "romunect/fusion/voting_grid.h"
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -19,8 +21,12 @@ void ReferenceInsert(const CameraModel& camera, const cv::Mat& depth_m, const Po
   const Eigen::Matrix3d R = T_W_C.linear();
   const Eigen::Vector3d o_W = T_W_C.translation();
   const int* n = grid->n;
-  for (int v = 0; v < depth_m.rows; ++v) {
-    for (int u = 0; u < depth_m.cols; ++u) {
+  // The casting order (voting_grid.h): square tiles row-major, pixels row-major in each tile.
+  const int tile = kInsertionTilePx;
+  for (int tv = 0; tv < depth_m.rows; tv += tile) {
+   for (int tu = 0; tu < depth_m.cols; tu += tile) {
+    for (int v = tv; v < std::min(tv + tile, depth_m.rows); ++v) {
+    for (int u = tu; u < std::min(tu + tile, depth_m.cols); ++u) {
       const float depth = depth_m.at<float>(v, u);
       if (depth == 0.0f) continue;
       if (!(depth > 0.0f) || !std::isfinite(depth)) {
@@ -89,6 +95,8 @@ void ReferenceInsert(const CameraModel& camera, const cv::Mat& depth_m, const Po
         t_next[a] = (static_cast<double>(step[a] > 0 ? idx[a] + 1 : idx[a]) - o[a]) * inv[a];
       }
     }
+    }
+   }
   }
 }
 

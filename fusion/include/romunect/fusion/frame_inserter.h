@@ -46,8 +46,16 @@ struct InsertStats {
   std::string BriefReport() const;
 };
 
+// The SIMD kernel that applies the runs of misses. Every kernel gives the same votes bit for bit
+// (tests/fusion compares them); kAuto takes AVX2 where the CPU has it (checked at run time, the
+// build never assumes it), else SSE2 (x86-64), else scalar.
+enum class InsertKernel { kAuto, kAvx2, kSse2, kScalar };
+const char* InsertKernelName(InsertKernel kernel);
+
 struct InserterOptions {
   int threads = 1;  // worker threads including the caller, 1..256
+  InsertKernel kernel = InsertKernel::kAuto;
+  // Names the field when unusable, e.g. kAvx2 on a CPU without AVX2.
   std::string Problem() const;
 };
 
@@ -67,11 +75,14 @@ class FrameInserter {
               InsertStats* stats);
 
   int threads() const { return options_.threads; }
+  // The kernel in use (kAuto resolved).
+  InsertKernel kernel() const { return kernel_; }
 
  private:
   struct Workspace;
   VotingGrid* grid_;
   InserterOptions options_;
+  InsertKernel kernel_ = InsertKernel::kScalar;
   std::unique_ptr<Workspace> ws_;
 };
 

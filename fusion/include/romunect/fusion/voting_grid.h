@@ -18,9 +18,14 @@
 //
 // Votes are int16 and saturate at +-32767: int8 would saturate after ~127 rays (a surface voxel
 // at 0.25 mm sees ~7 rays per frame at 200 mm, so 20-30 frames), and saturated ties would bias
-// heights upward; int16 needs 300+ such frames. Saturating (not wrapping) keeps the sign, and
-// since every voxel receives its votes in pixel order whatever the thread count, it stays
-// deterministic.
+// heights upward; int16 needs 300+ such frames. Saturating (not wrapping) keeps the sign.
+//
+// Casting order: votes commute until a voxel saturates, so the order of rays is part of the
+// semantics. A frame's pixels are cast in tile order: the image is cut into kInsertionTilePx
+// square tiles (the last row and column of tiles may be smaller), tiles in row-major order,
+// pixels in row-major order inside a tile. Neighbouring rays cross the same columns, so a tile's
+// columns stay in cache (pixel-row order revisits a column only 640 rays later). Every voxel gets
+// its votes in this order whatever the thread count, so the result is deterministic.
 #pragma once
 
 #include <cstddef>
@@ -34,6 +39,9 @@
 namespace romunect::fusion {
 
 using Vote = int16_t;
+
+// The side of the square pixel tiles of the casting order (see above).
+constexpr int kInsertionTilePx = 32;
 
 struct GridOptions {
   // The box in W, metres. Default: the paper's 150 x 80 mm region, 64 mm tall, around a bin
