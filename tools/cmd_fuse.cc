@@ -1,6 +1,7 @@
 // romunect fuse SOURCE: fuses the depth maps of a frame directory, an .oni recording or a live
 // OpenNI2 device (sources as OpenSource reads them; the last two with a pose log and a
-// calibration for the camera poses) into one height map (fusion/) and writes fused_depth.exr,
+// calibration for the camera poses and, when it has one, the depth model applied to the chip's
+// raw shifts) into one height map (fusion/) and writes fused_depth.exr,
 // fused_depth.png, fused_points.ply, completeness.png, report.json. A device that stops
 // mid-scan ends the run with an error, after the outputs of the frames fused so far are written.
 #include <chrono>
@@ -23,6 +24,7 @@
 #include "romunect/fusion/outputs.h"
 #include "romunect/fusion/voting_grid.h"
 #include "romunect/openni2/open_source.h"
+#include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/image_io.h"
@@ -41,6 +43,7 @@ struct FuseArguments {
   std::string poses, calibration, camera;
   double pose_offset_s = 0.0;
   double timeout_s = 2.0;
+  bool device_depth = false;  // fuse the device's metric depth even with a depth model
 };
 
 double NowMs() {
@@ -69,10 +72,19 @@ void ParseBox(const std::string& text, fusion::GridOptions* options) {
   options->max_W = Eigen::Vector3d(values[3], values[4], values[5]);
 }
 
+// What fuse reads: the source, and for a device or recording with a calibrated depth model, the
+// model that turns the chip's raw shifts into depth (as the simulated pipeline applies it).
+struct FuseSource {
+  std::unique_ptr<FrameSource> source;
+  std::optional<DepthCorrection> depth_model;
+  ChipGeometry chip;
+  std::string depth_from;  // for the report
+};
+
 // The source as OpenSource opens it for fusion: a frame directory as is (its frames.json holds
 // camera and poses); an .oni file or a device with a pose log for T_B_H and a calibration for
-// T_H_C and the camera, depth only.
-std::unique_ptr<FrameSource> OpenFuseSource(const FuseArguments& args) {
+// T_H_C, the camera and the depth model (then raw shifts are read), no IR.
+FuseSource OpenFuseSource(const FuseArguments& args) {
   const openni2::SourceKind kind = openni2::ClassifySource(args.source);
   openni2::OpenSourceOptions options;
   options.invalid_depth = InvalidDepthPolicy::kSkip;
@@ -85,7 +97,7 @@ std::unique_ptr<FrameSource> OpenFuseSource(const FuseArguments& args) {
                                        " is a frame directory, whose frames.json holds the camera and the poses");
       }
     }
-    return openni2::OpenSource(args.source, options);
+    return {openni2::OpenSource(args.source, options), std::nullopt, {}, "the frame directory's depth"};
   }
   if (args.poses.empty()) {
     throw InputError("--poses", "", "missing: " + args.source +
@@ -102,7 +114,25 @@ std::unique_ptr<FrameSource> OpenFuseSource(const FuseArguments& args) {
   options.openni2.camera = args.camera.empty() ? calibration.camera : CameraModel::Load(args.camera);
   options.openni2.ir = false;  // fusion reads depth only
   options.openni2.timeout_s = args.timeout_s;
-  return openni2::OpenSource(args.source, options);
+  FuseSource fuse;
+  if (calibration.depth && !args.device_depth) {
+    const CameraModel& camera = *options.openni2.camera;
+    if (calibration.depth->a.cols != camera.width || calibration.depth->a.rows != camera.height) {
+      throw InputError(args.calibration, "depth_model",
+                       "maps are " + std::to_string(calibration.depth->a.cols) + " x " +
+                           std::to_string(calibration.depth->a.rows) + ", the camera is " + std::to_string(camera.width) +
+                           " x " + std::to_string(camera.height));
+    }
+    options.openni2.raw = true;  // the model reads the chip's raw shifts
+    fuse.depth_model = calibration.depth;
+    fuse.chip = calibration.chip;
+    fuse.depth_from = std::string("the calibration's depth model (") + DepthCorrectionModelName(calibration.depth->model) +
+                      ") on the device's raw shifts";
+  } else {
+    fuse.depth_from = "the device's metric depth";
+  }
+  fuse.source = openni2::OpenSource(args.source, options);
+  return fuse;
 }
 
 // Default output folder: beside a directory or .oni file; a device has no place of its own.
@@ -134,7 +164,8 @@ void RunFuse(const FuseArguments& args) {
   if (const std::string p = inserter_options.Problem(); !p.empty()) throw InputError("--threads", "", p);
   const fs::path out = args.out.empty() ? DefaultOutput(args) : fs::path(args.out);
 
-  const std::unique_ptr<FrameSource> source = OpenFuseSource(args);  // validates frames.json
+  const FuseSource opened = OpenFuseSource(args);  // validates frames.json
+  const std::unique_ptr<FrameSource>& source = opened.source;
   const FrameDirectorySource* directory = openni2::FindFrameDirectorySource(source.get());
   const CameraModel camera = source->camera();
   const size_t frame_count = directory != nullptr ? directory->manifest().frames.size() : 0;
@@ -185,6 +216,7 @@ void RunFuse(const FuseArguments& args) {
       std::fprintf(stderr, "\nromunect: warning: %s: %s, skipped\n", field.c_str(), error.c_str());
       continue;
     }
+    if (opened.depth_model && !frame.raw.empty()) frame.depth_m = ApplyDepthCorrection(*opened.depth_model, frame.raw, opened.chip);
     if (frame.depth_m.empty()) throw InputError(where, field + ".depth", "missing: fuse needs depth");
     if (!frame.T_W_C) throw InputError(where, field + ".T_W_C", "missing: fuse needs the camera pose");
     if (frame.depth_m.rows != camera.height || frame.depth_m.cols != camera.width) {
@@ -223,6 +255,7 @@ void RunFuse(const FuseArguments& args) {
   fusion::WriteCompletenessPlot(out / "completeness.png", report.completeness_per_frame);
   // The fusion's report, plus whether the source ended or stopped early (and why).
   nlohmann::ordered_json json = nlohmann::ordered_json::parse(fusion::FusionReportJson(report));
+  json["depth_from"] = opened.depth_from;
   json["stopped_early"] = stopped.has_value();
   if (stopped) json["stop_reason"] = *stopped;
   WriteTextAtomically(out / "report.json", json.dump(2) + "\n");
@@ -271,6 +304,8 @@ void AddFuseCommand(CLI::App& app) {
                   ".oni/device: romunect calibration file: T_H_C turns flange poses into camera poses (world = robot "
                   "base), and its camera is the frames' camera");
   cmd->add_option("--camera", args->camera, ".oni/device: camera model (OpenCV YAML/JSON) replacing the calibration's");
+  cmd->add_flag("--device-depth", args->device_depth,
+                ".oni/device: fuse the device's metric depth, not the calibration's depth model applied to raw shifts");
   cmd->add_option("--timeout", args->timeout_s,
                   ".oni/device: seconds without a frame before the device counts as gone (default 2)")
       ->check(CLI::PositiveNumber);

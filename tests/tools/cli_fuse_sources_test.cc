@@ -2,8 +2,11 @@
 // virtual device with its pose log, and the live virtual device, each fused to the same map as
 // the frame directory they came from; a device that stops mid-scan (outputs kept, exit 2); and
 // the options only those sources take.
+#include <algorithm>
 #include <cmath>
+#include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <gmock/gmock.h>
@@ -14,6 +17,7 @@
 #include "romunect/openni2/depth_units.h"
 #include "romunect/openni2/pose_log.h"
 #include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/image_io.h"
 #include "romunect/testing/analytic_bin.h"
@@ -43,11 +47,20 @@ double WireTime(double t_s, double t0_s) {
 // times in whole microseconds, and T_W_C exactly what the pose log (T_B_H, world = base) and
 // an identity hand-eye give at those times. Writes DIR (the first `frames` frames), the pose
 // log (covering the first `logged` frames) and a calibration file (camera, T_H_C = identity).
+// With `raw_model`, frames also hold the chip's raw shifts, the calibration a depth model of
+// them (1/Z = a raw + b) that puts depth 5 % farther than the device's metric depth, and
+// model_dir holds the same frames with the model's depth.
 struct Capture {
-  std::filesystem::path dir, poses, calibration;
+  std::filesystem::path dir, poses, calibration, model_dir;
 };
 
-Capture WriteCapture(const std::filesystem::path& root, int frames, int logged) {
+// A chip whose raw shifts span the bin's 0.2-0.4 m: raw = offset - K / Z (1/8 px units).
+constexpr double kRawOffset = 2000.0, kRawScalePxM = 348.0;
+// The model's depth over the device's: 10-20 mm at the bin, many 1 mm voxels, so fusing the
+// wrong one cannot go unnoticed.
+constexpr double kModelScale = 1.05;
+
+Capture WriteCapture(const std::filesystem::path& root, int frames, int logged, bool raw_model = false) {
   testing::AnalyticBinOptions options;
   options.width = 96;
   options.height = 72;
@@ -55,7 +68,7 @@ Capture WriteCapture(const std::filesystem::path& root, int frames, int logged) 
   options.seed = 5;
   const testing::AnalyticBin bin(options);
   std::filesystem::create_directories(root);
-  Capture c{root / "capture", root / "poses.csv", root / "calibration.yml"};
+  Capture c{root / "capture", root / "poses.csv", root / "calibration.yml", root / "model"};
 
   std::vector<Frame> rendered;
   std::vector<TimedPose> log;
@@ -66,21 +79,41 @@ Capture WriteCapture(const std::filesystem::path& root, int frames, int logged) 
   PoseLog(log).Save(c.poses);
   const PoseLog loaded = PoseLog::Load(c.poses);  // the poses as fuse reads them
 
+  calib::Calibration calibration;
+  calibration.camera = bin.camera();
+  if (raw_model) {
+    const cv::Size size(bin.camera().width, bin.camera().height);
+    calibration.depth = DepthCorrection{DepthCorrectionModel::kInverseAffineInRaw,
+                                        cv::Mat(size, CV_64F, cv::Scalar(-1.0 / (kModelScale * kRawScalePxM))),
+                                        cv::Mat(size, CV_64F, cv::Scalar(kRawOffset / (kModelScale * kRawScalePxM)))};
+  }
+  calib::SaveCalibration(c.calibration, calibration);
+  const calib::Calibration model = calib::LoadCalibration(c.calibration);  // as fuse reads it
+
   FrameDirectoryWriter writer(c.dir, bin.camera());
+  std::optional<FrameDirectoryWriter> model_writer;
+  if (raw_model) model_writer.emplace(c.model_dir, bin.camera());
   for (int i = 0; i < frames; ++i) {
     Frame f = rendered[i];
     f.time_s = WireTime(f.time_s, rendered[0].time_s);
     if (i < logged) f.T_W_C = *loaded.At(f.time_s);
+    if (raw_model) {
+      f.raw.create(f.depth_m.size(), CV_16U);
+      f.raw.forEach<uint16_t>([&](uint16_t& r, const int* p) {
+        const double z = f.depth_m.at<float>(p[0], p[1]);
+        r = z > 0.0 ? static_cast<uint16_t>(std::clamp(std::lround(kRawOffset - kRawScalePxM / z), 0L, 2046L)) : kRawInvalid;
+      });
+      Frame m = f;
+      m.depth_m = ApplyDepthCorrection(*model.depth, f.raw, model.chip);
+      model_writer->Add(m);
+    }
     f.depth_m.forEach<float>([](float& d, const int*) {
       d = DequantizeDepth(QuantizeDepth(d, DepthUnit::k100um), DepthUnit::k100um);
     });
     writer.Add(f);
   }
   writer.Finish();
-
-  calib::Calibration calibration;
-  calibration.camera = bin.camera();
-  calib::SaveCalibration(c.calibration, calibration);
+  if (model_writer) model_writer->Finish();
   return c;
 }
 
@@ -125,6 +158,36 @@ TEST(FuseSourcesCli, OniWithPoseLogAndLiveDeviceFuseToTheDirectorysMap) {
     EXPECT_EQ(report["stopped_early"], false) << out;
   }
   EXPECT_EQ(Report(scratch / "live")["input"], DeviceUri(c.dir));
+}
+
+// With a depth model in the calibration, fuse reads the chip's raw shifts and applies the model,
+// as the simulated pipeline does; --device-depth fuses the device's own metric depth instead.
+TEST(FuseSourcesCli, TheCalibrationsDepthModelIsAppliedToTheDevicesRawShifts) {
+  ScratchDir scratch("fuse_sources_model");
+  const Capture c = WriteCapture(scratch.path(), kFrames, kFrames, /*raw_model=*/true);
+  for (const auto& [dir, out] : {std::pair{c.model_dir, "model_dir"}, std::pair{c.dir, "device_dir"}}) {
+    const auto r = RunRomunect("fuse " + dir.string() + kFuseArgs + " --out " + (scratch / out).string());
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+  }
+  const cv::Mat model_map = ReadDepthExr(scratch / "model_dir" / "fused_depth.exr");
+  const cv::Mat device_map = ReadDepthExr(scratch / "device_dir" / "fused_depth.exr");
+  ASSERT_FALSE(ImagesBitEqual(model_map, device_map)) << "the fixture must tell the two depths apart";
+
+  const auto live = RunRomunect("fuse " + Quote(DeviceUri(c.dir)) + kFuseArgs + PoseArgs(c) + " --out " +
+                                (scratch / "live").string());
+  ASSERT_EQ(live.exit_code, 0) << live.output;
+  EXPECT_TRUE(ImagesBitEqual(ReadDepthExr(scratch / "live" / "fused_depth.exr"), model_map));
+  EXPECT_THAT(Report(scratch / "live")["depth_from"].get<std::string>(),
+              HasSubstr("the calibration's depth model (inverse_affine_in_raw) on the device's raw shifts"));
+  // Not an empty map: measured 0.11 (depth 5 % off the truth makes the frames disagree).
+  constexpr double kMinModelCompleteness = 0.05;
+  EXPECT_GT(Report(scratch / "live")["completeness"].get<double>(), kMinModelCompleteness);
+
+  const auto device = RunRomunect("fuse " + Quote(DeviceUri(c.dir)) + kFuseArgs + PoseArgs(c) + " --device-depth --out " +
+                                  (scratch / "device").string());
+  ASSERT_EQ(device.exit_code, 0) << device.output;
+  EXPECT_EQ(Report(scratch / "device")["depth_from"], "the device's metric depth");
+  EXPECT_TRUE(ImagesBitEqual(ReadDepthExr(scratch / "device" / "fused_depth.exr"), device_map));
 }
 
 TEST(FuseSourcesCli, ADeviceThatStopsKeepsTheFramesFusedSoFarAndExitsNonZero) {
