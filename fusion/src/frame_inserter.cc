@@ -186,6 +186,8 @@ struct LaneMaskTable {
 // saturates.
 // Rays planned ahead of the one being applied, plus one.
 constexpr int kPlanDepth = 3;
+// Rays set up before one thread walks them.
+constexpr size_t kSingleThreadBatch = 1024;
 
 namespace scalar {
 constexpr int kLanes = 1;
@@ -385,7 +387,9 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     ws.camera = camera;
     ws.has_camera = true;
     ws.ray_C.resize(2 * pixels);
-    ws.rays.reset(static_cast<RaySetup*>(std::malloc(pixels * sizeof(RaySetup))));
+    // One thread walks batches of rays as it sets them up; threads share a frame's setups.
+    const size_t slots = options_.threads == 1 ? kSingleThreadBatch : pixels;
+    ws.rays.reset(static_cast<RaySetup*>(std::malloc(slots * sizeof(RaySetup))));
     if (ws.rays == nullptr) throw std::bad_alloc();
     for (int v = 0; v < height; ++v) {
       for (int u = 0; u < width; ++u) {
@@ -408,8 +412,38 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
   double o_g[3];
   for (int a = 0; a < 3; ++a) o_g[a] = (o_W[a] - min_W[a]) / voxel;
 
+  VotingGrid* mutable_grid = grid_;
+  const WalkRaysFn walk_rays = KernelWalk(kernel_, n[2]);
+  auto make_context = [&](int thread, int ya, int yb) {
+    const size_t run_capacity = static_cast<size_t>(n[0]) + n[1];
+    const size_t block_capacity = run_capacity + n[2];
+    std::vector<RunEntry>& run_buffer = ws.run_buffers[thread];
+    std::vector<BlockRun>& block_buffer = ws.block_buffers[thread];
+    run_buffer.resize(kPlanDepth * run_capacity);
+    block_buffer.resize(kPlanDepth * block_capacity);
+    return WalkContext{o_g[0],
+                       o_g[1],
+                       o_g[2],
+                       n[0],
+                       n[1],
+                       n[2],
+                       ya,
+                       yb,
+                       mutable_grid->mutable_column(0),
+                       mutable_grid->mutable_hit_lo(),
+                       mutable_grid->mutable_hit_hi(),
+                       0,
+                       0,
+                       run_buffer.data(),
+                       block_buffer.data(),
+                       run_capacity,
+                       block_capacity};
+  };
+  size_t thread_hits[256] = {}, thread_misses[256] = {};
+
   // Phase 1: per band of tile rows, in the order of casting (voting_grid.h), classify each
-  // pixel and set its ray up (clip to the box).
+  // pixel and set its ray up (clip to the box). One thread walks each batch of rays right away
+  // (no frame-sized buffer, and the rays are still in cache).
   double thread_cpu_ms[256] = {};  // per thread, both phases: the frame's critical path
   constexpr int kTile = kInsertionTilePx;
   const int tile_rows = (height + kTile - 1) / kTile;
@@ -421,7 +455,10 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     s = InsertStats{};
     uint32_t* weight = &ws.row_weight[static_cast<size_t>(chunk) * n[1]];
     std::fill(weight, weight + n[1], 0u);
-    ws.chunk_begin[chunk] = static_cast<size_t>(v0) * width;
+    const bool walk_now = threads == 1;
+    WalkContext context{};
+    if (walk_now) context = make_context(0, 0, n[1]);
+    ws.chunk_begin[chunk] = walk_now ? 0 : static_cast<size_t>(v0) * width;
     RaySetup* out = &ws.rays[ws.chunk_begin[chunk]];
     size_t count = 0;
     for (int tv = v0; tv < v1; tv += kTile) {
@@ -429,6 +466,10 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
       for (int v = tv; v < std::min(tv + kTile, v1); ++v) {
       const float* row = depth_m.ptr<float>(v);
       for (int u = tu; u < std::min(tu + kTile, width); ++u) {
+        if (walk_now && count == kSingleThreadBatch) {
+          walk_rays(out, count, &context);
+          count = 0;
+        }
         const float depth = row[u];
         if (depth == 0.0f) {
           ++s.no_measurement;
@@ -482,6 +523,12 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
       }
      }
     }
+    if (walk_now) {
+      walk_rays(out, count, &context);
+      count = 0;
+      thread_hits[0] = context.hits;
+      thread_misses[0] = context.misses;
+    }
     ws.chunk_count[chunk] = count;
     s.pixels = static_cast<size_t>(v1 - v0) * width;
     thread_cpu_ms[chunk] += ThreadCpuMs() - cpu0;
@@ -503,25 +550,13 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     while (t < threads) ws.slab[t++] = n[1];
   }
 
-  // Phase 2: each thread walks every ray in casting order and votes only in its own rows.
-  size_t thread_hits[256] = {}, thread_misses[256] = {};
-  VotingGrid* mutable_grid = grid_;
-  uint16_t* hit_lo = mutable_grid->mutable_hit_lo();
-  uint16_t* hit_hi = mutable_grid->mutable_hit_hi();
-  const WalkRaysFn walk_rays = KernelWalk(kernel_, n[2]);
+  // Phase 2 (threads > 1): each thread walks every ray in casting order and votes only in its
+  // own rows.
   auto walk = [&](int thread) {
     const int ya = ws.slab[thread], yb = ws.slab[thread + 1];
     if (ya >= yb) return;
     const double cpu0 = ThreadCpuMs();
-    const size_t run_capacity = static_cast<size_t>(n[0]) + n[1];
-    const size_t block_capacity = run_capacity + n[2];
-    std::vector<RunEntry>& run_buffer = ws.run_buffers[thread];
-    std::vector<BlockRun>& block_buffer = ws.block_buffers[thread];
-    run_buffer.resize(kPlanDepth * run_capacity);
-    block_buffer.resize(kPlanDepth * block_capacity);
-    WalkContext context{o_g[0],    o_g[1], o_g[2], n[0], n[1], n[2], ya, yb, mutable_grid->mutable_column(0),
-                        hit_lo,    hit_hi, 0,      0,    run_buffer.data(), block_buffer.data(), run_capacity,
-                        block_capacity};
+    WalkContext context = make_context(thread, ya, yb);
     for (int chunk = 0; chunk < threads; ++chunk) {
       walk_rays(&ws.rays[ws.chunk_begin[chunk]], ws.chunk_count[chunk], &context);
     }
@@ -529,7 +564,7 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     thread_misses[thread] = context.misses;
     thread_cpu_ms[thread] += ThreadCpuMs() - cpu0;
   };
-  ws.pool.Run(walk);
+  if (threads > 1) ws.pool.Run(walk);
 
   if (stats != nullptr) {
     InsertStats frame;
