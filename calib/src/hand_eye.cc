@@ -1,6 +1,7 @@
 #include "romunect/calib/hand_eye.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -69,6 +70,23 @@ double ReprojectionRms(const std::vector<HandEyeStation>& stations, const Camera
   return std::sqrt(sum / n);
 }
 
+// A board corner p_K in C: board -> base (b_K) -> hand (the robot's T_H_B) -> camera (c_H);
+// c_H and b_K as angle-axis (3) + translation (3).
+template <typename T>
+void CornerInCamera(const T* c_H, const T* b_K, const Eigen::Matrix4d& T_H_B, const Eigen::Vector3d& p_K_d, T* p_C) {
+  const T p_K[3] = {T(p_K_d.x()), T(p_K_d.y()), T(p_K_d.z())};
+  T p_B[3];
+  ceres::AngleAxisRotatePoint(b_K, p_K, p_B);
+  for (int i = 0; i < 3; ++i) p_B[i] += b_K[3 + i];
+  T p_H[3];
+  for (int r = 0; r < 3; ++r) {
+    p_H[r] = T(T_H_B(r, 3));
+    for (int c = 0; c < 3; ++c) p_H[r] += T_H_B(r, c) * p_B[c];
+  }
+  ceres::AngleAxisRotatePoint(c_H, p_H, p_C);
+  for (int i = 0; i < 3; ++i) p_C[i] += c_H[3 + i];
+}
+
 struct CornerResidual {
   CornerResidual(const CameraModel& camera, const Pose& T_H_B, const Eigen::Vector3d& p_K, cv::Point2f observed)
       : camera_(camera), T_H_B_(T_H_B.matrix()), p_K_(p_K), observed_(observed) {}
@@ -76,18 +94,8 @@ struct CornerResidual {
   // c_H: T_C_H as angle-axis (3) + translation (3); b_K: T_B_K the same way.
   template <typename T>
   bool operator()(const T* c_H, const T* b_K, T* residual) const {
-    const T p_K[3] = {T(p_K_.x()), T(p_K_.y()), T(p_K_.z())};
-    T p_B[3];
-    ceres::AngleAxisRotatePoint(b_K, p_K, p_B);
-    for (int i = 0; i < 3; ++i) p_B[i] += b_K[3 + i];
-    T p_H[3];
-    for (int r = 0; r < 3; ++r) {
-      p_H[r] = T(T_H_B_(r, 3));
-      for (int c = 0; c < 3; ++c) p_H[r] += T_H_B_(r, c) * p_B[c];
-    }
     T p_C[3];
-    ceres::AngleAxisRotatePoint(c_H, p_H, p_C);
-    for (int i = 0; i < 3; ++i) p_C[i] += c_H[3 + i];
+    CornerInCamera(c_H, b_K, T_H_B_, p_K_, p_C);
     T u, v;
     internal::ProjectPoint(camera_, p_C, &u, &v);
     residual[0] = u - T(observed_.x);
@@ -96,6 +104,33 @@ struct CornerResidual {
   }
 
   const CameraModel& camera_;
+  Eigen::Matrix4d T_H_B_;
+  Eigen::Vector3d p_K_;
+  cv::Point2f observed_;
+};
+
+// The same corner with the camera's intrinsics as parameters too: k = fx, fy, cx, cy, k1, k2,
+// p1, p2 (k3 fixed at the given camera's).
+struct JointCornerResidual {
+  JointCornerResidual(double k3, const Pose& T_H_B, const Eigen::Vector3d& p_K, cv::Point2f observed)
+      : k3_(k3), T_H_B_(T_H_B.matrix()), p_K_(p_K), observed_(observed) {}
+
+  template <typename T>
+  bool operator()(const T* c_H, const T* b_K, const T* k, T* residual) const {
+    T p_C[3];
+    CornerInCamera(c_H, b_K, T_H_B_, p_K_, p_C);
+    // camera_model.h's pinhole + Brown-Conrady with the parameters as unknowns
+    const T x = p_C[0] / p_C[2], y = p_C[1] / p_C[2];
+    const T r2 = x * x + y * y;
+    const T radial = 1.0 + r2 * (k[4] + r2 * (k[5] + r2 * k3_));
+    const T xd = x * radial + 2.0 * k[6] * x * y + k[7] * (r2 + 2.0 * x * x);
+    const T yd = y * radial + k[6] * (r2 + 2.0 * y * y) + 2.0 * k[7] * x * y;
+    residual[0] = k[0] * xd + k[2] - T(observed_.x);
+    residual[1] = k[1] * yd + k[3] - T(observed_.y);
+    return true;
+  }
+
+  double k3_;
   Eigen::Matrix4d T_H_B_;
   Eigen::Vector3d p_K_;
   cv::Point2f observed_;
@@ -220,6 +255,7 @@ HandEyeResult CalibrateHandEye(const std::vector<HandEyeStation>& stations, cons
     }
   }
   HandEyeResult result;
+  result.camera = camera;
   CheckMotion(stations, options, &result.max_pair_rotation_rad);
 
   std::vector<Pose> T_C_K;
@@ -270,14 +306,22 @@ HandEyeResult CalibrateHandEye(const std::vector<HandEyeStation>& stations, cons
   double c_H[6], b_K[6];
   PoseToParams(result.T_H_C.inverse(), c_H);
   PoseToParams(result.T_B_K, b_K);
+  const std::array<double, 5>& d = camera.distortion;
+  double k[8] = {camera.fx, camera.fy, camera.cx, camera.cy, d[0], d[1], d[2], d[3]};
   ceres::Problem problem;
   const std::vector<Eigen::Vector3d> corners = board.CornersK();
   for (const HandEyeStation& s : stations) {
     const Pose T_H_B = s.T_B_H.inverse();
     for (size_t i = 0; i < corners.size(); ++i) {
-      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<CornerResidual, 2, 6, 6>(
-                                   new CornerResidual(camera, T_H_B, corners[i], s.view.corners_px[i])),
-                               nullptr, c_H, b_K);
+      if (options.refine_intrinsics) {
+        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<JointCornerResidual, 2, 6, 6, 8>(
+                                     new JointCornerResidual(d[4], T_H_B, corners[i], s.view.corners_px[i])),
+                                 nullptr, c_H, b_K, k);
+      } else {
+        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<CornerResidual, 2, 6, 6>(
+                                     new CornerResidual(camera, T_H_B, corners[i], s.view.corners_px[i])),
+                                 nullptr, c_H, b_K);
+      }
     }
   }
   ceres::Solver::Options solver_options;
@@ -291,12 +335,19 @@ HandEyeResult CalibrateHandEye(const std::vector<HandEyeStation>& stations, cons
   ceres::Solve(solver_options, &problem, &summary);
   const Pose T_H_C = ParamsToPose(c_H).inverse();
   const Pose T_B_K = ParamsToPose(b_K);
-  const double rms = ReprojectionRms(stations, camera, board, T_H_C, T_B_K);
+  CameraModel refined = camera;
+  if (options.refine_intrinsics) {
+    refined.fx = k[0], refined.fy = k[1], refined.cx = k[2], refined.cy = k[3];
+    refined.distortion = {k[4], k[5], k[6], k[7], d[4]};
+  }
+  const bool camera_ok = refined.Problem().empty();
+  const double rms = camera_ok ? ReprojectionRms(stations, refined, board, T_H_C, T_B_K) : best_rms + 1.0;
   result.iterations = static_cast<int>(summary.iterations.size());
-  if (summary.IsSolutionUsable() && rms <= best_rms) {
+  if (summary.IsSolutionUsable() && camera_ok && rms <= best_rms) {
     result.T_H_C = T_H_C;
     result.T_B_K = T_B_K;
     result.rms_px = rms;
+    result.camera = refined;
   }
   return result;
 }

@@ -149,5 +149,41 @@ TEST(CalibrateCliTest, HandEyeThenDepthOnFrameDirectories) {
   EXPECT_NE(forced.output.find("WORSE"), std::string::npos) << forced.output;
 }
 
+// No step named: the chain in the loop with the simulated rig, at a reduced size (8 views and
+// stations, 4 planes, one ray per pixel) so it stays fast; the goals need the full size.
+TEST(CalibrateCliTest, InTheLoopWritesALoadableFileAndAReport) {
+  ScratchDir dir("cli_loop");
+  const fs::path out = dir / "run";
+  const auto result = RunRomunect("calibrate --out " + out.string() +
+                                  " --views 8 --stations 8 --planes 4 --board-samples 1 --seed 1");
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  EXPECT_NE(result.output.find("hand-eye:"), std::string::npos) << result.output;  // progress shown
+  EXPECT_NE(result.output.find("| whole chain, compute only"), std::string::npos) << result.output;
+  const Calibration calibration = LoadCalibration(out / "calibration.yaml");
+  ASSERT_TRUE(calibration.depth.has_value());
+  EXPECT_GT(calibration.residuals.hand_eye_rms_px, 0.0);
+  EXPECT_GT(calibration.residuals.homography_rms_px, 0.0);
+  for (const char* name : {"report.json", "report.md", "depth_residual.png", "reprojection_errors.png"}) {
+    EXPECT_TRUE(fs::exists(out / name)) << name;
+  }
+  const std::string report = romunect::testing::ReadText(out / "report.json");
+  for (const char* key : {"\"truth_mapping_rms_px\"", "\"truth_rotation_deg\"", "\"truth_residual_px\"",
+                          "\"truth_rms_mm\"", "\"goals\"", "\"compute_s\""}) {
+    EXPECT_NE(report.find(key), std::string::npos) << key;
+  }
+  EXPECT_FALSE(cv::imread((out / "depth_residual.png").string()).empty());
+}
+
+TEST(CalibrateCliTest, InTheLoopWithTooFewViewsWritesNoFile) {
+  ScratchDir dir("cli_loop_fail");
+  const fs::path out = dir / "run";
+  // 3 planned views: intrinsics needs 4 usable ones
+  const auto result = RunRomunect("calibrate --out " + out.string() + " --views 3 --stations 3 --board-samples 1");
+  EXPECT_EQ(result.exit_code, 2) << result.output;
+  EXPECT_NE(result.output.find("usable views"), std::string::npos) << result.output;
+  EXPECT_FALSE(fs::exists(out / "calibration.yaml"));
+  EXPECT_FALSE(fs::exists(out / "report.json"));
+}
+
 }  // namespace
 }  // namespace romunect::calib

@@ -34,6 +34,10 @@ struct HandEyeOptions {
   HandEyeInitialMethod initial = HandEyeInitialMethod::kAuto;
   double max_pair_rotation_rad = 2.0944;  // 120 deg: OpenCV 4.6's Tsai fails above this
   bool refine = true;                     // Ceres refinement over corner residuals
+  // With refine: also refine the camera (fx, fy, cx, cy, k1, k2, p1, p2; k3 kept) over the
+  // same residuals. The robot's known motion pins the focal length down (a 0.1 % error in f is
+  // 0.2 mm of distance at 200 mm, which Zhang's views alone leave with a narrow lens).
+  bool refine_intrinsics = false;
   int min_stations = 3;
   // Motion checks: at least `min_stations` with rotation between them; rotations about at
   // least two distinct axes (pure translation or one axis leaves T_H_C unobservable).
@@ -47,6 +51,7 @@ struct HandEyeResult {
   Pose T_H_C;
   Pose T_B_K;
   Pose T_H_C_initial;                // before refinement
+  CameraModel camera;                // the camera T_H_C goes with (refined with refine_intrinsics)
   std::string initial_method;        // "tsai" or "park"
   double max_pair_rotation_rad = 0;  // largest relative rotation between two stations
   double rms_px = 0.0;               // corner reprojection RMS after refinement
