@@ -162,13 +162,9 @@ struct WalkContext {
 // The start voxel on one axis: clamp(floor(x)) into [0, n).
 inline int StartIndex(double x, int n) { return static_cast<int>(std::clamp(std::floor(x), 0.0, n - 1.0)); }
 
-inline void ApplyMissRunScalar(Vote* column, int lo, int end) {
-  for (int k = lo; k < end; ++k) column[k] = static_cast<Vote>(std::max(column[k] - 1, int{kVoteMin}));
-}
-
-// Lane masks for runs of misses: loading kLanes entries at mask + kLanes - a gives -1 in lanes
-// >= a, at mask + 2 kLanes - b gives -1 in lanes < b; their AND selects the lanes [a, b) of a
-// block, and the second alone the first b lanes.
+// Lane masks for runs of misses: loading a block at mask + kLanes - a gives -1 in lanes >= a, at
+// mask + 2 kLanes - b gives -1 in lanes < b; their AND selects the lanes [a, b) of a block, the
+// second alone the first b lanes, and a load at b the last b lanes.
 template <int kLanes>
 struct LaneMaskTable {
   int16_t mask[3 * kLanes];
@@ -177,81 +173,41 @@ struct LaneMaskTable {
   }
 };
 
-// The SIMD kernels apply a run of misses [lo, end) of a column of nz >= kLanes votes. Most runs
-// are shorter than a block and start at least a block below the column's end: ApplyMissBlock,
-// one block from lo with its first end - lo lanes active. Otherwise ApplyMissRun: full blocks,
-// then a last block shifted back to stay inside the column (other columns may belong to other
-// threads) with lanes [a, b) active.
-// Inactive lanes add 0; active lanes add -1: v >= kVoteMin, so v - 1 cannot wrap, and the max
-// saturates.
 // Rays planned ahead of the one being applied, plus one.
 constexpr int kPlanDepth = 3;
 // Rays set up before one thread walks them.
 constexpr size_t kSingleThreadBatch = 1024;
 
+// Each kernel defines a block of votes and its four operations; ray_walk.inc builds the runs of
+// misses and the walk on them. AddMiss adds a lane mask (0 or -1 per lane) and saturates at
+// kVoteMin: v >= kVoteMin, so v - 1 cannot wrap.
 namespace scalar {
-constexpr int kLanes = 1;
-constexpr int kFirstLanes = 2;
-constexpr int kAllLanes = 1;
-inline void ApplyMissRun(Vote* column, int lo, int end, int /*nz*/) { ApplyMissRunScalar(column, lo, end); }
-inline void ApplyMissBlock(Vote* block, int64_t /*mask*/) { ApplyMissRunScalar(block, 0, 1); }
+using Block = Vote;
+inline Block LoadBlock(const Vote* p) { return *p; }
+inline void StoreBlock(Vote* p, Block v) { *p = v; }
+inline Block AndBlocks(Block a, Block b) { return static_cast<Block>(a & b); }
+inline Block AddMiss(Block v, Block mask) { return static_cast<Block>(std::max(v + mask, int{kVoteMin})); }
 #include "ray_walk.inc"
 }  // namespace scalar
 
 #if defined(__x86_64__)
 namespace sse2 {
-constexpr int kLanes = 8;
-constexpr int kFirstLanes = 2 * kLanes;
-constexpr int kAllLanes = kLanes;
-constexpr LaneMaskTable<kLanes> kMasks;
-inline void ApplyMissBlock(Vote* block, int64_t mask) {
-  const __m128i active = _mm_loadu_si128(reinterpret_cast<const __m128i*>(kMasks.mask + mask));
-  __m128i* p = reinterpret_cast<__m128i*>(block);
-  _mm_storeu_si128(p, _mm_max_epi16(_mm_add_epi16(_mm_loadu_si128(p), active), _mm_set1_epi16(kVoteMin)));
-}
-inline void ApplyMissRun(Vote* column, int lo, int end, int nz) {
-  const __m128i floor_v = _mm_set1_epi16(kVoteMin);
-  int k = lo;
-  for (; end - k > kLanes; k += kLanes) {
-    __m128i* p = reinterpret_cast<__m128i*>(column + k);
-    _mm_storeu_si128(p, _mm_max_epi16(_mm_add_epi16(_mm_loadu_si128(p), _mm_set1_epi16(-1)), floor_v));
-  }
-  const int s = std::min(k, nz - kLanes);
-  const __m128i active =
-      _mm_and_si128(_mm_loadu_si128(reinterpret_cast<const __m128i*>(kMasks.mask + kLanes - (k - s))),
-                    _mm_loadu_si128(reinterpret_cast<const __m128i*>(kMasks.mask + 2 * kLanes - (end - s))));
-  __m128i* p = reinterpret_cast<__m128i*>(column + s);
-  _mm_storeu_si128(p, _mm_max_epi16(_mm_add_epi16(_mm_loadu_si128(p), active), floor_v));
-}
+using Block = __m128i;
+inline Block LoadBlock(const Vote* p) { return _mm_loadu_si128(reinterpret_cast<const __m128i*>(p)); }
+inline void StoreBlock(Vote* p, Block v) { _mm_storeu_si128(reinterpret_cast<__m128i*>(p), v); }
+inline Block AndBlocks(Block a, Block b) { return _mm_and_si128(a, b); }
+inline Block AddMiss(Block v, Block mask) { return _mm_max_epi16(_mm_add_epi16(v, mask), _mm_set1_epi16(kVoteMin)); }
 #include "ray_walk.inc"
 }  // namespace sse2
 
 #pragma GCC push_options
 #pragma GCC target("avx2")
 namespace avx2 {
-constexpr int kLanes = 16;
-constexpr int kFirstLanes = 2 * kLanes;
-constexpr int kAllLanes = kLanes;
-constexpr LaneMaskTable<kLanes> kMasks;
-inline void ApplyMissBlock(Vote* block, int64_t mask) {
-  const __m256i active = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(kMasks.mask + mask));
-  __m256i* p = reinterpret_cast<__m256i*>(block);
-  _mm256_storeu_si256(p, _mm256_max_epi16(_mm256_add_epi16(_mm256_loadu_si256(p), active), _mm256_set1_epi16(kVoteMin)));
-}
-inline void ApplyMissRun(Vote* column, int lo, int end, int nz) {
-  const __m256i floor_v = _mm256_set1_epi16(kVoteMin);
-  int k = lo;
-  for (; end - k > kLanes; k += kLanes) {
-    __m256i* p = reinterpret_cast<__m256i*>(column + k);
-    _mm256_storeu_si256(p, _mm256_max_epi16(_mm256_add_epi16(_mm256_loadu_si256(p), _mm256_set1_epi16(-1)), floor_v));
-  }
-  const int s = std::min(k, nz - kLanes);
-  const __m256i active =
-      _mm256_and_si256(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(kMasks.mask + kLanes - (k - s))),
-                       _mm256_loadu_si256(reinterpret_cast<const __m256i*>(kMasks.mask + 2 * kLanes - (end - s))));
-  __m256i* p = reinterpret_cast<__m256i*>(column + s);
-  _mm256_storeu_si256(p, _mm256_max_epi16(_mm256_add_epi16(_mm256_loadu_si256(p), active), floor_v));
-}
+using Block = __m256i;
+inline Block LoadBlock(const Vote* p) { return _mm256_loadu_si256(reinterpret_cast<const __m256i*>(p)); }
+inline void StoreBlock(Vote* p, Block v) { _mm256_storeu_si256(reinterpret_cast<__m256i*>(p), v); }
+inline Block AndBlocks(Block a, Block b) { return _mm256_and_si256(a, b); }
+inline Block AddMiss(Block v, Block mask) { return _mm256_max_epi16(_mm256_add_epi16(v, mask), _mm256_set1_epi16(kVoteMin)); }
 #include "ray_walk.inc"
 }  // namespace avx2
 #pragma GCC pop_options

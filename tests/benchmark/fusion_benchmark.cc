@@ -151,7 +151,7 @@ Row RunOurs(int threads) {
   row.memory_mb = CurrentRssMb() - rss0;
   row.state_mb = grid.memory_bytes() / 1e6;
   row.metrics = CompareHeightMaps(height, w.gt);
-  row.note = stats.BriefReport();
+  row.note = std::string("kernel ") + InsertKernelName(inserter.kernel()) + "; " + stats.BriefReport();
   return row;
 }
 
