@@ -35,7 +35,7 @@ struct RenderCommandOptions {
   double mesh_unit_m = 1.0;
   double distance_m = 0.0;       // 0: the camera's focus distance
   double size_m = 0.0;           // 0: 1.5 x the view's width at the distance
-  int samples = 1;
+  std::string samples = "1";  // 1, 4 (thin lens at every pixel) or adaptive (4 at edges only)
   int threads = 2;
   uint64_t seed = 1;
   double albedo = 0.6;
@@ -93,8 +93,8 @@ cv::Mat ErrorPicture(const cv::Mat& depth_m, const cv::Mat& truth_m, double scal
 void RunRender(const RenderCommandOptions& o) {
   const Rig rig = LoadRigArgument(o.rig);
   const CameraModel& camera = rig.camera;
-  if (o.samples != 1 && o.samples != 4) {
-    throw InputError("--samples", std::to_string(o.samples), "must be 1 or 4");
+  if (o.samples != "1" && o.samples != "4" && o.samples != "adaptive") {
+    throw InputError("--samples", o.samples, "must be 1, 4 or adaptive");
   }
   if (o.threads < 1 || o.threads > 64) {
     throw InputError("--threads", std::to_string(o.threads), "must be in [1, 64]");
@@ -118,7 +118,8 @@ void RunRender(const RenderCommandOptions& o) {
   scene.AddStatic(mesh, Pose::Identity(), IrMaterial{static_cast<float>(o.albedo), 0.0f, 50.0f}, 1);
   scene.Commit();
   embree::RenderOptions render_options;
-  render_options.samples_per_pixel = o.samples;
+  render_options.samples_per_pixel = o.samples == "1" ? 1 : 4;
+  render_options.adaptive = o.samples == "adaptive";
   render_options.threads = o.threads;
   render_options.focus_distance_m = rig.optics.focus_distance_m;
   render_options.aperture_radius_m = 0.5 * rig.optics.aperture_m;
@@ -210,7 +211,7 @@ void AddRenderCommand(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--distance", o->distance_m, "Target distance in m (default: camera focus distance)");
   cmd->add_option("--size", o->size_m, "Target size in m (default: 1.5 x the view width)");
-  cmd->add_option("--samples", o->samples, "Samples per pixel: 1, or 4 (thin lens)")->capture_default_str();
+  cmd->add_option("--samples", o->samples, "Samples per pixel: 1, 4 (thin lens), or adaptive (4 only where depth or defocus changes within the pixel)")->capture_default_str();
   cmd->add_option("--threads", o->threads, "Threads")->capture_default_str();
   cmd->add_option("--seed", o->seed, "Noise seed")->capture_default_str();
   cmd->add_option("--albedo", o->albedo, "Target albedo in [0, 1]")->capture_default_str();

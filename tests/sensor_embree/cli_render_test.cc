@@ -48,6 +48,23 @@ TEST(CliRenderTest, RendersBothPresetsIntoFrameDirectoriesWithPictures) {
   }
 }
 
+// The adaptive quality mode refines the pixels at the step's edge and its shadow, not the flat
+// parts: the stats line counts them.
+TEST(CliRenderTest, AdaptiveSamplesRefineOnlyEdgePixels) {
+  ScratchDir dir("adaptive");
+  const fs::path out = dir / "step";
+  const auto result = RunRomunect("render " + out.string() + " --target step --samples adaptive");
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  const size_t at = result.output.find(" refined");
+  ASSERT_NE(at, std::string::npos) << result.output;
+  const size_t start = result.output.rfind(' ', at - 1) + 1;
+  const long refined = std::stol(result.output.substr(start, at - start));
+  const long pixels = 640 * 480;
+  EXPECT_GT(refined, 0) << result.output;
+  EXPECT_LT(refined, pixels / 4) << result.output;  // edges are a small share of a step scene
+  EXPECT_TRUE(fs::exists(out / "frames.json"));
+}
+
 // Runs `arguments`, expects a non-zero exit and every part of `parts` in the message.
 void ExpectFailure(const std::string& arguments, const std::vector<std::string>& parts) {
   const auto result = RunRomunect(arguments);
@@ -61,7 +78,7 @@ TEST(CliRenderTest, BadInputEndsWithAMessageNamingTheFieldAndANonZeroExit) {
   ScratchDir dir("bad");
   const std::string out = (dir / "out").string();
   ExpectFailure("render " + out + " --target donut", {"--target", "donut"});
-  ExpectFailure("render " + out + " --samples 3", {"--samples", "must be 1 or 4"});
+  ExpectFailure("render " + out + " --samples 3", {"--samples", "must be 1, 4 or adaptive"});
   ExpectFailure("render " + out + " --rig nosuchpreset", {"nosuchpreset"});
   ExpectFailure("render " + out + " --rig " + (dir / "missing.json").string(), {"missing.json"});
   testing::WriteText(dir / "nan.obj", "v 0 0 nan\nv 1 0 0.2\nv 0 1 0.2\nf 1 2 3\n");
