@@ -33,8 +33,8 @@ struct CalibrationRigOptions {
   calib::BoardSpec board{9, 6, 0.003};  // printed on the plate: 10 x 7 squares of 3 mm
   bool print_board = true;               // false: a plain plate (the target cannot be found)
   // The plate on the table: K's origin (the first inner corner) in W, yawed about W's z.
-  Eigen::Vector3d plate_origin_W{0.36, 0.2, 0.001};
-  double plate_yaw_rad = 0.0;
+  Eigen::Vector3d plate_origin_W{0.40, 0.2, 0.001};
+  double plate_yaw_rad = M_PI;  // K x towards the robot: the reference area nearer the base
   double reference_offset_m = 0.075;  // reference area's centre: this far along K's x from the board's
   // Nominal errors: each pose perturbed by exactly this angle (random axis) and distance
   // (random direction); focal lengths scaled by 1 +- focal_error, principal point moved.
