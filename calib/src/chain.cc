@@ -397,6 +397,15 @@ ChainResult RunCalibrationChain(CalibrationHardware* hardware, const ChainOption
   say("hand-eye: " + std::to_string(stations.size()) + " stations");
   result.hand_eye = Timed(&times.hand_eye_s, [&] { return CalibrateHandEye(stations, camera, setup.board, options.hand_eye); });
   say(result.hand_eye.BriefReport());
+  // the same corners fit the camera alone to intrinsics.rms_px: far more here means stations
+  // whose poses and images disagree (a corner order flipped, a pose reported wrong)
+  if (result.hand_eye.rms_px > std::max(1.0, 5.0 * result.intrinsics.rms_px)) {
+    throw InputError(kSource, "hand-eye", "the stations do not agree (reprojection RMS " +
+                                              std::to_string(result.hand_eye.rms_px) + " px against " +
+                                              std::to_string(result.intrinsics.rms_px) +
+                                              " px for the views alone): check the reported hand poses and "
+                                              "the board's corner order");
+  }
   // from here on the camera refined with the robot's motion (when the options ask for it)
   const CameraModel& refined = result.hand_eye.camera;
   // ---- 4. per-pixel depth correction (eqs. 2-3): planes placed with the calibrated hand-eye
