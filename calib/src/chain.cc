@@ -397,6 +397,41 @@ ChainResult RunCalibrationChain(CalibrationHardware* hardware, const ChainOption
   say("hand-eye: " + std::to_string(stations.size()) + " stations");
   result.hand_eye = Timed(&times.hand_eye_s, [&] { return CalibrateHandEye(stations, camera, setup.board, options.hand_eye); });
   say(result.hand_eye.BriefReport());
+  // stations the fit cannot explain (a corner order flipped, a pose reported wrong): drop
+  // those far above the median and fit again, once
+  if (result.hand_eye.rms_px > std::max(1.0, 5.0 * result.intrinsics.rms_px)) {
+    std::vector<double> rms(stations.size());
+    const std::vector<Eigen::Vector3d> corners_K = setup.board.CornersK();
+    for (size_t s = 0; s < stations.size(); ++s) {
+      const Pose T_C_K = (stations[s].T_B_H * result.hand_eye.T_H_C).inverse() * result.hand_eye.T_B_K;
+      double sum = 0.0;
+      for (size_t i = 0; i < corners_K.size(); ++i) {
+        const auto u = result.hand_eye.camera.Project(T_C_K * corners_K[i]);
+        const cv::Point2f& d = stations[s].view.corners_px[i];
+        sum += u ? (*u - Eigen::Vector2d(d.x, d.y)).squaredNorm() : 1e6;
+      }
+      rms[s] = std::sqrt(sum / corners_K.size());
+    }
+    std::vector<double> sorted = rms;
+    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+    const double limit = 3.0 * sorted[sorted.size() / 2];
+    std::vector<HandEyeStation> kept;
+    for (size_t s = 0; s < stations.size(); ++s) {
+      if (rms[s] <= limit) {
+        kept.push_back(stations[s]);
+      } else {
+        result.rejected.emplace_back(stations[s].view.name, "hand-eye outlier (" + std::to_string(rms[s]) + " px)");
+        say("  dropped " + stations[s].view.name + ": " + std::to_string(rms[s]) + " px against the fit");
+      }
+    }
+    if (kept.size() < stations.size() && static_cast<int>(kept.size()) >= options.hand_eye.min_stations) {
+      stations = std::move(kept);
+      result.stations_used = static_cast<int>(stations.size());
+      result.hand_eye =
+          Timed(&times.hand_eye_s, [&] { return CalibrateHandEye(stations, camera, setup.board, options.hand_eye); });
+      say(result.hand_eye.BriefReport());
+    }
+  }
   // the same corners fit the camera alone to intrinsics.rms_px: far more here means stations
   // whose poses and images disagree (a corner order flipped, a pose reported wrong)
   if (result.hand_eye.rms_px > std::max(1.0, 5.0 * result.intrinsics.rms_px)) {
