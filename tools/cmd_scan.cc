@@ -223,8 +223,7 @@ void RunScan(const ScanArguments& args) {
   report.fusion.max_x_m = box.max_W.x();
   report.fusion.max_y_m = box.max_W.y();
   report.fusion.max_z_m = box.max_W.z();
-  const fusion::HeightMapGeometry& g = report.fusion.geometry;  // the same fields, in sensor/height_map.h
-  const HeightMapGeometry layout{g.min_x_m, g.min_y_m, g.min_z_m, g.voxel_m, g.nx, g.ny, g.nz};
+  const HeightMapGeometry& layout = report.fusion.geometry;
   report.gt_height_m = sim::GroundTruthHeightMap(scanner.world(), layout);
   report.fusion.metrics = fusion::CompareHeightMaps(report.height_m, report.gt_height_m);
   report.fusion.completeness = report.fusion.metrics->completeness;

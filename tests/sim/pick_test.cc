@@ -81,8 +81,7 @@ TEST(PickTest, SmallScanFusesCompletelyAndAccuratelyAndPicksAnObjectOut) {
     inserter.Insert(scanner.camera(), frame.depth_m, *frame.T_W_C, nullptr);
   }
   const cv::Mat fused = fusion::ExtractHeightMap(grid);
-  const fusion::HeightMapGeometry g = grid.geometry();  // the same fields, in sensor/height_map.h
-  const HeightMapGeometry layout{g.min_x_m, g.min_y_m, g.min_z_m, g.voxel_m, g.nx, g.ny, g.nz};
+  const HeightMapGeometry layout = grid.geometry();
   const cv::Mat truth = GroundTruthHeightMap(scanner.world(), layout);
   const fusion::HeightMapMetrics metrics = fusion::CompareHeightMaps(fused, truth);
   std::cout << "completeness " << metrics.completeness << ", rmse " << metrics.rmse_mm << " mm, within 1 mm "

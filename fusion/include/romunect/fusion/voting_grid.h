@@ -36,6 +36,8 @@
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
 
+#include "romunect/sensor/height_map.h"
+
 namespace romunect::fusion {
 
 using Vote = int16_t;
@@ -60,13 +62,9 @@ struct GridOptions {
   size_t RequiredBytes() const;
 };
 
-// Where the cells of a height map lie: cell (row j, column i) has its centre at
-// (min_x + (i + 0.5) voxel, min_y + (j + 0.5) voxel); row 0 is the smallest y.
-struct HeightMapGeometry {
-  double min_x_m = 0.0, min_y_m = 0.0, min_z_m = 0.0;
-  double voxel_m = 0.0;
-  int nx = 0, ny = 0, nz = 0;
-};
+// Where the cells of the extracted height map lie (sensor/height_map.h: one layout for fusion,
+// the simulator's ground truth and the pick).
+using HeightMapGeometry = ::romunect::HeightMapGeometry;
 
 class VotingGrid {
  public:
