@@ -307,6 +307,7 @@ void RunInTheLoop(const LoopArgs& args) {
   const sim::ChainTruthErrors truth = sim::CompareWithTruth(&rig, r);
   const MappingError& mapping = truth.mapping;
   const PoseError& hand_eye = truth.hand_eye;
+  const PoseError& hand_eye_known = truth.hand_eye_known_intrinsics;
   const double homography_px = truth.homography_px;
   const double depth_mm = truth.depth_rms_m >= 0 ? 1e3 * truth.depth_rms_m : -1.0;
   const double affine_mm = truth.depth_affine_rms_m >= 0 ? 1e3 * truth.depth_affine_rms_m : -1.0;
@@ -319,7 +320,9 @@ void RunInTheLoop(const LoopArgs& args) {
   }
   const double compute_s = r.times.ComputeS();
   const bool met_mapping = mapping.rms_px <= kGoalMappingPx;
-  const bool met_hand_eye = hand_eye.angle_rad / kDeg <= kGoalHandEyeDeg && 1e3 * hand_eye.translation_m <= kGoalHandEyeMm;
+  // the goal's condition is "intrinsics known": the step re-run with the true camera
+  const bool met_hand_eye =
+      hand_eye_known.angle_rad / kDeg <= kGoalHandEyeDeg && 1e3 * hand_eye_known.translation_m <= kGoalHandEyeMm;
   const bool met_homography = homography_px >= 0 && homography_px <= kGoalHomographyPx &&
                               r.homography.captures <= kGoalHomographyCaptures;
   const bool met_depth = depth_mm >= 0 && depth_mm <= kGoalDepthMm;
@@ -365,6 +368,8 @@ void RunInTheLoop(const LoopArgs& args) {
       {"hand_eye",
        {{"stations", r.stations_used}, {"initial_method", r.hand_eye.initial_method}, {"rms_px", r.hand_eye.rms_px},
         {"truth_rotation_deg", hand_eye.angle_rad / kDeg}, {"truth_translation_mm", 1e3 * hand_eye.translation_m},
+        {"truth_known_intrinsics_rotation_deg", hand_eye_known.angle_rad / kDeg},
+        {"truth_known_intrinsics_translation_mm", 1e3 * hand_eye_known.translation_m},
         {"truth_line_of_sight_rms_deg", truth.line_of_sight_rms_rad / kDeg},
         {"truth_line_of_sight_max_deg", truth.line_of_sight_max_rad / kDeg},
         {"truth_initial_rotation_deg", truth.hand_eye_initial.angle_rad / kDeg},
@@ -380,8 +385,12 @@ void RunInTheLoop(const LoopArgs& args) {
       {"times", {{"compute_s", compute_s}, {"hardware_s", r.times.hardware_s}, {"wall_s", wall_s}}},
       {"goals",
        {{"intrinsics_mapping_px", {{"goal", kGoalMappingPx}, {"value", mapping.rms_px}, {"met", met_mapping}}},
-        {"hand_eye", {{"goal_deg", kGoalHandEyeDeg}, {"goal_mm", kGoalHandEyeMm}, {"deg", hand_eye.angle_rad / kDeg},
-                      {"mm", 1e3 * hand_eye.translation_m}, {"met", met_hand_eye}}},
+        {"hand_eye", {{"goal_deg", kGoalHandEyeDeg}, {"goal_mm", kGoalHandEyeMm},
+                      {"condition", "intrinsics known (true camera, the chain's stations)"},
+                      {"deg", hand_eye_known.angle_rad / kDeg}, {"mm", 1e3 * hand_eye_known.translation_m},
+                      {"end_to_end_deg", hand_eye.angle_rad / kDeg}, {"end_to_end_mm", 1e3 * hand_eye.translation_m},
+                      {"end_to_end_line_of_sight_rms_deg", truth.line_of_sight_rms_rad / kDeg},
+                      {"met", met_hand_eye}}},
         {"homography_px", {{"goal", kGoalHomographyPx}, {"value", homography_px}, {"captures", r.homography.captures},
                            {"met", met_homography}}},
         {"depth_rms_mm", {{"goal", kGoalDepthMm}, {"value", depth_mm}, {"met", met_depth}}},
@@ -398,13 +407,19 @@ void RunInTheLoop(const LoopArgs& args) {
                 r.view_names.size(), kGoalMappingPx, mapping.rms_px, mapping.max_px, truth.mapping_zhang.rms_px,
                 Yes(met_mapping).c_str());
   table += row;
-  std::snprintf(row, sizeof row, "| hand-eye, %d stations | <= %.2f deg, <= %.2f mm | %.4f deg, %.3f mm | %s |\n",
-                r.stations_used, kGoalHandEyeDeg, kGoalHandEyeMm, hand_eye.angle_rad / kDeg,
-                1e3 * hand_eye.translation_m, Yes(met_hand_eye).c_str());
+  std::snprintf(row, sizeof row,
+                "| hand-eye, %d stations, intrinsics known (the step on the same captures with the true camera) "
+                "| <= %.2f deg, <= %.2f mm | %.4f deg, %.3f mm | %s |\n",
+                r.stations_used, kGoalHandEyeDeg, kGoalHandEyeMm, hand_eye_known.angle_rad / kDeg,
+                1e3 * hand_eye_known.translation_m, Yes(met_hand_eye).c_str());
+  table += row;
+  std::snprintf(row, sizeof row, "| hand-eye end to end (estimated intrinsics): T_H_C alone | | %.4f deg, %.3f mm | |\n",
+                hand_eye.angle_rad / kDeg, 1e3 * hand_eye.translation_m);
   table += row;
   std::snprintf(row, sizeof row,
-                "| hand-eye with the intrinsics: lines of sight in H | | %.4f deg RMS (max %.4f) | |\n",
-                truth.line_of_sight_rms_rad / kDeg, truth.line_of_sight_max_rad / kDeg);
+                "| hand-eye end to end: lines of sight in H (T_H_C with its camera) | <= %.2f deg | %.4f deg RMS (max %.4f) | %s |\n",
+                kGoalHandEyeDeg, truth.line_of_sight_rms_rad / kDeg, truth.line_of_sight_max_rad / kDeg,
+                Yes(truth.line_of_sight_max_rad / kDeg <= kGoalHandEyeDeg).c_str());
   table += row;
   std::snprintf(row, sizeof row, "| projector homography residual | <= %.2f px within %d captures | %.3f px, %d captures | %s |\n",
                 kGoalHomographyPx, kGoalHomographyCaptures, homography_px, r.homography.captures,

@@ -441,6 +441,7 @@ ChainResult RunCalibrationChain(CalibrationHardware* hardware, const ChainOption
                                               " px for the views alone): check the reported hand poses and "
                                               "the board's corner order");
   }
+  result.hand_eye_stations = stations;
   // from here on the camera refined with the robot's motion (when the options ask for it)
   const CameraModel& refined = result.hand_eye.camera;
   // ---- 4. per-pixel depth correction (eqs. 2-3): planes placed with the calibrated hand-eye

@@ -335,6 +335,13 @@ ChainTruthErrors CompareWithTruth(SimulatedCalibrationRig* rig, const calib::Cha
   e.hand_eye_initial = ComparePoses(result.hand_eye.T_H_C_initial, rig->TruthT_H_C());
   e.board = ComparePoses(c.T_B_K, rig->TruthT_B_K());
   const CameraModel& truth_camera = rig->TruthRig().camera;
+  if (!result.hand_eye_stations.empty()) {
+    calib::HandEyeOptions known;  // the chain's hand-eye step, camera given and kept
+    known.refine_intrinsics = false;
+    e.hand_eye_known_intrinsics = ComparePoses(
+        calib::CalibrateHandEye(result.hand_eye_stations, truth_camera, rig->setup().board, known).T_H_C,
+        rig->TruthT_H_C());
+  }
   double sum2 = 0.0;
   int n = 0;
   for (int y = 0; y < truth_camera.height; y += 16) {

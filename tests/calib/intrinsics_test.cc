@@ -23,6 +23,8 @@ constexpr double kNoisePx = 0.2;
 constexpr double kMappingGoalPx = 0.25;
 // Detection on a clean rendered image (bilinear warp, no noise): cornerSubPix is within this.
 constexpr double kDetectionTolerancePx = 0.1;
+constexpr double kBlurTiltRad = 0.9;
+constexpr double kBlurSigmaPx = 3.5;
 
 BoardSpec Board() { return {9, 6, 0.025}; }
 // Noise per coordinate sigma gives a 2-D reprojection RMS of sqrt(2) sigma.
@@ -64,6 +66,37 @@ TEST(IntrinsicsTest, DetectsCornersOfRenderedBoardWithinSubpixel) {
     max_error_reversed = std::max(max_error_reversed, cv::norm((*corners)[truth.size() - 1 - i] - truth[i]));
   }
   EXPECT_LT(std::min(max_error, max_error_reversed), kDetectionTolerancePx);
+}
+
+// A strongly tilted, defocused view (as the rig's strongest tilts): the plain detector misses
+// it, the sector-based fallback finds it, and the shared refinement keeps sub-pixel accuracy.
+// Blur moves corners of a tilted board by its asymmetry: twice the sharp tolerance (0.08 measured).
+constexpr double kBlurredDetectionTolerancePx = 0.2;
+
+TEST(IntrinsicsTest, DetectsBlurredTiltedBoardThePlainDetectorMisses) {
+  CameraModel camera = TruthCamera();
+  camera.distortion = {};
+  const BoardSpec board = Board();
+  const Pose T_C_K = MakePose(Eigen::AngleAxisd(kBlurTiltRad, Eigen::Vector3d(1, 0.3, 0).normalized()).toRotationMatrix(),
+                              Eigen::Vector3d(-0.1, -0.06, 0.34));
+  cv::Mat image = testing::RenderBoardImage(camera, board, T_C_K);
+  cv::GaussianBlur(image, image, cv::Size(), kBlurSigmaPx);
+  ASSERT_EQ(image.type(), CV_8U);
+  std::vector<cv::Point2f> plain;
+  ASSERT_FALSE(cv::findChessboardCorners(image, {board.cols, board.rows}, plain,
+                                         cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_FAST_CHECK))
+      << "the view no longer exercises the fallback";
+  std::string reason;
+  const auto corners = DetectBoard(image, board, &reason);
+  ASSERT_TRUE(corners.has_value()) << reason;
+  std::vector<cv::Point2f> truth;
+  ASSERT_TRUE(ProjectBoard(camera, board, T_C_K, &truth));
+  double max_error = 0.0, max_error_reversed = 0.0;
+  for (size_t i = 0; i < truth.size(); ++i) {
+    max_error = std::max(max_error, cv::norm((*corners)[i] - truth[i]));
+    max_error_reversed = std::max(max_error_reversed, cv::norm((*corners)[truth.size() - 1 - i] - truth[i]));
+  }
+  EXPECT_LT(std::min(max_error, max_error_reversed), kBlurredDetectionTolerancePx);
 }
 
 TEST(IntrinsicsTest, RejectsImageWithoutBoardWithReason) {

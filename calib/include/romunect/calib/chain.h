@@ -112,6 +112,7 @@ struct ChainResult {
   double raw_valid_fraction_initial = 0.0;   // ... with the nominal pre-warp
   double raw_valid_fraction_final = 0.0;     // ... with the calibrated H_P_rec (after)
   HandEyeResult hand_eye;
+  std::vector<HandEyeStation> hand_eye_stations;  // those of the final fit (outliers dropped)
   int stations_used = 0;
   DepthCorrectionResult depth;
   int planes_used = 0;
