@@ -102,6 +102,11 @@ void ForEachFrame(const std::string& source_text, const std::string& poses, bool
   openni2::OpenSourceOptions options;
   options.pose_log = poses;
   options.invalid_depth = InvalidDepthPolicy::kSkip;
+  // a recording or device: open only the stream the step reads (IR of the board, or the raw
+  // shifts of the plane), so one capture recorded with both (`record --raw`) serves each step
+  options.openni2.depth = need_raw;
+  options.openni2.raw = need_raw;
+  options.openni2.ir = !need_raw;
   std::unique_ptr<FrameSource> source = openni2::OpenSource(source_text, options);
   if (source->camera().width != size.width || source->camera().height != size.height) {
     throw InputError(source_text, "camera", "image size " + std::to_string(source->camera().width) + " x " +

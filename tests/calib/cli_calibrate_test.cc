@@ -94,19 +94,7 @@ TEST(CalibrateCliTest, HandEyeThenDepthOnFrameDirectories) {
 
   // Hand-eye: IR images of the board (16-bit, 10 bits used) at 12 stations; raw all invalid.
   const testing::HandEyeRig rig = testing::MakeHandEyeRig(camera, Board(), 12, 0.0, 0.5, 0.8, 3);
-  {
-    FrameDirectoryWriter writer(dir / "board", camera);
-    for (size_t i = 0; i < rig.stations.size(); ++i) {
-      Frame frame;
-      frame.index = static_cast<int>(i);
-      frame.time_s = 0.1 * i;
-      testing::RenderBoardImage(camera, Board(), rig.T_C_K_truth[i]).convertTo(frame.ir, CV_16U, 4.0);
-      frame.raw = cv::Mat(camera.height, camera.width, CV_16U, cv::Scalar(2047));
-      frame.T_B_H = rig.stations[i].T_B_H;
-      writer.Add(frame);
-    }
-    writer.Finish();
-  }
+  testing::WriteBoardFrames(dir / "board", camera, Board(), rig);
   const auto hand_eye = RunRomunect("calibrate hand-eye --frames " + (dir / "board").string() +
                                     " --board 9x6 --square 0.025 --output " + file.string());
   ASSERT_EQ(hand_eye.exit_code, 0) << hand_eye.output;
@@ -114,21 +102,7 @@ TEST(CalibrateCliTest, HandEyeThenDepthOnFrameDirectories) {
   EXPECT_TRUE(romunect::testing::PosesNear(after_hand_eye.T_H_C, rig.T_H_C, kHandEyeAngleRad, kHandEyeTranslationM));
 
   // Depth: raw depth of the board's plane from 8 hand poses at 0.19 .. 0.21 m, tilted.
-  std::mt19937 rng(5);
-  const testing::RawDepthTruth truth;
-  {
-    FrameDirectoryWriter writer(dir / "plane", camera);
-    for (int i = 0; i < 8; ++i) {
-      const Pose T_C_K = testing::PlaneAt(0.19 + 0.02 * i / 7.0, 0.1 * std::sin(i), 0.1 * std::cos(i));
-      Frame frame;
-      frame.index = i;
-      frame.time_s = 0.1 * i;
-      frame.raw = testing::RenderPlaneRaw(camera, truth, T_C_K, 0.3, &rng);
-      frame.T_B_H = rig.T_B_K * T_C_K.inverse() * rig.T_H_C.inverse();
-      writer.Add(frame);
-    }
-    writer.Finish();
-  }
+  testing::WritePlaneFrames(dir / "plane", camera, rig, 8, 5);
   const auto depth = RunRomunect("calibrate depth --frames " + (dir / "plane").string() + " --output " + file.string());
   ASSERT_EQ(depth.exit_code, 0) << depth.output;
   const Calibration done = LoadCalibration(file);

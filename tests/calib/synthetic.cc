@@ -5,6 +5,8 @@
 #include <opencv2/imgproc.hpp>
 
 #include "romunect/sensor/check.h"
+#include "romunect/sensor/depth_engine.h"
+#include "romunect/sensor/frame_io.h"
 
 namespace romunect::calib::testing {
 
@@ -212,6 +214,38 @@ double ProjectorScene::TrueResidualPx(const Eigen::Matrix3d& H_P_rec) const {
     sum += (Map((H_P_rec * pattern_P[i].homogeneous()).hnormalized()) - target_C[i]).squaredNorm();
   }
   return std::sqrt(sum / pattern_P.size());
+}
+
+void WriteBoardFrames(const std::filesystem::path& dir, const CameraModel& camera, const BoardSpec& board,
+                      const HandEyeRig& rig) {
+  FrameDirectoryWriter writer(dir, camera);
+  for (size_t i = 0; i < rig.stations.size(); ++i) {
+    Frame frame;
+    frame.index = static_cast<int>(i);
+    frame.time_s = 0.1 * i;
+    RenderBoardImage(camera, board, rig.T_C_K_truth[i]).convertTo(frame.ir, CV_16U, 4.0);
+    frame.raw = cv::Mat(camera.height, camera.width, CV_16U, cv::Scalar(kRawInvalid));
+    frame.T_B_H = rig.stations[i].T_B_H;
+    writer.Add(frame);
+  }
+  writer.Finish();
+}
+
+void WritePlaneFrames(const std::filesystem::path& dir, const CameraModel& camera, const HandEyeRig& rig, int planes,
+                      unsigned seed) {
+  std::mt19937 rng(seed);
+  const RawDepthTruth truth;
+  FrameDirectoryWriter writer(dir, camera);
+  for (int i = 0; i < planes; ++i) {
+    const Pose T_C_K = PlaneAt(0.19 + 0.02 * i / (planes - 1.0), 0.1 * std::sin(i), 0.1 * std::cos(i));
+    Frame frame;
+    frame.index = i;
+    frame.time_s = 0.1 * i;
+    frame.raw = RenderPlaneRaw(camera, truth, T_C_K, 0.3, &rng);
+    frame.T_B_H = rig.T_B_K * T_C_K.inverse() * rig.T_H_C.inverse();
+    writer.Add(frame);
+  }
+  writer.Finish();
 }
 
 }  // namespace romunect::calib::testing

@@ -3,6 +3,7 @@
 // depth from a known per-pixel disparity model, a projector seeing a plane. No renderer.
 #pragma once
 
+#include <filesystem>
 #include <optional>
 #include <random>
 #include <vector>
@@ -88,5 +89,14 @@ struct ProjectorScene {
   // RMS (px) between where the pre-warped pattern lands and the targets.
   double TrueResidualPx(const Eigen::Matrix3d& H_P_rec) const;
 };
+
+// Frame directories as a rig records them, with T_B_H per frame (the CLI's recorded input):
+// IR board views (16-bit, 10 bits used) at the rig's stations, raw all invalid; and raw depth
+// of the board's plane (z = 0 of rig.T_B_K) from `planes` hand poses at 0.19 .. 0.21 m, tilted.
+// Frame i is at 0.1 i s.
+void WriteBoardFrames(const std::filesystem::path& dir, const CameraModel& camera, const BoardSpec& board,
+                      const HandEyeRig& rig);
+void WritePlaneFrames(const std::filesystem::path& dir, const CameraModel& camera, const HandEyeRig& rig, int planes,
+                      unsigned seed);
 
 }  // namespace romunect::calib::testing
