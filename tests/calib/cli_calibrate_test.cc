@@ -125,12 +125,16 @@ TEST(CalibrateCliTest, HandEyeThenDepthOnFrameDirectories) {
 }
 
 // No step named: the chain in the loop with the simulated rig, at a reduced size (8 views and
-// stations, 4 planes, one ray per pixel) so it stays fast; the goals need the full size.
+// stations, one ray per pixel) so it stays fast; the goals need the full size.
+romunect::testing::CommandResult RunReducedLoop(const fs::path& out, int planes) {
+  return RunRomunect("calibrate --out " + out.string() + " --views 8 --stations 8 --planes " + std::to_string(planes) +
+                     " --board-samples 1 --seed 1");
+}
+
 TEST(CalibrateCliTest, InTheLoopWritesALoadableFileAndAReport) {
   ScratchDir dir("cli_loop");
   const fs::path out = dir / "run";
-  const auto result = RunRomunect("calibrate --out " + out.string() +
-                                  " --views 8 --stations 8 --planes 4 --board-samples 1 --seed 1");
+  const auto result = RunReducedLoop(out, 4);
   ASSERT_EQ(result.exit_code, 0) << result.output;
   EXPECT_NE(result.output.find("hand-eye:"), std::string::npos) << result.output;  // progress shown
   EXPECT_NE(result.output.find("| whole chain, compute only"), std::string::npos) << result.output;
@@ -171,8 +175,7 @@ constexpr double kScanCompleteness = 0.80;
 TEST(CalibrateCliTest, InTheLoopFileIsConsumedByAScanWithItsAccuracy) {
   ScratchDir dir("cli_loop_scan");
   const fs::path out = dir / "calibration";
-  const auto calibrate = RunRomunect("calibrate --out " + out.string() +
-                                     " --views 8 --stations 8 --planes 12 --board-samples 1 --seed 1");
+  const auto calibrate = RunReducedLoop(out, 12);
   ASSERT_EQ(calibrate.exit_code, 0) << calibrate.output;
   const fs::path file = out / "calibration.yaml";
   const auto scan = RunRomunect("scan --objects 2 --seed 3 --calibration " + file.string() + " --out " +

@@ -47,6 +47,21 @@ std::vector<Pose> Inverted(const std::vector<Pose>& poses) {
   return out;
 }
 
+// Largest distance of detected corners from the true projections (infinite when the board is
+// not wholly in view). OpenCV may start from the opposite corner: a 180-degree turn of the grid
+// is the same board, so the better of both orders counts.
+double MaxCornerErrorPx(const std::vector<cv::Point2f>& corners, const CameraModel& camera, const BoardSpec& board,
+                        const Pose& T_C_K) {
+  std::vector<cv::Point2f> truth;
+  if (!ProjectBoard(camera, board, T_C_K, &truth) || truth.size() != corners.size()) return INFINITY;
+  double max_error = 0.0, max_error_reversed = 0.0;
+  for (size_t i = 0; i < truth.size(); ++i) {
+    max_error = std::max(max_error, cv::norm(corners[i] - truth[i]));
+    max_error_reversed = std::max(max_error_reversed, cv::norm(corners[truth.size() - 1 - i] - truth[i]));
+  }
+  return std::min(max_error, max_error_reversed);
+}
+
 TEST(IntrinsicsTest, DetectsCornersOfRenderedBoardWithinSubpixel) {
   CameraModel camera = TruthCamera();
   camera.distortion = {};
@@ -57,15 +72,7 @@ TEST(IntrinsicsTest, DetectsCornersOfRenderedBoardWithinSubpixel) {
   std::string reason;
   const auto corners = DetectBoard(image, board, &reason);
   ASSERT_TRUE(corners.has_value()) << reason;
-  std::vector<cv::Point2f> truth;
-  ASSERT_TRUE(ProjectBoard(camera, board, T_C_K, &truth));
-  // OpenCV may start from the opposite corner: a 180-degree turn of the grid is the same board.
-  double max_error = 0.0, max_error_reversed = 0.0;
-  for (size_t i = 0; i < truth.size(); ++i) {
-    max_error = std::max(max_error, cv::norm((*corners)[i] - truth[i]));
-    max_error_reversed = std::max(max_error_reversed, cv::norm((*corners)[truth.size() - 1 - i] - truth[i]));
-  }
-  EXPECT_LT(std::min(max_error, max_error_reversed), kDetectionTolerancePx);
+  EXPECT_LT(MaxCornerErrorPx(*corners, camera, board, T_C_K), kDetectionTolerancePx);
 }
 
 // A strongly tilted, defocused view (as the rig's strongest tilts): the plain detector misses
@@ -89,14 +96,7 @@ TEST(IntrinsicsTest, DetectsBlurredTiltedBoardThePlainDetectorMisses) {
   std::string reason;
   const auto corners = DetectBoard(image, board, &reason);
   ASSERT_TRUE(corners.has_value()) << reason;
-  std::vector<cv::Point2f> truth;
-  ASSERT_TRUE(ProjectBoard(camera, board, T_C_K, &truth));
-  double max_error = 0.0, max_error_reversed = 0.0;
-  for (size_t i = 0; i < truth.size(); ++i) {
-    max_error = std::max(max_error, cv::norm((*corners)[i] - truth[i]));
-    max_error_reversed = std::max(max_error_reversed, cv::norm((*corners)[truth.size() - 1 - i] - truth[i]));
-  }
-  EXPECT_LT(std::min(max_error, max_error_reversed), kBlurredDetectionTolerancePx);
+  EXPECT_LT(MaxCornerErrorPx(*corners, camera, board, T_C_K), kBlurredDetectionTolerancePx);
 }
 
 TEST(IntrinsicsTest, RejectsImageWithoutBoardWithReason) {
