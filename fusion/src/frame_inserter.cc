@@ -144,6 +144,13 @@ struct RayPlan {
   uint16_t hit_z = 0;
 };
 
+// One column of four rays walked in SIMD lanes (ray_walk_lanes.inc): per lane, a block of misses
+// and its lane mask table offset (kFirstLanes: no lane, for a lane with nothing here).
+struct alignas(32) LaneRecord {
+  Vote* block[4];
+  int64_t mask[4];
+};
+
 struct WalkContext {
   double ox, oy, oz;  // camera centre, grid units
   int nx, ny, nz;
@@ -157,6 +164,9 @@ struct WalkContext {
   RunEntry* run_buffer;
   BlockRun* block_buffer;
   size_t run_capacity, block_capacity;
+  // kLaneGroups groups' lane records (a group of four rays crosses <= nx + ny columns).
+  LaneRecord* record_buffer;
+  size_t record_capacity;
 };
 
 // The start voxel on one axis: clamp(floor(x)) into [0, n).
@@ -175,6 +185,11 @@ struct LaneMaskTable {
 
 // Rays planned ahead of the one being applied, plus one.
 constexpr int kPlanDepth = 3;
+// Groups of four rays walked in SIMD lanes (avx2::WalkRaysInLanes) planned ahead of the one
+// being applied, plus one.
+constexpr int kLaneGroups = 3;
+// Plan buffers per thread: the scalar pipeline's kPlanDepth, or kLaneGroups groups of four.
+constexpr int kPlanBuffers = std::max(kPlanDepth, 4 * kLaneGroups);
 // Rays set up before one thread walks them.
 constexpr size_t kSingleThreadBatch = 1024;
 
@@ -209,6 +224,7 @@ inline void StoreBlock(Vote* p, Block v) { _mm256_storeu_si256(reinterpret_cast<
 inline Block AndBlocks(Block a, Block b) { return _mm256_and_si256(a, b); }
 inline Block AddMiss(Block v, Block mask) { return _mm256_max_epi16(_mm256_add_epi16(v, mask), _mm256_set1_epi16(kVoteMin)); }
 #include "ray_walk.inc"
+#include "ray_walk_lanes.inc"
 }  // namespace avx2
 #pragma GCC pop_options
 #endif  // __x86_64__
@@ -235,7 +251,7 @@ using WalkRaysFn = void (*)(const RaySetup*, size_t, WalkContext*);
 // block (the votes do not depend on the kernel).
 WalkRaysFn KernelWalk(InsertKernel kernel, int nz) {
 #if defined(__x86_64__)
-  if (kernel == InsertKernel::kAvx2 && nz >= avx2::kLanes) return &avx2::WalkRays;
+  if (kernel == InsertKernel::kAvx2 && nz >= avx2::kLanes) return &avx2::WalkRaysInLanes;
   if ((kernel == InsertKernel::kAvx2 || kernel == InsertKernel::kSse2) && nz >= sse2::kLanes) return &sse2::WalkRays;
 #endif
   return &scalar::WalkRays;
@@ -304,6 +320,7 @@ struct FrameInserter::Workspace {
   std::unique_ptr<RaySetup[], Free> rays;
   std::vector<std::vector<RunEntry>> run_buffers;  // per thread, reused
   std::vector<std::vector<BlockRun>> block_buffers;
+  std::vector<std::vector<LaneRecord>> record_buffers;
   std::vector<size_t> chunk_begin;     // chunk c's first ray slot (its first pixel)
   std::vector<size_t> chunk_count;     // rays set up by chunk c
   std::vector<InsertStats> chunk_stats;
@@ -324,6 +341,7 @@ FrameInserter::FrameInserter(VotingGrid* grid, const InserterOptions& options)
   ws_->chunk_begin.assign(options.threads, 0);
   ws_->run_buffers.resize(options.threads);
   ws_->block_buffers.resize(options.threads);
+  ws_->record_buffers.resize(options.threads);
   ws_->chunk_count.assign(options.threads, 0);
   ws_->chunk_stats.assign(options.threads, InsertStats{});
   ws_->row_weight.assign(static_cast<size_t>(options.threads) * grid->ny(), 0);
@@ -375,8 +393,10 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     const size_t block_capacity = run_capacity + n[2];
     std::vector<RunEntry>& run_buffer = ws.run_buffers[thread];
     std::vector<BlockRun>& block_buffer = ws.block_buffers[thread];
-    run_buffer.resize(kPlanDepth * run_capacity);
-    block_buffer.resize(kPlanDepth * block_capacity);
+    run_buffer.resize(kPlanBuffers * run_capacity);
+    block_buffer.resize(kPlanBuffers * block_capacity);
+    std::vector<LaneRecord>& record_buffer = ws.record_buffers[thread];
+    record_buffer.resize(kLaneGroups * run_capacity);
     return WalkContext{o_g[0],
                        o_g[1],
                        o_g[2],
@@ -393,7 +413,9 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
                        run_buffer.data(),
                        block_buffer.data(),
                        run_capacity,
-                       block_capacity};
+                       block_capacity,
+                       record_buffer.data(),
+                       run_capacity};
   };
   size_t thread_hits[256] = {}, thread_misses[256] = {};
 

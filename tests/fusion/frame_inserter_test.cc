@@ -224,6 +224,58 @@ TEST(FrameInserterTest, MatchesReferenceOnRandomRaysThroughTheBoxFaces) {
   }
 }
 
+// Rays whose crossings fall exactly on voxel planes: a camera looking straight down from voxel
+// corners and centres, dyadic voxel (2^-11 m), ray slopes k/16 and dyadic depths, so crossing
+// times tie between axes, the z at a column's exit lands on z planes (the walks' exact
+// near-plane path), and rays run along x or y planes or straight down. nz = 40: the AVX2 kernel
+// walks four rays at once in lanes at 1 thread; 33 x 17 pixels leave groups of fewer than four
+// rays at tile ends; wide slopes leave through the box's sides; depths end above, inside and
+// below the box.
+TEST(FrameInserterTest, MatchesReferenceOnRaysAlongVoxelPlanes) {
+  const double voxel = std::ldexp(1.0, -11);
+  GridOptions options;
+  options.min_W = Eigen::Vector3d(-24 * voxel, -20 * voxel, 0.0);
+  options.max_W = Eigen::Vector3d(24 * voxel, 20 * voxel, 40 * voxel);
+  options.voxel_m = voxel;
+  CameraModel camera = testing::SmallCamera();
+  camera.width = 33;
+  camera.height = 17;
+  camera.cx = 16.0;
+  camera.cy = 8.0;
+  camera.fx = camera.fy = 16.0;  // slopes k / 16, up to 1
+  camera.distortion = {0.0, 0.0, 0.0, 0.0, 0.0};
+  const Eigen::Matrix3d down = Eigen::Vector3d(1.0, -1.0, -1.0).asDiagonal();  // camera z = world -z
+  std::mt19937 rng(5);
+  std::uniform_int_distribution<int> corner(-8, 8), height(44, 90), depth_voxels(-6, 48);
+  FastGrids fast(options, AllConfigs({1, 2}));
+  ASSERT_EQ(fast.grids[0]->nz(), 40);
+  ReferenceGrid ref = MakeReference(*fast.grids[0]);
+  ReferenceCounts counts;
+  for (int frame = 0; frame < 24; ++frame) {
+    // Voxel corners, or centres every 3rd frame.
+    const double shift = frame % 3 == 0 ? 0.5 : 0.0;
+    const int h = height(rng);
+    const Eigen::Vector3d t((corner(rng) + shift) * voxel, (corner(rng) + shift) * voxel, h * voxel);
+    cv::Mat d(camera.height, camera.width, CV_32F);
+    for (auto it = d.begin<float>(); it != d.end<float>(); ++it) {
+      // From above the box top (h - 40 voxels) to below its floor; some pixels without one.
+      const int k = depth_voxels(rng);
+      *it = k < -4 ? 0.0f : static_cast<float>((h - 42 + k) * voxel);
+    }
+    fast.Insert(camera, d, MakePose(down, t));
+    reference::ReferenceInsert(camera, d, MakePose(down, t), &ref, &counts);
+  }
+  for (size_t c = 0; c < fast.configs.size(); ++c) {
+    const InsertStats& stats = fast.stats[c];
+    SCOPED_TRACE(Describe(fast.configs[c]));
+    EXPECT_TRUE(VotesEqual(*fast.grids[c], ref));
+    EXPECT_EQ(stats.hits, counts.hits);
+    EXPECT_EQ(stats.misses, counts.misses);
+    EXPECT_GT(stats.hits, 1000u);
+    EXPECT_GT(stats.points_outside_box, stats.rays_missing_box);  // some rays leave through a side
+  }
+}
+
 // Against the analytic bin's exact height map: fusion fills the region and stays accurate.
 TEST(FrameInserterTest, FusedMapOfAnalyticBinMatchesGroundTruth) {
   AnalyticBinOptions bin_options;
