@@ -431,9 +431,9 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     const int v1 = std::min(height, kTile * static_cast<int>(static_cast<int64_t>(tile_rows) * (chunk + 1) / threads));
     InsertStats& s = ws.chunk_stats[chunk];
     s = InsertStats{};
-    uint32_t* weight = &ws.row_weight[static_cast<size_t>(chunk) * n[1]];
-    std::fill(weight, weight + n[1], 0u);
     const bool walk_now = threads == 1;
+    uint32_t* weight = &ws.row_weight[static_cast<size_t>(chunk) * n[1]];
+    if (!walk_now) std::fill(weight, weight + n[1], 0u);
     WalkContext context{};
     if (walk_now) context = make_context(0, 0, n[1]);
     ws.chunk_begin[chunk] = walk_now ? 0 : static_cast<size_t>(v0) * width;
@@ -492,10 +492,12 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
         ray.t_enter = t0;
         ray.t_exit = t1;
         ray.ends_inside = inside;
-        const double y0 = o_g[1] + t0 * dg[1], y1 = o_g[1] + t1 * dg[1];
-        ray.iy_lo = static_cast<int32_t>(std::clamp(std::floor(std::min(y0, y1)) - 1.0, 0.0, n[1] - 1.0));
-        ray.iy_hi = static_cast<int32_t>(std::clamp(std::floor(std::max(y0, y1)) + 1.0, 0.0, n[1] - 1.0));
-        ++weight[(ray.iy_lo + ray.iy_hi) / 2];
+        if (!walk_now) {  // row bounds and slab balancing matter only when threads own slabs
+          const double y0 = o_g[1] + t0 * dg[1], y1 = o_g[1] + t1 * dg[1];
+          ray.iy_lo = static_cast<int32_t>(std::clamp(std::floor(std::min(y0, y1)) - 1.0, 0.0, n[1] - 1.0));
+          ray.iy_hi = static_cast<int32_t>(std::clamp(std::floor(std::max(y0, y1)) + 1.0, 0.0, n[1] - 1.0));
+          ++weight[(ray.iy_lo + ray.iy_hi) / 2];
+        }
         ++count;
       }
       }

@@ -5,14 +5,13 @@
 // Speed: instead of one 3D Amanatides-Woo step per voxel, the walk steps in (x, y) from column
 // to column and, inside a column, jumps straight to the last z plane crossed before leaving it
 // (found from the crossing formula and then confirmed against the same comparisons the 3D walk
-// makes), then applies the misses to that contiguous run of votes (8 int16 lanes at a time, the
-// last block masked: runs average ~8 voxels at 0.25 mm). The voxels visited are the same as the 3D walk's (tests/fusion compares against the plain reference, vote for vote).
+// makes), then applies the misses to that contiguous run of votes (blocks of 16 int16 lanes with
+// AVX2, 8 with SSE2, the last block masked). The voxels visited are the same as the 3D walk's
+// (tests/fusion compares against the plain reference, vote for vote, for every kernel).
 // Threads own disjoint slabs of rows (y), re-balanced per frame on the rays' positions; every
-// thread walks the rays in pixel order, so each voxel gets its votes in the same order as with
-// one thread, and the result does not depend on the thread count. Pixel order is kept on purpose:
-// a voxel's votes commute only until it saturates at +-32767 (a voxel near the surface can reach
-// that in a long scan), so a cache-friendlier ray order (tiles) could change saturated votes
-// (tests/fusion: SaturatedVotesMatchReference).
+// thread walks the rays in the casting order that voting_grid.h defines (32 px tiles), so each
+// voxel gets its votes in the same order as with one thread, and saturated votes (+-32767) do
+// not depend on the thread count.
 #pragma once
 
 #include <cstddef>
