@@ -146,11 +146,10 @@ int RayScene::AddMoving(const TriangleMesh& mesh_O, const Pose& T_W_O, const IrM
   CheckDevice(device, "rtcCommitScene(moving part)");
   part.T_W_O = T_W_O;
   part.instance_id = AttachInstance(device, s.top.get(), part.scene.get(), T_W_O);
-  if (s.part_of_instance.size() <= part.instance_id) {
-    s.part_of_instance.resize(part.instance_id + 1, -1);
-  }
   const int index = static_cast<int>(s.moving.size());
-  s.part_of_instance[part.instance_id] = index;
+  // The top level holds only moving parts, attached in order and never detached: the renderer
+  // finds a hit's part by its instance id.
+  ROMUNECT_CHECK(part.instance_id == static_cast<unsigned>(index));
   s.moving.push_back(std::move(part));
   s.stats.moving_triangles += mesh_O.triangles.size();
   s.stats.moving_parts = static_cast<int>(s.moving.size());

@@ -42,9 +42,8 @@ struct RayScene::Impl {
   // is not instanced: rays meet it first, directly, and coherent occlusion rays work there.
   ScenePtr top;
   Part static_part;
-  std::vector<Part> moving;
+  std::vector<Part> moving;  // index = the instance's geometry id in top
   std::vector<IrMaterial> materials;
-  std::vector<int> part_of_instance;  // top-level geometry id -> moving index
   bool static_dirty = true;
   bool top_dirty = true;
   RaySceneStats stats;

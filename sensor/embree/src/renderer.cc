@@ -394,11 +394,10 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
   f.inv_focus_m = static_cast<float>(1.0 / options.focus_distance_m);
   const Eigen::Matrix3d R_C_W = T_W_C.rotation().transpose();
   f.R_C_W = R_C_W.cast<float>();
-  f.R_C_O.assign(s.part_of_instance.size(), Eigen::Matrix3f::Identity());
-  f.info.assign(s.part_of_instance.size(), nullptr);
-  for (size_t id = 0; id < s.part_of_instance.size(); ++id) {
-    if (s.part_of_instance[id] < 0) continue;
-    const Part& part = s.moving[s.part_of_instance[id]];
+  f.R_C_O.resize(s.moving.size());
+  f.info.resize(s.moving.size());
+  for (size_t id = 0; id < s.moving.size(); ++id) {  // instance id = index in moving
+    const Part& part = s.moving[id];
     f.R_C_O[id] = (R_C_W * part.T_W_O.rotation()).cast<float>();
     f.info[id] = &part.geometries;
   }
