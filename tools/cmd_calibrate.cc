@@ -283,7 +283,7 @@ void RunInTheLoop(const LoopArgs& args) {
     }
   }
   sim::CalibrationRigOptions rig_options;
-  rig_options.rig = fs::exists(args.rig) ? LoadRig(args.rig) : RigPreset(args.rig);
+  rig_options.rig = LoadRigArgument(args.rig);
   rig_options.seed = args.seed;
   rig_options.threads = args.threads;
   rig_options.board_samples = args.board_samples;

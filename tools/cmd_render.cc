@@ -24,6 +24,13 @@
 #include "romunect/sensor/rig.h"
 
 namespace romunect::tools {
+
+Rig LoadRigArgument(const std::string& value) {
+  if (value.size() > 5 && value.substr(value.size() - 5) == ".json") return LoadRig(value);
+  if (std::filesystem::exists(value)) return LoadRig(value);
+  return RigPreset(value);
+}
+
 namespace {
 namespace fs = std::filesystem;
 
@@ -40,12 +47,6 @@ struct RenderCommandOptions {
   uint64_t seed = 1;
   double albedo = 0.6;
 };
-
-Rig LoadRigArgument(const std::string& value) {
-  if (value.size() > 5 && value.substr(value.size() - 5) == ".json") return LoadRig(value);
-  if (fs::exists(value)) return LoadRig(value);
-  return RigPreset(value);
-}
 
 // IR as an 8-bit picture, stretched so that the 99.5th percentile is white (the dots of a
 // dim frame stay visible).

@@ -55,11 +55,6 @@ std::string DefaultRunDir() {
   return name;
 }
 
-Rig ResolveRig(const std::string& rig) {
-  if (rig == "romunect" || rig == "kinect-v1") return RigPreset(rig);
-  return LoadRig(rig);
-}
-
 // The fusion box: the scan's region (the paper's 150 x 80 mm around the bin) and heights.
 fusion::GridOptions FusionBox(const sim::World& world, const sim::ApproachOptions& approach, double voxel_m) {
   const sim::ScanBox region = sim::ScanRegionBox(world, approach);
@@ -102,7 +97,7 @@ void RunScan(const ScanArguments& args) {
   sim::ScanOptions options;
   options.scene_file = args.scene;
   options.saved_scene = args.saved_scene;
-  options.rig = ResolveRig(args.rig);
+  options.rig = LoadRigArgument(args.rig);
   options.pile.num_objects = args.objects;
   options.pile.seed = args.seed;
   options.seed = args.seed;

@@ -2,7 +2,11 @@
 // callback may throw InputError (bad input), which main() reports with a non-zero exit.
 #pragma once
 
+#include <string>
+
 #include <CLI/CLI.hpp>
+
+#include "romunect/sensor/rig.h"
 
 namespace romunect::tools {
 
@@ -12,5 +16,9 @@ void AddRecordCommand(CLI::App& app);  // cmd_record.cc (sensor/openni2)
 void AddRenderCommand(CLI::App& app);  // cmd_render.cc (sensor/embree)
 void AddCalibrateCommand(CLI::App& app);  // cmd_calibrate.cc (calib)
 void AddScanCommand(CLI::App& app);  // cmd_scan.cc (the main job: sim/, fusion/)
+
+// A --rig argument: a rig JSON file (a name ending in .json, or an existing file) or a preset
+// name (RigPreset: an unknown name says which presets exist). Defined in cmd_render.cc.
+Rig LoadRigArgument(const std::string& value);
 
 }  // namespace romunect::tools

@@ -30,6 +30,7 @@ TEST(CliScan, RejectsBadArgumentsBeforeAnyWork) {
   ExpectFailsWith("--scene " + (dir / "missing.xml").string() + out, "missing.xml: file not found");
   ExpectFailsWith("--calibration " + (dir / "missing.yaml").string() + out, "missing.yaml: file not found");
   ExpectFailsWith("--rig " + (dir / "missing.json").string() + out, "missing.json");
+  ExpectFailsWith("--rig nosuchpreset" + out, "unknown preset; expected romunect or kinect-v1");
   EXPECT_FALSE(fs::exists(dir / "run"));
   EXPECT_FALSE(fs::exists(dir / "run.incomplete"));
 }
