@@ -10,6 +10,7 @@
 #include <limits>
 #include <mutex>
 #include <new>
+#include <span>
 #include <sstream>
 #include <thread>
 #include <vector>
@@ -26,6 +27,11 @@ namespace {
 
 constexpr Vote kVoteMax = std::numeric_limits<Vote>::max();
 constexpr Vote kVoteMin = -kVoteMax;  // symmetric saturation
+
+// The side of the square pixel tiles in which a frame's rays are cast: neighbouring rays cross
+// the same columns, so a tile's columns stay in cache (pixel-row order revisits a column only
+// 640 rays later). Not part of the semantics (voting_grid.h: the order of rays does not matter).
+constexpr int kInsertionTilePx = 32;
 
 // A fixed set of threads that run one job at a time; the caller is thread 0. Jobs are passed as
 // a function pointer and context, so running one allocates nothing.
@@ -118,55 +124,27 @@ double ThreadCpuMs() {
   return ts.tv_sec * 1e3 + ts.tv_nsec / 1e6;
 }
 
-inline void ApplyHit(Vote* v) { *v = static_cast<Vote>(std::min(*v + 1, int{kVoteMax})); }
-
-// A run of misses: votes [lo, end) of a column.
-struct RunEntry {
-  Vote* column;
-  int32_t lo, end;
+// A ray's hit, kept until the frame's misses are applied (voting_grid.h): the column's index and
+// the voxel's z.
+struct HitRecord {
+  uint32_t column;
+  uint16_t z;
 };
-
-// Misses for the lanes of one SIMD block that the kernel's lane mask table selects at `mask`.
-struct BlockRun {
-  Vote* block;
-  int64_t mask;  // the kernel's lane mask table offset
-};
-
-// One ray's votes, planned before they are applied: its runs and its hit (if in the grid).
-struct RayPlan {
-  RunEntry* runs = nullptr;  // runs that need the general kernel
-  int count = 0;
-  BlockRun* blocks = nullptr;  // runs of one block
-  int block_count = 0;
-  size_t misses = 0;
-  Vote* hit = nullptr;
-  size_t hit_column = 0;
-  uint16_t hit_z = 0;
-};
-
-// One column of four rays walked in SIMD lanes (ray_walk_lanes.inc): per lane, a block of misses
-// and its lane mask table offset (kFirstLanes: no lane, for a lane with nothing here).
-struct alignas(32) LaneRecord {
-  Vote* block[4];
-  int64_t mask[4];
-};
+static_assert(sizeof(HitRecord) == 8, "the AVX-512 walk stores hits as column | z << 32");
 
 struct WalkContext {
   double ox, oy, oz;  // camera centre, grid units
   int nx, ny, nz;
   int ya, yb;         // this thread's rows [ya, yb)
   Vote* votes;
-  uint16_t* hit_lo;
-  uint16_t* hit_hi;
-  size_t hits, misses;
-  // kPlanDepth rays' runs: a ray crosses <= nx + ny - 1 columns, and its runs split into at most
-  // one block per column plus one per kLanes votes.
-  RunEntry* run_buffer;
-  BlockRun* block_buffer;
-  size_t run_capacity, block_capacity;
-  // kLaneGroups groups' lane records (a group of four rays crosses <= nx + ny columns).
-  LaneRecord* record_buffer;
-  size_t record_capacity;
+  HitRecord* hits;    // this thread's hits (in its rows): room for one per pixel, plus a group
+  size_t hit_count;
+  size_t misses;
+  // Lane walks (AVX-512): each step's block per lane, room for block_capacity; one group of
+  // eight rays needs at most group_blocks (nx + ny + 1 steps).
+  Vote** block_at;
+  uint32_t* block_bits;
+  size_t block_capacity, group_blocks;
 };
 
 // The start voxel on one axis: clamp(floor(x)) into [0, n).
@@ -183,15 +161,20 @@ struct LaneMaskTable {
   }
 };
 
-// Rays planned ahead of the one being applied, plus one.
-constexpr int kPlanDepth = 3;
-// Groups of four rays walked in SIMD lanes (avx2::WalkRaysInLanes) planned ahead of the one
-// being applied, plus one.
-constexpr int kLaneGroups = 3;
-// Plan buffers per thread: the scalar pipeline's kPlanDepth, or kLaneGroups groups of four.
-constexpr int kPlanBuffers = std::max(kPlanDepth, 4 * kLaneGroups);
-// Rays set up before one thread walks them.
-constexpr size_t kSingleThreadBatch = 1024;
+
+// The frame's hits, after its misses: +1 each, saturating, and the columns' hit bounds.
+void ApplyHits(const HitRecord* hits, size_t count, VotingGrid* grid) {
+  const size_t nz = grid->nz();
+  Vote* votes = grid->mutable_column(0);
+  uint16_t* hit_lo = grid->mutable_hit_lo();
+  uint16_t* hit_hi = grid->mutable_hit_hi();
+  for (const HitRecord& h : std::span(hits, count)) {
+    Vote* v = votes + h.column * nz + h.z;
+    *v = static_cast<Vote>(std::min(*v + 1, int{kVoteMax}));
+    hit_lo[h.column] = std::min(hit_lo[h.column], h.z);
+    hit_hi[h.column] = std::max(hit_hi[h.column], h.z);
+  }
+}
 
 // Each kernel defines a block of votes and its four operations; ray_walk.inc builds the runs of
 // misses and the walk on them. AddMiss adds a lane mask (0 or -1 per lane) and saturates at
@@ -227,6 +210,24 @@ inline Block AddMiss(Block v, Block mask) { return _mm256_max_epi16(_mm256_add_e
 #include "ray_walk_lanes.inc"
 }  // namespace avx2
 #pragma GCC pop_options
+
+#pragma GCC push_options
+#pragma GCC target("avx2,avx512f,avx512bw,avx512dq")
+// GCC 12 warns inside its own AVX-512 headers (their _mm512_undefined_* placeholders).
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+namespace avx512 {
+using Block = __m512i;
+inline Block LoadBlock(const Vote* p) { return _mm512_loadu_si512(p); }
+inline void StoreBlock(Vote* p, Block v) { _mm512_storeu_si512(p, v); }
+inline Block AndBlocks(Block a, Block b) { return _mm512_and_si512(a, b); }
+inline Block AddMiss(Block v, Block mask) { return _mm512_max_epi16(_mm512_add_epi16(v, mask), _mm512_set1_epi16(kVoteMin)); }
+#include "ray_walk.inc"
+#include "ray_walk_lanes512.inc"
+}  // namespace avx512
+#pragma GCC diagnostic pop
+#pragma GCC pop_options
 #endif  // __x86_64__
 
 constexpr bool CompiledForX86() {
@@ -245,14 +246,23 @@ bool CpuHasAvx2() {
 #endif
 }
 
+bool CpuHasAvx512() {
+#if defined(__x86_64__)
+  return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("avx512dq");
+#else
+  return false;
+#endif
+}
+
 using WalkRaysFn = void (*)(const RaySetup*, size_t, WalkContext*);
 
 // The kernel's walk for columns of nz votes: a narrower one where a column is shorter than a
 // block (the votes do not depend on the kernel).
 WalkRaysFn KernelWalk(InsertKernel kernel, int nz) {
 #if defined(__x86_64__)
-  if (kernel == InsertKernel::kAvx2 && nz >= avx2::kLanes) return &avx2::WalkRaysInLanes;
-  if ((kernel == InsertKernel::kAvx2 || kernel == InsertKernel::kSse2) && nz >= sse2::kLanes) return &sse2::WalkRays;
+  if (kernel == InsertKernel::kAvx512 && nz >= avx512::kLanes) return &avx512::WalkRaysInGroups;
+  if ((kernel == InsertKernel::kAvx512 || kernel == InsertKernel::kAvx2) && nz >= avx2::kLanes) return &avx2::WalkRaysInLanes;
+  if (kernel != InsertKernel::kScalar && nz >= sse2::kLanes) return &sse2::WalkRays;
 #endif
   return &scalar::WalkRays;
 }
@@ -285,6 +295,8 @@ const char* InsertKernelName(InsertKernel kernel) {
   switch (kernel) {
     case InsertKernel::kAuto:
       return "auto";
+    case InsertKernel::kAvx512:
+      return "avx512";
     case InsertKernel::kAvx2:
       return "avx2";
     case InsertKernel::kSse2:
@@ -299,7 +311,8 @@ std::string InserterOptions::Problem() const {
   if (threads < 1 || threads > 256) {
     return "threads = " + std::to_string(threads) + ": must be in [1, 256]";
   }
-  if ((kernel == InsertKernel::kAvx2 && !CpuHasAvx2()) || (kernel == InsertKernel::kSse2 && !CompiledForX86())) {
+  if ((kernel == InsertKernel::kAvx512 && !CpuHasAvx512()) || (kernel == InsertKernel::kAvx2 && !CpuHasAvx2()) ||
+      (kernel == InsertKernel::kSse2 && !CompiledForX86())) {
     return std::string("kernel = ") + InsertKernelName(kernel) + ": this CPU does not support it";
   }
   return "";
@@ -318,11 +331,12 @@ struct FrameInserter::Workspace {
     void operator()(void* p) const { std::free(p); }
   };
   std::unique_ptr<RaySetup[], Free> rays;
-  std::vector<std::vector<RunEntry>> run_buffers;  // per thread, reused
-  std::vector<std::vector<BlockRun>> block_buffers;
-  std::vector<std::vector<LaneRecord>> record_buffers;
+  std::vector<std::vector<HitRecord>> hits;  // per thread: room for the frame's hits in its rows
+  std::vector<std::vector<Vote*>> block_at;  // per thread: WalkContext::block_at
+  std::vector<std::vector<uint32_t>> block_bits;
   std::vector<size_t> chunk_begin;     // chunk c's first ray slot (its first pixel)
   std::vector<size_t> chunk_count;     // rays set up by chunk c
+  std::vector<std::vector<size_t>> tile_end;  // per chunk: each tile's end in its rays
   std::vector<InsertStats> chunk_stats;
   std::vector<uint32_t> row_weight;    // threads x ny: rays per row, for balancing slabs
   std::vector<int> slab;               // threads + 1 row boundaries
@@ -335,14 +349,18 @@ FrameInserter::FrameInserter(VotingGrid* grid, const InserterOptions& options)
   if (!problem.empty()) throw InputError("fusion inserter", "options", problem);
   kernel_ = options.kernel;
   if (kernel_ == InsertKernel::kAuto) {
-    kernel_ = CpuHasAvx2() ? InsertKernel::kAvx2 : (CompiledForX86() ? InsertKernel::kSse2 : InsertKernel::kScalar);
+    kernel_ = CpuHasAvx512() ? InsertKernel::kAvx512
+              : CpuHasAvx2() ? InsertKernel::kAvx2
+              : CompiledForX86() ? InsertKernel::kSse2
+                                 : InsertKernel::kScalar;
   }
   ws_ = std::make_unique<Workspace>(options.threads);
   ws_->chunk_begin.assign(options.threads, 0);
-  ws_->run_buffers.resize(options.threads);
-  ws_->block_buffers.resize(options.threads);
-  ws_->record_buffers.resize(options.threads);
+  ws_->hits.resize(options.threads);
+  ws_->block_at.resize(options.threads);
+  ws_->block_bits.resize(options.threads);
   ws_->chunk_count.assign(options.threads, 0);
+  ws_->tile_end.resize(options.threads);
   ws_->chunk_stats.assign(options.threads, InsertStats{});
   ws_->row_weight.assign(static_cast<size_t>(options.threads) * grid->ny(), 0);
   ws_->slab.assign(options.threads + 1, 0);
@@ -362,7 +380,7 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     ws.has_camera = true;
     ws.ray_C.resize(2 * pixels);
     // One thread walks batches of rays as it sets them up; threads share a frame's setups.
-    const size_t slots = options_.threads == 1 ? kSingleThreadBatch : pixels;
+    const size_t slots = options_.threads == 1 ? static_cast<size_t>(kInsertionTilePx) * kInsertionTilePx : pixels;
     ws.rays.reset(static_cast<RaySetup*>(std::malloc(slots * sizeof(RaySetup))));
     if (ws.rays == nullptr) throw std::bad_alloc();
     for (int v = 0; v < height; ++v) {
@@ -389,39 +407,23 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
   VotingGrid* mutable_grid = grid_;
   const WalkRaysFn walk_rays = KernelWalk(kernel_, n[2]);
   auto make_context = [&](int thread, int ya, int yb) {
-    const size_t run_capacity = static_cast<size_t>(n[0]) + n[1];
-    const size_t block_capacity = run_capacity + n[2];
-    std::vector<RunEntry>& run_buffer = ws.run_buffers[thread];
-    std::vector<BlockRun>& block_buffer = ws.block_buffers[thread];
-    run_buffer.resize(kPlanBuffers * run_capacity);
-    block_buffer.resize(kPlanBuffers * block_capacity);
-    std::vector<LaneRecord>& record_buffer = ws.record_buffers[thread];
-    record_buffer.resize(kLaneGroups * run_capacity);
-    return WalkContext{o_g[0],
-                       o_g[1],
-                       o_g[2],
-                       n[0],
-                       n[1],
-                       n[2],
-                       ya,
-                       yb,
-                       mutable_grid->mutable_column(0),
-                       mutable_grid->mutable_hit_lo(),
-                       mutable_grid->mutable_hit_hi(),
-                       0,
-                       0,
-                       run_buffer.data(),
-                       block_buffer.data(),
-                       run_capacity,
-                       block_capacity,
-                       record_buffer.data(),
-                       run_capacity};
+    // At most one hit per pixel; the AVX-512 walk stores a whole group's (8) at a time.
+    if (ws.hits[thread].size() < pixels + 8) ws.hits[thread].resize(pixels + 8);
+    const size_t group_blocks = 8 * (static_cast<size_t>(n[0]) + n[1] + 2);
+    const size_t capacity = group_blocks + (size_t{1} << 16);
+    if (ws.block_at[thread].size() < capacity) {
+      ws.block_at[thread].resize(capacity);
+      ws.block_bits[thread].resize(capacity);
+    }
+    return WalkContext{o_g[0], o_g[1], o_g[2], n[0], n[1], n[2], ya, yb, mutable_grid->mutable_column(0),
+                       ws.hits[thread].data(), 0, 0, ws.block_at[thread].data(), ws.block_bits[thread].data(),
+                       capacity, group_blocks};
   };
   size_t thread_hits[256] = {}, thread_misses[256] = {};
 
-  // Phase 1: per band of tile rows, in the order of casting (voting_grid.h), classify each
-  // pixel and set its ray up (clip to the box). One thread walks each batch of rays right away
-  // (no frame-sized buffer, and the rays are still in cache).
+  // Phase 1: per band of tile rows, tile by tile, classify each pixel and set its ray up (clip
+  // to the box). One thread walks each tile's rays right away (no frame-sized buffer, and the
+  // rays are still in cache). A tile's rays cross neighbouring columns, which stay in cache.
   double thread_cpu_ms[256] = {};  // per thread, both phases: the frame's critical path
   constexpr int kTile = kInsertionTilePx;
   const int tile_rows = (height + kTile - 1) / kTile;
@@ -438,16 +440,14 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     if (walk_now) context = make_context(0, 0, n[1]);
     ws.chunk_begin[chunk] = walk_now ? 0 : static_cast<size_t>(v0) * width;
     RaySetup* out = &ws.rays[ws.chunk_begin[chunk]];
+    std::vector<size_t>& tile_end = ws.tile_end[chunk];
+    tile_end.clear();
     size_t count = 0;
     for (int tv = v0; tv < v1; tv += kTile) {
      for (int tu = 0; tu < width; tu += kTile) {
       for (int v = tv; v < std::min(tv + kTile, v1); ++v) {
       const float* row = depth_m.ptr<float>(v);
       for (int u = tu; u < std::min(tu + kTile, width); ++u) {
-        if (walk_now && count == kSingleThreadBatch) {
-          walk_rays(out, count, &context);
-          count = 0;
-        }
         const float depth = row[u];
         if (depth == 0.0f) {
           ++s.no_measurement;
@@ -501,12 +501,17 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
         ++count;
       }
       }
+      if (walk_now) {
+        walk_rays(out, count, &context);
+        count = 0;
+      } else {
+        tile_end.push_back(count);
+      }
      }
     }
     if (walk_now) {
-      walk_rays(out, count, &context);
-      count = 0;
-      thread_hits[0] = context.hits;
+      ApplyHits(context.hits, context.hit_count, mutable_grid);  // after the frame's misses (voting_grid.h)
+      thread_hits[0] = context.hit_count;
       thread_misses[0] = context.misses;
     }
     ws.chunk_count[chunk] = count;
@@ -530,17 +535,22 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     while (t < threads) ws.slab[t++] = n[1];
   }
 
-  // Phase 2 (threads > 1): each thread walks every ray in casting order and votes only in its
-  // own rows.
+  // Phase 2 (threads > 1): each thread walks every ray that may touch its own rows, votes only
+  // in them, and then applies its hits (all in its rows, so after all of the frame's misses there).
   auto walk = [&](int thread) {
     const int ya = ws.slab[thread], yb = ws.slab[thread + 1];
     if (ya >= yb) return;
     const double cpu0 = ThreadCpuMs();
     WalkContext context = make_context(thread, ya, yb);
     for (int chunk = 0; chunk < threads; ++chunk) {
-      walk_rays(&ws.rays[ws.chunk_begin[chunk]], ws.chunk_count[chunk], &context);
+      size_t begin = 0;
+      for (const size_t end : ws.tile_end[chunk]) {
+        walk_rays(&ws.rays[ws.chunk_begin[chunk] + begin], end - begin, &context);
+        begin = end;
+      }
     }
-    thread_hits[thread] = context.hits;
+    ApplyHits(context.hits, context.hit_count, mutable_grid);
+    thread_hits[thread] = context.hit_count;
     thread_misses[thread] = context.misses;
     thread_cpu_ms[thread] += ThreadCpuMs() - cpu0;
   };

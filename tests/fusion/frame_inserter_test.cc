@@ -49,7 +49,7 @@ ReferenceGrid MakeReference(const VotingGrid& grid) {
   return ::testing::AssertionFailure() << differences << " votes differ, first at " << first;
 }
 
-// Every kernel this CPU runs (AVX2, SSE2, scalar), each with 1, 2 and 3 threads: they must all
+// Every kernel this CPU runs (AVX-512, AVX2, SSE2, scalar), each with 1, 2 and 3 threads: they must all
 // give the reference's votes.
 struct Config {
   int threads;
@@ -57,7 +57,7 @@ struct Config {
 };
 std::vector<Config> AllConfigs(std::vector<int> thread_counts = {1, 2, 3}) {
   std::vector<Config> configs;
-  for (const InsertKernel kernel : {InsertKernel::kAvx2, InsertKernel::kSse2, InsertKernel::kScalar}) {
+  for (const InsertKernel kernel : {InsertKernel::kAvx512, InsertKernel::kAvx2, InsertKernel::kSse2, InsertKernel::kScalar}) {
     const InserterOptions options{1, kernel};
     if (!options.Problem().empty()) continue;
     for (const int threads : thread_counts) configs.push_back({threads, kernel});
@@ -88,7 +88,7 @@ struct FastGrids {
 
 TEST(FrameInserterTest, KernelsAreOfferedAsTheCpuAllows) {
   const InserterOptions scalar{1, InsertKernel::kScalar}, automatic{1, InsertKernel::kAuto};
-  const InserterOptions avx2{1, InsertKernel::kAvx2};
+  const InserterOptions avx2{1, InsertKernel::kAvx2}, avx512{1, InsertKernel::kAvx512};
   EXPECT_EQ(scalar.Problem(), "");
   EXPECT_EQ(automatic.Problem(), "");
   GridOptions options;
@@ -96,11 +96,18 @@ TEST(FrameInserterTest, KernelsAreOfferedAsTheCpuAllows) {
   VotingGrid grid(options);
   EXPECT_NE(FrameInserter(&grid, InserterOptions{}).kernel(), InsertKernel::kAuto);  // resolved
   EXPECT_EQ(FrameInserter(&grid, scalar).kernel(), InsertKernel::kScalar);
+  const bool has_avx512 = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
+                          __builtin_cpu_supports("avx512dq");
+  if (!has_avx512) {
+    EXPECT_THAT(avx512.Problem(), ::testing::HasSubstr("kernel = avx512"));
+  }
   if (!__builtin_cpu_supports("avx2")) {
     EXPECT_THAT(avx2.Problem(), ::testing::HasSubstr("kernel = avx2"));
-  } else {
-    EXPECT_EQ(FrameInserter(&grid, InserterOptions{}).kernel(), InsertKernel::kAvx2);
   }
+  const InsertKernel best = has_avx512                           ? InsertKernel::kAvx512
+                            : __builtin_cpu_supports("avx2") ? InsertKernel::kAvx2
+                                                             : InsertKernel::kSse2;
+  EXPECT_EQ(FrameInserter(&grid, InserterOptions{}).kernel(), best);
 }
 
 // A 1-pixel camera looking straight down at depth d: the column under it gets misses from the
@@ -336,7 +343,7 @@ TEST(FrameInserterTest, CountsInvalidPixelsAndSkipsThem) {
 // Votes saturate at +-32767 (voting_grid.h): a 40 x 30 camera looking down into a 2 x 2 x nz box
 // of coarse voxels sends ~300 rays per column per frame, so within 200 frames the top voxels
 // reach -32767 and the surface voxels +32767 and keep receiving votes. Saturation is where the
-// order of votes could matter; every kernel must still equal the reference vote for vote, with
+// order of votes would matter; every kernel must still equal the reference vote for vote, with
 // runs of every length (nz = 8 and 11: runs crossing 8-lane blocks and column ends; nz = 40:
 // 16-lane blocks, several per run, and end-aligned blocks at the column top).
 TEST(FrameInserterTest, SaturatedVotesMatchReference) {
@@ -359,8 +366,9 @@ TEST(FrameInserterTest, SaturatedVotesMatchReference) {
     ReferenceGrid ref = MakeReference(*fast.grids[0]);
     ReferenceCounts counts;
     std::mt19937 rng(5);
-    // Depths put the points at z in [0.5, nz - 0.5] mm: some columns hit at every level.
-    std::uniform_real_distribution<double> depth(height_m - 0.001 * (nz - 0.5), height_m - 0.0005);
+    // Depths put the points at z in [0.5, nz - 1.5] mm: hits at every level but the top one,
+    // which only misses reach (a voxel hit in a frame ends it above -32767: hits come last).
+    std::uniform_real_distribution<double> depth(height_m - 0.001 * (nz - 1.5), height_m - 0.0005);
     for (int frame = 0; frame < 200; ++frame) {
       cv::Mat d(camera.height, camera.width, CV_32F);
       // Most pixels on one plane (the surface saturates positive), the rest scattered.
@@ -387,49 +395,48 @@ TEST(FrameInserterTest, SaturatedVotesMatchReference) {
   }
 }
 
-// The casting order is tile order (voting_grid.h), and it shows once a voxel saturates: a camera
-// of kInsertionTilePx + 1 by 2 pixels looks down one column. After the voxel at z index 3 is
-// saturated at +32767, a frame casts a hit into it from pixel (u = kInsertionTilePx, v = 0) and
-// misses through it from pixels (0, 1) and (1, 1). Tile order casts the misses first (the second
-// tile holds only column kInsertionTilePx): 32767 - 2 + 1 = 32766. Pixel order would cast the
-// hit first, lost to saturation: 32767 - 2 = 32765.
-TEST(FrameInserterTest, CastsInTileOrder) {
+// A frame's misses come before its hits (voting_grid.h), whatever the order of its pixels, and
+// it shows once a voxel saturates: a 3 x 64 camera looks down one column. After the voxel at z
+// index 3 is saturated at +32767, a frame casts a hit into it from one pixel and misses through
+// it from the other two of row 0: 32767 - 2 + 1 = 32766 with the hit at the first pixel (cast ray after
+// ray, the hit would be lost to saturation: 32765) and with it at the last.
+TEST(FrameInserterTest, AppliesAFramesMissesBeforeItsHits) {
   GridOptions options;
   options.min_W = Eigen::Vector3d(0.0, 0.0, 0.0);
   options.max_W = Eigen::Vector3d(0.001, 0.001, 0.008);
   options.voxel_m = 0.001;
   CameraModel camera = testing::SmallCamera();
-  camera.width = kInsertionTilePx + 1;
-  camera.height = 2;
-  camera.cx = kInsertionTilePx / 2.0;
-  camera.cy = 0.5;
+  camera.width = 3;
+  camera.height = 64;  // 192 hits per frame saturate the voxel quickly; the test frame uses row 0
+  camera.cx = 1.0;
+  camera.cy = 31.5;
   camera.fx = camera.fy = 20000.0;  // every ray stays inside the one column
   const Pose T_W_C = MakePose(Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix(),
                               Eigen::Vector3d(0.0005, 0.0005, 0.020));
   const float hit_depth = 0.020f - 0.0035f, miss_depth = 0.020f - 0.0015f;  // z 3.5 mm, 1.5 mm
-  for (const Config& config : AllConfigs({1, 2})) {
-    SCOPED_TRACE(Describe(config));
-    VotingGrid grid(options);
-    ReferenceGrid ref = MakeReference(grid);
-    ReferenceCounts counts;
-    FrameInserter inserter(&grid, InserterOptions{config.threads, config.kernel});
-    const cv::Mat saturate(camera.height, camera.width, CV_32F, cv::Scalar(hit_depth));
-    for (int frame = 0; frame * camera.width * camera.height < 32767; ++frame) {
-      inserter.Insert(camera, saturate, T_W_C, nullptr);
-      reference::ReferenceInsert(camera, saturate, T_W_C, &ref, &counts);
+  for (const int hit_pixel : {0, 2}) {
+    for (const Config& config : AllConfigs({1, 2})) {
+      SCOPED_TRACE(Describe(config) + ", hit at pixel " + std::to_string(hit_pixel));
+      VotingGrid grid(options);
+      ReferenceGrid ref = MakeReference(grid);
+      ReferenceCounts counts;
+      FrameInserter inserter(&grid, InserterOptions{config.threads, config.kernel});
+      const cv::Mat saturate(camera.height, camera.width, CV_32F, cv::Scalar(hit_depth));
+      for (int frame = 0; frame * camera.width * camera.height < 32767; ++frame) {
+        inserter.Insert(camera, saturate, T_W_C, nullptr);
+        reference::ReferenceInsert(camera, saturate, T_W_C, &ref, &counts);
+      }
+      ASSERT_EQ(grid.vote(0, 0, 3), 32767);
+      cv::Mat d(camera.height, camera.width, CV_32F, cv::Scalar(0.0f));
+      for (int u = 0; u < camera.width; ++u) d.at<float>(0, u) = u == hit_pixel ? hit_depth : miss_depth;
+      InsertStats stats;
+      inserter.Insert(camera, d, T_W_C, &stats);
+      reference::ReferenceInsert(camera, d, T_W_C, &ref, &counts);
+      EXPECT_EQ(stats.hits, 3u);  // the misses through z index 3 end in hits at index 1
+      EXPECT_EQ(grid.vote(0, 0, 3), 32766);
+      EXPECT_EQ(ref.at(0, 0, 3), 32766);
+      EXPECT_TRUE(VotesEqual(grid, ref));
     }
-    ASSERT_EQ(grid.vote(0, 0, 3), 32767);
-    cv::Mat d(camera.height, camera.width, CV_32F, cv::Scalar(0.0f));
-    d.at<float>(0, kInsertionTilePx) = hit_depth;
-    d.at<float>(1, 0) = miss_depth;
-    d.at<float>(1, 1) = miss_depth;
-    InsertStats stats;
-    inserter.Insert(camera, d, T_W_C, &stats);
-    reference::ReferenceInsert(camera, d, T_W_C, &ref, &counts);
-    EXPECT_EQ(stats.hits, 3u);  // the misses through z index 3 end in hits at index 1
-    EXPECT_EQ(grid.vote(0, 0, 3), 32766);
-    EXPECT_EQ(ref.at(0, 0, 3), 32766);
-    EXPECT_TRUE(VotesEqual(grid, ref));
   }
 }
 

@@ -1,10 +1,9 @@
 #include "reference_fusion.h"
 
-#include "romunect/fusion/voting_grid.h"
-
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <vector>
 
 namespace romunect::fusion::reference {
 namespace {
@@ -21,12 +20,9 @@ void ReferenceInsert(const CameraModel& camera, const cv::Mat& depth_m, const Po
   const Eigen::Matrix3d R = T_W_C.linear();
   const Eigen::Vector3d o_W = T_W_C.translation();
   const int* n = grid->n;
-  // The casting order (voting_grid.h): square tiles row-major, pixels row-major in each tile.
-  const int tile = kInsertionTilePx;
-  for (int tv = 0; tv < depth_m.rows; tv += tile) {
-   for (int tu = 0; tu < depth_m.cols; tu += tile) {
-    for (int v = tv; v < std::min(tv + tile, depth_m.rows); ++v) {
-    for (int u = tu; u < std::min(tu + tile, depth_m.cols); ++u) {
+  std::vector<int16_t*> hits;  // applied after every miss of the frame (voting_grid.h)
+  for (int v = 0; v < depth_m.rows; ++v) {
+    for (int u = 0; u < depth_m.cols; ++u) {
       const float depth = depth_m.at<float>(v, u);
       if (depth == 0.0f) continue;
       if (!(depth > 0.0f) || !std::isfinite(depth)) {
@@ -80,7 +76,7 @@ void ReferenceInsert(const CameraModel& camera, const cv::Mat& depth_m, const Po
         int16_t* vote = &grid->at(idx[0], idx[1], idx[2]);
         if (!(t_next[a] < t_exit)) {  // the last voxel of the segment
           if (inside) {
-            AddVote(vote, +1);
+            hits.push_back(vote);
             ++counts->hits;
           } else {
             AddVote(vote, -1);
@@ -95,9 +91,8 @@ void ReferenceInsert(const CameraModel& camera, const cv::Mat& depth_m, const Po
         t_next[a] = (static_cast<double>(step[a] > 0 ? idx[a] + 1 : idx[a]) - o[a]) * inv[a];
       }
     }
-    }
-   }
   }
+  for (int16_t* vote : hits) AddVote(vote, +1);
 }
 
 cv::Mat ReferenceExtract(const ReferenceGrid& grid) {

@@ -31,7 +31,8 @@ struct ReferenceCounts {
   size_t rays = 0, hits = 0, misses = 0, rays_missing_box = 0, points_outside_box = 0, invalid = 0;
 };
 
-// Casts every pixel of depth_m, in the casting order of voting_grid.h (tiles).
+// Casts every pixel of depth_m in pixel-row order, the frame's hits after all of its misses
+// (voting_grid.h).
 void ReferenceInsert(const CameraModel& camera, const cv::Mat& depth_m, const Pose& T_W_C,
                      ReferenceGrid* grid, ReferenceCounts* counts);
 

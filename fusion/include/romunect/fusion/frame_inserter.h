@@ -5,13 +5,15 @@
 // Speed: instead of one 3D Amanatides-Woo step per voxel, the walk steps in (x, y) from column
 // to column and, inside a column, jumps straight to the last z plane crossed before leaving it
 // (found from the crossing formula and then confirmed against the same comparisons the 3D walk
-// makes), then applies the misses to that contiguous run of votes (blocks of 16 int16 lanes with
-// AVX2, 8 with SSE2, the last block masked). The voxels visited are the same as the 3D walk's
-// (tests/fusion compares against the plain reference, vote for vote, for every kernel).
-// Threads own disjoint slabs of rows (y), re-balanced per frame on the rays' positions; every
-// thread walks the rays in the casting order that voting_grid.h defines (32 px tiles), so each
-// voxel gets its votes in the same order as with one thread, and saturated votes (+-32767) do
-// not depend on the thread count.
+// makes), then applies the misses to that contiguous run of votes as one SIMD block (masked 32
+// votes with AVX-512; 16 with AVX2, 8 with SSE2, the last block masked). The voxels visited are
+// the same as the 3D walk's (tests/fusion compares against the plain reference, vote for vote,
+// for every kernel). One ray's walk is a chain of dependent steps, so AVX-512 walks eight rays at
+// once in lanes (AVX2 four); a frame's misses commute (voting_grid.h), so rays may interleave.
+// A frame's rays are cast in 32 px tiles: a tile's rays cross neighbouring columns, which stay
+// in cache. Threads own disjoint slabs of rows (y), re-balanced per frame on the rays' positions,
+// and each applies the hits in its rows after its misses: the votes do not depend on the thread
+// count or the kernel.
 #pragma once
 
 #include <cstddef>
@@ -45,10 +47,10 @@ struct InsertStats {
   std::string BriefReport() const;
 };
 
-// The SIMD kernel that applies the runs of misses. Every kernel gives the same votes bit for bit
-// (tests/fusion compares them); kAuto takes AVX2 where the CPU has it (checked at run time, the
-// build never assumes it), else SSE2 (x86-64), else scalar.
-enum class InsertKernel { kAuto, kAvx2, kSse2, kScalar };
+// The SIMD kernel of the walk. Every kernel gives the same votes bit for bit (tests/fusion
+// compares them); kAuto takes AVX-512 (F, BW, DQ) where the CPU has it, else AVX2 (checked at run
+// time, the build never assumes either), else SSE2 (x86-64), else scalar.
+enum class InsertKernel { kAuto, kAvx512, kAvx2, kSse2, kScalar };
 const char* InsertKernelName(InsertKernel kernel);
 
 struct InserterOptions {

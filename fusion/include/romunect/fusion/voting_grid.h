@@ -20,12 +20,11 @@
 // at 0.25 mm sees ~7 rays per frame at 200 mm, so 20-30 frames), and saturated ties would bias
 // heights upward; int16 needs 300+ such frames. Saturating (not wrapping) keeps the sign.
 //
-// Casting order: votes commute until a voxel saturates, so the order of rays is part of the
-// semantics. A frame's pixels are cast in tile order: the image is cut into kInsertionTilePx
-// square tiles (the last row and column of tiles may be smaller), tiles in row-major order,
-// pixels in row-major order inside a tile. Neighbouring rays cross the same columns, so a tile's
-// columns stay in cache (pixel-row order revisits a column only 640 rays later). Every voxel gets
-// its votes in this order whatever the thread count, so the result is deterministic.
+// Order within a frame: every voxel gets all of the frame's misses, then its hits, each
+// saturating: v <- max(v - m, -32767), then v <- min(v + h, 32767). Misses commute with misses and
+// hits with hits (each saturates at one end only), so the votes do not depend on the order in
+// which the frame's rays are cast, on threads or on kernels: the fast path may interleave rays.
+// (Casting ray after ray would differ only where a voxel saturates within the frame.)
 #pragma once
 
 #include <cstddef>
@@ -41,9 +40,6 @@
 namespace romunect::fusion {
 
 using Vote = int16_t;
-
-// The side of the square pixel tiles of the casting order (see above).
-constexpr int kInsertionTilePx = 32;
 
 struct GridOptions {
   // The box in W, metres. Default: the paper's 150 x 80 mm region, 64 mm tall, around a bin
@@ -103,7 +99,9 @@ class VotingGrid {
  private:
   GridOptions options_;
   int nx_ = 0, ny_ = 0, nz_ = 0;
-  Vote* votes_ = nullptr;       // nx*ny*nz, calloc'd so untouched pages cost no memory
+  Vote* votes_ = nullptr;       // nx*ny*nz, mapped: untouched pages cost no memory
+  void* mapping_ = nullptr;     // the votes' mapping (huge-page aligned inside it)
+  size_t mapped_bytes_ = 0;
   uint16_t* hit_lo_ = nullptr;  // nx*ny
   uint16_t* hit_hi_ = nullptr;  // nx*ny
 };
