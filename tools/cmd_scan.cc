@@ -41,6 +41,7 @@ struct ScanArguments {
   int samples = 1;
   double voxel_m = 0.25e-3;
   bool ideal_depth = false;
+  bool compress_frames = false;
   std::string sweep = "columns";
 };
 
@@ -154,7 +155,9 @@ void RunScan(const ScanArguments& args) {
   // What fusion believes: the calibrated camera and hand-eye pose, or the simulator's truth.
   const CameraModel camera = calibration ? calibration->camera : scanner.camera();
   const Pose T_W_B = scanner.world().T_W_B();
-  FrameDirectoryWriter writer(work_dir / "frames", camera);
+  // Uncompressed frame files keep up with the 30 Hz loop (image_io.h).
+  FrameDirectoryWriter writer(work_dir / "frames", camera,
+                              args.compress_frames ? ImageCompression::kCompact : ImageCompression::kFast);
   const fusion::GridOptions box = FusionBox(scanner.world(), scanner.options().approach, args.voxel_m);
   fusion::VotingGrid grid(box);
   fusion::FrameInserter inserter(&grid, fusion::InserterOptions{args.threads});
@@ -270,6 +273,8 @@ void AddScanCommand(CLI::App& app) {
                   "centre) or levels (a serpentine per level)")
       ->capture_default_str();
   cmd->add_flag("--ideal-depth", args->ideal_depth, "Fuse ground-truth depth instead of the sensor's (debugging)");
+  cmd->add_flag("--compress-frames", args->compress_frames,
+                "Compress the frame directory's files (PNG, EXR ZIP: 2-5x smaller, ~50 ms of CPU per frame)");
   cmd->callback([args] { RunScan(*args); });
 }
 

@@ -222,7 +222,9 @@ void WriteFrameDirectoryManifest(const fs::path& dir, const FrameDirectoryManife
   WriteTextAtomically(dir / kManifestName, document.dump(1) + "\n");
 }
 
-FrameDirectoryWriter::FrameDirectoryWriter(const fs::path& dir, const CameraModel& camera) : dir_(dir) {
+FrameDirectoryWriter::FrameDirectoryWriter(const fs::path& dir, const CameraModel& camera,
+                                           ImageCompression compression)
+    : dir_(dir), compression_(compression) {
   ROMUNECT_CHECK(camera.Problem().empty());
   if (fs::exists(dir / kManifestName)) {
     throw InputError((dir / kManifestName).string(), "",
@@ -261,9 +263,9 @@ void FrameDirectoryWriter::Add(const Frame& frame) {
     *field = FrameFile(folder, frame.index, extension);
     fs::create_directories(dir_ / folder);
     if (image.type() == CV_32F) {
-      WriteDepthExr(dir_ / *field, image);
+      WriteDepthExr(dir_ / *field, image, compression_);
     } else {
-      WritePng16(dir_ / *field, image);
+      WritePng16(dir_ / *field, image, compression_);
     }
   };
   write(frame.depth_m, "depth", "exr", &record.depth);

@@ -23,6 +23,7 @@
 #include "romunect/sensor/camera_model.h"
 #include "romunect/sensor/frame.h"
 #include "romunect/sensor/frame_source.h"
+#include "romunect/sensor/image_io.h"
 
 namespace romunect {
 
@@ -68,8 +69,10 @@ Frame LoadFrame(const std::filesystem::path& dir, const FrameDirectoryManifest& 
 // so earlier results are never overwritten.
 class FrameDirectoryWriter {
  public:
-  // Creates `dir` if needed. Throws InputError if it already holds a frames.json.
-  FrameDirectoryWriter(const std::filesystem::path& dir, const CameraModel& camera);
+  // Creates `dir` if needed. Throws InputError if it already holds a frames.json. Images are
+  // written with `compression` (image_io.h: kFast keeps up with a 30 Hz loop).
+  FrameDirectoryWriter(const std::filesystem::path& dir, const CameraModel& camera,
+                       ImageCompression compression = ImageCompression::kCompact);
 
   // Writes the frame's present images (ir, raw, depth_m, gt_depth_m) and records it.
   // Images must be camera-sized and of the types frame.h documents.
@@ -86,6 +89,7 @@ class FrameDirectoryWriter {
 
  private:
   std::filesystem::path dir_;
+  ImageCompression compression_;
   FrameDirectoryManifest manifest_;
   bool finished_ = false;
 };

@@ -2,6 +2,12 @@
 // metres), IR and device raw depth as 16-bit PNG. Every writer writes a temporary file in the
 // same folder and renames it, so no half-written file is ever left under the final name.
 // Readers throw InputError naming the file and what was expected.
+//
+// Writers compress (kCompact: PNG through OpenCV at zlib level 1, EXR ZIP at level 1) or not
+// (kFast: our own stored-deflate PNG and uncompressed scanline EXR, standard files that any
+// reader opens). Compressing a 640 x 480 frame's four images takes ~50 ms of CPU, more than a
+// 30 Hz frame's budget, and no deflate runs at the ~1 GB/s it would need; kFast takes ~2 ms for
+// files 2-5 times larger.
 #pragma once
 
 #include <filesystem>
@@ -11,15 +17,19 @@
 
 namespace romunect {
 
+enum class ImageCompression { kCompact, kFast };
+
 // Reads a single-channel float EXR with a channel named "Z" into a CV_32F Mat.
 cv::Mat ReadDepthExr(const std::filesystem::path& path);
 // Writes a CV_32F Mat as a float32 EXR with one channel "Z" (NaN and 0 are written as is).
-void WriteDepthExr(const std::filesystem::path& path, const cv::Mat& depth);
+void WriteDepthExr(const std::filesystem::path& path, const cv::Mat& depth,
+                   ImageCompression compression = ImageCompression::kCompact);
 
 // Reads a 16-bit single-channel PNG into a CV_16U Mat.
 cv::Mat ReadPng16(const std::filesystem::path& path);
 // Writes a CV_16U Mat as a 16-bit PNG.
-void WritePng16(const std::filesystem::path& path, const cv::Mat& image);
+void WritePng16(const std::filesystem::path& path, const cv::Mat& image,
+                ImageCompression compression = ImageCompression::kCompact);
 // Writes an 8-bit picture (CV_8UC1 or CV_8UC3, BGR) as PNG, for people to look at.
 void WritePicture(const std::filesystem::path& path, const cv::Mat& image);
 
