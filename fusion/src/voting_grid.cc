@@ -10,8 +10,8 @@
 #include <limits>
 #include <sstream>
 
-#if defined(__SSE2__)
-#include <emmintrin.h>
+#if defined(__x86_64__)
+#include <immintrin.h>
 #endif
 
 #include "romunect/sensor/errors.h"
@@ -34,27 +34,65 @@ size_t PhysicalMemoryBytes() {
   return static_cast<size_t>(pages) * static_cast<size_t>(page);
 }
 
-// max(votes[lo..hi]), lo <= hi; 8 lanes at a time (the last block may overlap the previous one,
-// which a maximum does not mind).
-int MaxVote(const Vote* votes, int lo, int hi) {
+// The highest vote in votes[lo..hi] (lo <= hi) and the highest k holding it; 8 lanes at a time
+// (the last block may overlap the previous one, which a maximum does not mind).
+void MaxVoteSse2(const Vote* votes, int lo, int hi, int* best, int* best_k) {
   int k = lo;
-  int best = std::numeric_limits<Vote>::min();
+  int m = std::numeric_limits<Vote>::min();
 #if defined(__SSE2__)
   if (hi - lo + 1 >= 8) {
-    __m128i m = _mm_loadu_si128(reinterpret_cast<const __m128i*>(votes + lo));
+    __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(votes + lo));
     for (k = lo + 8; k + 8 <= hi + 1; k += 8) {
-      m = _mm_max_epi16(m, _mm_loadu_si128(reinterpret_cast<const __m128i*>(votes + k)));
+      v = _mm_max_epi16(v, _mm_loadu_si128(reinterpret_cast<const __m128i*>(votes + k)));
     }
-    if (k <= hi) m = _mm_max_epi16(m, _mm_loadu_si128(reinterpret_cast<const __m128i*>(votes + hi - 7)));
-    m = _mm_max_epi16(m, _mm_srli_si128(m, 8));
-    m = _mm_max_epi16(m, _mm_srli_si128(m, 4));
-    m = _mm_max_epi16(m, _mm_srli_si128(m, 2));
-    return static_cast<int16_t>(_mm_cvtsi128_si32(m) & 0xffff);
+    if (k <= hi) v = _mm_max_epi16(v, _mm_loadu_si128(reinterpret_cast<const __m128i*>(votes + hi - 7)));
+    v = _mm_max_epi16(v, _mm_srli_si128(v, 8));
+    v = _mm_max_epi16(v, _mm_srli_si128(v, 4));
+    v = _mm_max_epi16(v, _mm_srli_si128(v, 2));
+    m = static_cast<int16_t>(_mm_cvtsi128_si32(v) & 0xffff);
+    k = hi + 1;
   }
 #endif
-  for (; k <= hi; ++k) best = std::max(best, int{votes[k]});
-  return best;
+  for (; k <= hi; ++k) m = std::max(m, int{votes[k]});
+  *best = m;
+  int top = hi;
+  while (votes[top] != m) --top;
+  *best_k = top;
 }
+
+#if defined(__x86_64__)
+#pragma GCC push_options
+#pragma GCC target("avx2")
+// MaxVoteSse2 with 16 lanes and masked ends: loads start at lo or later and may read up to 15
+// votes past hi (the grid's mapping has room after its last column), never before lo.
+void MaxVoteAvx2(const Vote* votes, int lo, int hi, int* best, int* best_k) {
+  const __m256i lane = _mm256_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  const __m256i lowest = _mm256_set1_epi16(std::numeric_limits<Vote>::min());
+  auto load = [&](int start, int count) {  // votes [start, start + count), the rest lowest
+    const __m256i v = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(votes + start));
+    return _mm256_blendv_epi8(lowest, v, _mm256_cmpgt_epi16(_mm256_set1_epi16(static_cast<int16_t>(count)), lane));
+  };
+  __m256i m = lowest;
+  for (int k = lo; k <= hi; k += 16) m = _mm256_max_epi16(m, load(k, std::min(16, hi - k + 1)));
+  __m128i h = _mm_max_epi16(_mm256_castsi256_si128(m), _mm256_extracti128_si256(m, 1));
+  h = _mm_max_epi16(h, _mm_srli_si128(h, 8));
+  h = _mm_max_epi16(h, _mm_srli_si128(h, 4));
+  h = _mm_max_epi16(h, _mm_srli_si128(h, 2));
+  const int16_t found = static_cast<int16_t>(_mm_cvtsi128_si32(h) & 0xffff);
+  *best = found;
+  const __m256i target = _mm256_set1_epi16(found);
+  for (int top = hi;; top -= 16) {  // from the top: the highest k holding the maximum
+    const int start = std::max(lo, top - 15);
+    const __m256i v = load(start, top - start + 1);
+    const uint32_t equal = static_cast<uint32_t>(_mm256_movemask_epi8(_mm256_cmpeq_epi16(v, target)));
+    if (equal != 0) {
+      *best_k = start + (31 - __builtin_clz(equal)) / 2;
+      return;
+    }
+  }
+}
+#pragma GCC pop_options
+#endif
 
 constexpr size_t kHugePage = size_t{2} << 20;
 
@@ -176,23 +214,32 @@ void VotingGrid::Clear() {
   std::fill(hit_hi_, hit_hi_ + columns, uint16_t{0});
 }
 
-cv::Mat ExtractHeightMap(const VotingGrid& grid) {
+cv::Mat ExtractHeightMap(const VotingGrid& grid, ExtractKernel kernel) {
+  constexpr size_t kPrefetchColumns = 16;
+  void (*max_vote)(const Vote*, int, int, int*, int*) = &MaxVoteSse2;
+#if defined(__x86_64__)
+  if (kernel == ExtractKernel::kAuto && __builtin_cpu_supports("avx2")) max_vote = &MaxVoteAvx2;
+#endif
   cv::Mat height(grid.ny(), grid.nx(), CV_32F);
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const double z0 = grid.options().min_W.z(), voxel = grid.voxel_m();
+  const size_t columns = static_cast<size_t>(grid.nx()) * grid.ny();
   for (int iy = 0; iy < grid.ny(); ++iy) {
     float* row = height.ptr<float>(iy);
     for (int ix = 0; ix < grid.nx(); ++ix) {
       const size_t c = grid.ColumnIndex(ix, iy);
+      // Columns are read where they were hit, 512 B apart: fetch a few ahead (the latency of
+      // the grid's memory, not the maximum, bounds extraction).
+      if (const size_t ahead = c + kPrefetchColumns; ahead < columns && grid.hit_lo(ahead) <= grid.hit_hi(ahead)) {
+        __builtin_prefetch(grid.column(0, 0) + ahead * grid.nz() + grid.hit_lo(ahead));
+      }
       const int lo = grid.hit_lo(c), hi = grid.hit_hi(c);
       row[ix] = nan;
       if (lo > hi) continue;
-      const Vote* votes = grid.column(ix, iy);
       // The highest vote, then the highest z holding it (ties go to the higher z).
-      const int best = MaxVote(votes, lo, hi);
+      int best, best_k;
+      max_vote(grid.column(ix, iy), lo, hi, &best, &best_k);
       if (best <= 0) continue;  // only positive votes win
-      int best_k = hi;
-      while (votes[best_k] != best) --best_k;
       row[ix] = static_cast<float>(z0 + (best_k + 0.5) * voxel);
     }
   }

@@ -106,9 +106,13 @@ class VotingGrid {
   uint16_t* hit_hi_ = nullptr;  // nx*ny
 };
 
+// The SIMD width of extraction: kAuto takes 16 lanes (AVX2) where the CPU has them, else 8
+// (SSE2); kSse2 forces the latter (tests compare both with the reference).
+enum class ExtractKernel { kAuto, kSse2 };
+
 // The fused height map: CV_32F, ny rows x nx columns, world z (m) of the winning voxel centre,
 // NaN where no voxel of the column has a positive vote. Winner: highest vote, ties the higher z.
 // Callable at any time between insertions.
-cv::Mat ExtractHeightMap(const VotingGrid& grid);
+cv::Mat ExtractHeightMap(const VotingGrid& grid, ExtractKernel kernel = ExtractKernel::kAuto);
 
 }  // namespace romunect::fusion
