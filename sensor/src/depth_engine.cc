@@ -30,6 +30,9 @@ using KernelFn = void (*)(const internal::KernelArgs&, internal::KernelStats*);
 
 KernelFn KernelFunction(MatchKernel kernel) {
   switch (kernel) {
+#if ROMUNECT_DEPTH_KERNEL_AVX512
+    case MatchKernel::kAvx512: return &internal::MatchRowsAvx512;
+#endif
 #if ROMUNECT_DEPTH_KERNEL_AVX2
     case MatchKernel::kAvx2: return &internal::MatchRowsAvx2;
 #endif
@@ -48,6 +51,7 @@ const char* MatchKernelName(MatchKernel kernel) {
     case MatchKernel::kScalar: return "scalar";
     case MatchKernel::kSse2: return "sse2";
     case MatchKernel::kAvx2: return "avx2";
+    case MatchKernel::kAvx512: return "avx512";
   }
   return "?";
 }
@@ -57,11 +61,14 @@ bool MatchKernelAvailable(MatchKernel kernel) {
 #if ROMUNECT_DEPTH_KERNEL_AVX2
   if (kernel == MatchKernel::kAvx2) return __builtin_cpu_supports("avx2");
 #endif
+#if ROMUNECT_DEPTH_KERNEL_AVX512
+  if (kernel == MatchKernel::kAvx512) return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw");
+#endif
   return true;
 }
 
 MatchKernel FastestMatchKernel() {
-  for (MatchKernel k : {MatchKernel::kAvx2, MatchKernel::kSse2}) {
+  for (MatchKernel k : {MatchKernel::kAvx512, MatchKernel::kAvx2, MatchKernel::kSse2}) {
     if (MatchKernelAvailable(k)) return k;
   }
   return MatchKernel::kScalar;

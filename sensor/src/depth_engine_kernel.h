@@ -1,5 +1,5 @@
 // The depth engine's matching kernel (private to sensor/src): one template, instantiated per
-// instruction set in depth_engine_kernel_{scalar,sse2,avx2}.cc. Integer arithmetic in the same
+// instruction set in depth_engine_kernel_{scalar,sse2,avx2,avx512}.cc. Integer arithmetic in the same
 // order everywhere, so every instruction set gives the same bytes (tested against each other and
 // against the full-search reference in tests/sensor).
 //
@@ -73,13 +73,16 @@ inline size_t KernelScratchSize(int width, int blocks) {
 void MatchRowsScalar(const KernelArgs& args, KernelStats* stats);
 void MatchRowsSse2(const KernelArgs& args, KernelStats* stats);
 void MatchRowsAvx2(const KernelArgs& args, KernelStats* stats);
+void MatchRowsAvx512(const KernelArgs& args, KernelStats* stats);
 
 }  // namespace romunect::depth_engine_internal
 
 #if defined(__SSE2__)
 #define ROMUNECT_DEPTH_KERNEL_SSE2 1
 #endif
-// AVX2 code is compiled under `#pragma GCC target` and runs only where the CPU reports AVX2.
+// AVX2 and AVX-512 code is compiled under `#pragma GCC target` and runs only where the CPU
+// reports the instruction set.
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #define ROMUNECT_DEPTH_KERNEL_AVX2 1
+#define ROMUNECT_DEPTH_KERNEL_AVX512 1
 #endif

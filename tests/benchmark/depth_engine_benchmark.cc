@@ -100,6 +100,31 @@ void BM_DepthEngine(benchmark::State& state) {
 }
 BENCHMARK(BM_DepthEngine)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 
+// Each kernel this CPU runs, at 1 thread, in the same run (the same bytes: tests/sensor).
+void BM_DepthEngineKernel(benchmark::State& state) {
+  const MatchKernel kernel = static_cast<MatchKernel>(state.range(0));
+  if (!MatchKernelAvailable(kernel)) {
+    state.SkipWithError("kernel not available on this CPU");
+    return;
+  }
+  Pair& p = ThePair();
+  DepthEngineOptions options = p.rig.depth_engine;
+  options.threads = 1;
+  DepthEngine engine(options, p.reference);
+  engine.set_kernel(kernel);
+  DepthEngineOutput out;
+  for (auto _ : state) {
+    engine.Compute(p.ir, &out);
+    benchmark::DoNotOptimize(out.raw.data);
+  }
+  state.SetLabel(MatchKernelName(kernel));
+}
+BENCHMARK(BM_DepthEngineKernel)
+    ->DenseRange(static_cast<int>(MatchKernel::kScalar), static_cast<int>(MatchKernel::kAvx512))
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime();
+
 // IR synthesis of the same frame (the step before the engine in a full frame).
 void BM_IrSynthesis(benchmark::State& state) {
   static const GeometryBuffer* geometry = [] {

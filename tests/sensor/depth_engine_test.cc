@@ -106,7 +106,7 @@ TEST(DepthEngineTest, FastPathEqualsTheReferenceOnOtherWindowsRangesAndRules) {
 }
 
 TEST(DepthEngineTest, EveryKernelAndThreadCountGivesTheSameBytes) {
-  // Scalar, SSE2 and AVX2 (those this CPU runs) at 1, 2 and 3 threads, both presets (two and
+  // Scalar, SSE2, AVX2 and AVX-512 (those this CPU runs) at 1, 2 and 3 threads, both presets (two and
   // three blocks of 32 shifts): the same raw, depth, shift and counts.
   for (const std::string preset : {"romunect", "kinect-v1"}) {
     const Rig rig = RigPreset(preset);
@@ -118,7 +118,7 @@ TEST(DepthEngineTest, EveryKernelAndThreadCountGivesTheSameBytes) {
     const cv::Mat ir = RenderIr(rig, scene, 9, &g);
     DepthEngineOutput first;
     int runs = 0;
-    for (MatchKernel kernel : {MatchKernel::kScalar, MatchKernel::kSse2, MatchKernel::kAvx2}) {
+    for (MatchKernel kernel : {MatchKernel::kScalar, MatchKernel::kSse2, MatchKernel::kAvx2, MatchKernel::kAvx512}) {
       if (!MatchKernelAvailable(kernel)) continue;
       for (int threads : {1, 2, 3}) {
         DepthEngineOptions options = rig.depth_engine;

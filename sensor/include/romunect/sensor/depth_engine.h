@@ -65,8 +65,8 @@ struct DepthEngineOutput {
 cv::Mat ChipReferenceImage(const ChipGeometry& chip);
 
 // The code that runs the search. Every kernel gives the same bytes (tests/sensor compare them).
-enum class MatchKernel { kScalar, kSse2, kAvx2 };
-const char* MatchKernelName(MatchKernel kernel);  // "scalar", "sse2", "avx2"
+enum class MatchKernel { kScalar, kSse2, kAvx2, kAvx512 };
+const char* MatchKernelName(MatchKernel kernel);  // "scalar", "sse2", "avx2", "avx512"
 // Compiled in, and supported by this CPU.
 bool MatchKernelAvailable(MatchKernel kernel);
 MatchKernel FastestMatchKernel();
