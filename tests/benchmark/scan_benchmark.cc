@@ -8,6 +8,8 @@
 // factor (simulated approach time / wall time of its frames).
 #include <benchmark/benchmark.h>
 
+#include <time.h>
+
 #include <chrono>
 #include <ctime>
 #include <memory>
@@ -20,6 +22,12 @@
 
 namespace romunect::sim {
 namespace {
+
+double ProcessCpuS() {
+  timespec ts;
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
 
 void BM_DefaultScan(benchmark::State& state) {
   for (auto _ : state) {
@@ -52,12 +60,20 @@ void BM_DefaultScan(benchmark::State& state) {
     double fusion_s = 0.0;
     const std::clock_t cpu_start = std::clock();  // the process's CPU time, all threads
     const auto frames_start = std::chrono::steady_clock::now();
-    while (source->Next(&frame, &error) == FrameStatus::kOk) {
+    // Process CPU per stage: meaningful when the stages run one after the other (fusion:2 or
+    // no fusion), where nothing else runs between the two clock reads.
+    double simulator_cpu_s = 0.0, fusion_cpu_s = 0.0;
+    for (;;) {
+      const double cpu0 = ProcessCpuS();
+      if (source->Next(&frame, &error) != FrameStatus::kOk) break;
+      simulator_cpu_s += ProcessCpuS() - cpu0;
       benchmark::DoNotOptimize(frame.gt_depth_m.data);
       if (!inserter) continue;
       const auto t = std::chrono::steady_clock::now();
+      const double cpu1 = ProcessCpuS();
       inserter->Insert(scanner.camera(), frame.depth_m, *frame.T_W_C, nullptr);
       benchmark::DoNotOptimize(fusion::ExtractHeightMap(*grid).data);
+      fusion_cpu_s += ProcessCpuS() - cpu1;
       fusion_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
     }
     const double frames_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - frames_start).count();
@@ -72,6 +88,10 @@ void BM_DefaultScan(benchmark::State& state) {
     state.counters["render_ms_per_frame"] = 1e3 * s.render_s / n;
     state.counters["imaging_ms_per_frame"] = 1e3 * s.imaging_s / n;
     state.counters["fusion_ms_per_frame"] = 1e3 * fusion_s / n;
+    if (!prefetching) {
+      state.counters["simulator_cpu_ms_per_frame"] = 1e3 * simulator_cpu_s / n;
+      if (inserter) state.counters["fusion_cpu_ms_per_frame"] = 1e3 * fusion_cpu_s / n;
+    }
     if (prefetching) state.counters["fusion_wait_ms_per_frame"] = 1e3 * prefetching->wait_s() / n;
     state.counters["frame_ms"] = 1e3 * frames_s / n;
     // CPU per frame over all threads: on an idle machine with C cores a frame needs at least
