@@ -36,7 +36,9 @@ TriangleMesh ToTriangleMesh(const Mesh& mesh) {
 int ObjectId(const GeomInfo& g) { return g.object >= 0 ? g.object : (g.arm ? kArmObjectId : kStaticObjectId); }
 
 // The world's visible geoms as a RayScene: fixed ones static, the rest instances. handles[i]
-// is the moving handle of geom i (-1 when static or left out).
+// is the moving handle of geom i (-1 when static or left out). While the pile is frozen its
+// objects are fixed too: in the static BVH they cost no instance traversal (most rays of a scan
+// end on them) and no pose update per frame.
 embree::RayScene MirrorWorld(const World& world, bool with_arm, std::vector<int>* handles) {
   embree::RayScene scene;
   std::vector<Pose> T_W_G;
@@ -48,7 +50,7 @@ embree::RayScene MirrorWorld(const World& world, bool with_arm, std::vector<int>
     if (g.arm && !with_arm) continue;
     const TriangleMesh mesh = ToTriangleMesh(g.mesh_G);
     if (!mesh.Problem().empty()) continue;  // degenerate geoms are not drawn
-    if (g.moving) {
+    if (g.moving && !(g.object >= 0 && world.pile_frozen())) {
       (*handles)[i] = scene.AddMoving(mesh, T_W_G[i], g.material, ObjectId(g));
     } else {
       scene.AddStatic(mesh, T_W_G[i], g.material, ObjectId(g));
