@@ -17,6 +17,7 @@
 #include <ImfInputFile.h>
 #include <ImfOutputFile.h>
 #include <opencv2/imgcodecs.hpp>
+#include <zlib.h>
 
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/errors.h"
@@ -37,95 +38,55 @@ void PutBe32(std::string* out, uint32_t v) {
   for (int i = 3; i >= 0; --i) out->push_back(static_cast<char>(v >> (8 * i)));
 }
 
-// CRC-32 of PNG (ISO 3309, reflected polynomial 0xEDB88320), eight bytes a step (slicing-by-8).
-struct Crc32Tables {
-  uint32_t t[8][256];
-  Crc32Tables() {
-    for (uint32_t n = 0; n < 256; ++n) {
-      uint32_t c = n;
-      for (int k = 0; k < 8; ++k) c = (c & 1) ? 0xEDB88320u ^ (c >> 1) : c >> 1;
-      t[0][n] = c;
-    }
-    for (uint32_t n = 0; n < 256; ++n) {
-      for (int k = 1; k < 8; ++k) t[k][n] = (t[k - 1][n] >> 8) ^ t[0][t[k - 1][n] & 0xFF];
-    }
-  }
-};
-
-uint32_t Crc32(const unsigned char* p, size_t n, uint32_t crc = 0) {
-  static const Crc32Tables tables;
-  const auto& t = tables.t;
-  crc = ~crc;
-  for (; n >= 8; n -= 8, p += 8) {
-    const uint32_t lo = crc ^ (p[0] | p[1] << 8 | p[2] << 16 | static_cast<uint32_t>(p[3]) << 24);
-    crc = t[7][lo & 0xFF] ^ t[6][(lo >> 8) & 0xFF] ^ t[5][(lo >> 16) & 0xFF] ^ t[4][lo >> 24] ^ t[3][p[4]] ^
-          t[2][p[5]] ^ t[1][p[6]] ^ t[0][p[7]];
-  }
-  for (; n > 0; --n) crc = t[0][(crc ^ *p++) & 0xFF] ^ (crc >> 8);
-  return ~crc;
-}
-
-// Adler-32 of zlib: the sums stay below 2^32 for 5552 bytes between reductions.
-uint32_t Adler32(const unsigned char* p, size_t n) {
-  uint32_t a = 1, b = 0;
-  while (n > 0) {
-    const size_t block = std::min<size_t>(n, 5552);
-    for (size_t i = 0; i < block; ++i) {
-      a += p[i];
-      b += a;
-    }
-    a %= 65521;
-    b %= 65521;
-    p += block;
-    n -= block;
-  }
-  return b << 16 | a;
-}
-
-// A PNG chunk: length, type, data, CRC over type and data.
-void PutPngChunk(std::string* out, const char* type, const std::string& data) {
-  PutBe32(out, static_cast<uint32_t>(data.size()));
+// A PNG chunk's length, type, data and CRC (over type and data), appended to *out.
+void PutPngChunk(std::string* out, const char* type, const char* data, size_t size) {
+  PutBe32(out, static_cast<uint32_t>(size));
   const size_t start = out->size();
   out->append(type, 4);
-  out->append(data);
-  PutBe32(out, Crc32(reinterpret_cast<const unsigned char*>(out->data() + start), out->size() - start));
+  out->append(data, size);
+  const uInt length = static_cast<uInt>(out->size() - start);
+  PutBe32(out, static_cast<uint32_t>(crc32(0, reinterpret_cast<const Bytef*>(out->data() + start), length)));
 }
 
-// A 16-bit greyscale PNG without compression: rows with filter 0 (none), big-endian samples, in
-// stored deflate blocks of at most 65535 bytes, then the Adler-32 of zlib.
-std::string EncodePng16Stored(const cv::Mat& image) {
+// A 16-bit greyscale PNG without compression into *png: rows with filter 0 (none) and big-endian
+// samples, in stored deflate blocks of at most 65535 bytes, then zlib's Adler-32. The buffers are
+// the caller's to reuse (a frame's images are ~0.6 MB: fresh ones cost page faults each time).
+void EncodePng16Stored(const cv::Mat& image, std::string* raw, std::string* png) {
   const size_t row_bytes = 1 + 2 * static_cast<size_t>(image.cols);
-  std::string raw(row_bytes * image.rows, '\0');
+  raw->resize(row_bytes * image.rows);
   for (int v = 0; v < image.rows; ++v) {
     const uint16_t* in = image.ptr<uint16_t>(v);
-    unsigned char* row = reinterpret_cast<unsigned char*>(raw.data()) + v * row_bytes + 1;  // [0]: filter 0
+    unsigned char* row = reinterpret_cast<unsigned char*>(raw->data()) + v * row_bytes;
+    row[0] = 0;  // filter type 0
     for (int u = 0; u < image.cols; ++u) {
-      row[2 * u] = static_cast<unsigned char>(in[u] >> 8);
-      row[2 * u + 1] = static_cast<unsigned char>(in[u]);
+      row[1 + 2 * u] = static_cast<unsigned char>(in[u] >> 8);
+      row[2 + 2 * u] = static_cast<unsigned char>(in[u]);
     }
   }
-  std::string zlib = {'\x78', '\x01'};  // deflate, 32 KB window, no dictionary (FCHECK: 0x7801 % 31 == 0)
-  zlib.reserve(raw.size() + 5 * (raw.size() / 65535 + 1) + 6);
-  for (size_t at = 0; at < raw.size(); at += 65535) {
-    const uint16_t len = static_cast<uint16_t>(std::min<size_t>(65535, raw.size() - at));
-    zlib.push_back(at + len >= raw.size() ? '\x01' : '\x00');  // BFINAL, BTYPE 00 (stored)
-    zlib.push_back(static_cast<char>(len & 0xFF));
-    zlib.push_back(static_cast<char>(len >> 8));
-    zlib.push_back(static_cast<char>(~len & 0xFF));
-    zlib.push_back(static_cast<char>((~len >> 8) & 0xFF));
-    zlib.append(raw, at, len);
-  }
-  PutBe32(&zlib, Adler32(reinterpret_cast<const unsigned char*>(raw.data()), raw.size()));
   std::string header;
   PutBe32(&header, static_cast<uint32_t>(image.cols));
   PutBe32(&header, static_cast<uint32_t>(image.rows));
   header += {'\x10', '\x00', '\x00', '\x00', '\x00'};  // 16 bits, greyscale, deflate, filter set 0, no interlace
-  std::string png = "\x89PNG\r\n\x1a\n";
-  png.reserve(zlib.size() + 64);
-  PutPngChunk(&png, "IHDR", header);
-  PutPngChunk(&png, "IDAT", zlib);
-  PutPngChunk(&png, "IEND", "");
-  return png;
+  png->assign("\x89PNG\r\n\x1a\n");
+  PutPngChunk(png, "IHDR", header.data(), header.size());
+  // IDAT: the zlib stream, written in place after its length and type.
+  const size_t blocks = (raw->size() + 65534) / 65535;
+  const size_t idat = 2 + raw->size() + 5 * blocks + 4;
+  PutBe32(png, static_cast<uint32_t>(idat));
+  const size_t type_at = png->size();
+  png->append("IDAT\x78\x01", 6);  // deflate, 32 KB window, no dictionary (FCHECK: 0x7801 % 31 == 0)
+  for (size_t at = 0; at < raw->size(); at += 65535) {
+    const uint16_t len = static_cast<uint16_t>(std::min<size_t>(65535, raw->size() - at));
+    const char stored[5] = {at + len >= raw->size() ? '\x01' : '\x00',  // BFINAL, BTYPE 00 (stored)
+                            static_cast<char>(len & 0xFF), static_cast<char>(len >> 8),
+                            static_cast<char>(~len & 0xFF), static_cast<char>((~len >> 8) & 0xFF)};
+    png->append(stored, 5);
+    png->append(*raw, at, len);
+  }
+  PutBe32(png, static_cast<uint32_t>(adler32(1, reinterpret_cast<const Bytef*>(raw->data()), static_cast<uInt>(raw->size()))));
+  PutBe32(png, static_cast<uint32_t>(crc32(0, reinterpret_cast<const Bytef*>(png->data() + type_at),
+                                           static_cast<uInt>(png->size() - type_at))));
+  PutPngChunk(png, "IEND", nullptr, 0);
 }
 
 // An OpenEXR attribute: name, type, size, value.
@@ -140,9 +101,11 @@ void PutExrAttribute(std::string* out, const char* name, const char* type, const
 
 // A single-part scanline OpenEXR with one float32 channel "Z" and no compression (one scanline
 // per block): the header's required attributes, the block offsets, the blocks.
-std::string EncodeExrUncompressed(const cv::Mat& depth) {
+// The buffer is the caller's to reuse, as EncodePng16Stored's.
+void EncodeExrUncompressed(const cv::Mat& depth, std::string* out) {
   const int width = depth.cols, height = depth.rows;
-  std::string exr;
+  std::string& exr = *out;
+  exr.clear();
   PutLe32(&exr, 20000630);  // magic
   PutLe32(&exr, 2);         // version 2, single-part scanline
   std::string channels = "Z";
@@ -179,7 +142,6 @@ std::string EncodeExrUncompressed(const cv::Mat& depth) {
     PutLe32(&exr, static_cast<uint32_t>(row_bytes));
     exr.append(reinterpret_cast<const char*>(depth.ptr<float>(y)), row_bytes);  // little-endian floats
   }
-  return exr;
 }
 
 }  // namespace
@@ -251,7 +213,9 @@ void WriteDepthExr(const fs::path& path, const cv::Mat& depth, ImageCompression 
   ROMUNECT_CHECK(depth.type() == CV_32F && !depth.empty());
   static_assert(std::endian::native == std::endian::little, "EXR floats are written as they lie in memory");
   if (compression == ImageCompression::kFast) {
-    WriteTextAtomically(path, EncodeExrUncompressed(depth));
+    thread_local std::string exr;
+    EncodeExrUncompressed(depth, &exr);
+    WriteTextAtomically(path, exr);
     return;
   }
   const cv::Mat continuous = depth.isContinuous() ? depth : depth.clone();
@@ -309,7 +273,9 @@ void WritePng(const fs::path& path, const cv::Mat& image) {
 void WritePng16(const fs::path& path, const cv::Mat& image, ImageCompression compression) {
   ROMUNECT_CHECK(image.type() == CV_16UC1 && !image.empty());
   if (compression == ImageCompression::kFast) {
-    WriteTextAtomically(path, EncodePng16Stored(image));
+    thread_local std::string raw, png;
+    EncodePng16Stored(image, &raw, &png);
+    WriteTextAtomically(path, png);
     return;
   }
   WritePng(path, image);

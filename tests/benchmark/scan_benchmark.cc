@@ -3,7 +3,8 @@
 // romunect rig's full resolution, and (range(1) = 1) image it: IR synthesis, depth engine and
 // ground-truth depth correction (SensorImager). range(2) = 1 also fuses every frame (insert
 // and the per-frame extraction for the completeness curve, as `romunect scan` does) with the
-// simulator on its own thread ahead of fusion (PrefetchingSource); 2: the same, serially.
+// simulator on its own thread ahead of fusion (PrefetchingSource); 2: the same, serially;
+// range(3): fusion's threads.
 // Counters: per-frame milliseconds per stage, the wall time per frame and the real-time
 // factor (simulated approach time / wall time of its frames).
 #include <benchmark/benchmark.h>
@@ -50,7 +51,7 @@ void BM_DefaultScan(benchmark::State& state) {
     std::unique_ptr<fusion::FrameInserter> inserter;
     if (state.range(2) > 0) {
       grid = std::make_unique<fusion::VotingGrid>(box);
-      inserter = std::make_unique<fusion::FrameInserter>(grid.get(), fusion::InserterOptions{2});
+      inserter = std::make_unique<fusion::FrameInserter>(grid.get(), fusion::InserterOptions{static_cast<int>(state.range(3))});
     }
     std::unique_ptr<PrefetchingSource> prefetching;
     FrameSource* source = &scanner;
@@ -103,11 +104,13 @@ void BM_DefaultScan(benchmark::State& state) {
   }
 }
 BENCHMARK(BM_DefaultScan)
-    ->ArgNames({"objects", "imaging", "fusion"})
-    ->Args({12, 0, 0})
-    ->Args({12, 1, 0})
-    ->Args({12, 1, 2})
-    ->Args({12, 1, 1})
+    ->ArgNames({"objects", "imaging", "fusion", "fusion_threads"})
+    ->Args({12, 0, 0, 1})
+    ->Args({12, 1, 0, 1})
+    ->Args({12, 1, 2, 1})
+    ->Args({12, 1, 2, 2})
+    ->Args({12, 1, 1, 1})
+    ->Args({12, 1, 1, 2})
     ->Unit(benchmark::kMillisecond)
     ->Iterations(1);
 
