@@ -97,8 +97,13 @@ void SensorImager::Image(const Rig& rig, const GeometryBuffer& geometry, uint64_
   output_.raw.copyTo(frame->raw);
   frame->depth_m = ApplyDepthCorrection(correction_, output_);
   // Outside the matchable range a depth is a clamped match, not a measurement.
-  cv::Mat outside = (frame->depth_m < keep_.near_m) | (frame->depth_m > keep_.far_m);
-  frame->depth_m.setTo(0.0f, outside);
+  const float near_m = static_cast<float>(keep_.near_m), far_m = static_cast<float>(keep_.far_m);
+  for (int v = 0; v < frame->depth_m.rows; ++v) {
+    float* row = frame->depth_m.ptr<float>(v);
+    for (int u = 0; u < frame->depth_m.cols; ++u) {
+      if (row[u] < near_m || row[u] > far_m) row[u] = 0.0f;
+    }
+  }
 }
 
 }  // namespace romunect::sim
