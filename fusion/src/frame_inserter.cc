@@ -147,6 +147,15 @@ struct WalkContext {
   size_t block_capacity, group_blocks;
 };
 
+// A frame's constants of the setup below (the lane setup of ray_walk_lanes512.inc evaluates the
+// same expressions).
+struct SetupFrame {
+  double R[3][3], o_W[3], min_W[3], o_g[3], voxel;
+  int n[3];
+  const double* ray_C;  // x, y per pixel (z = 1)
+  int width;
+};
+
 // The start voxel on one axis: clamp(floor(x)) into [0, n).
 inline int StartIndex(double x, int n) { return static_cast<int>(std::clamp(std::floor(x), 0.0, n - 1.0)); }
 
@@ -332,6 +341,9 @@ struct FrameInserter::Workspace {
   };
   std::unique_ptr<RaySetup[], Free> rays;
   std::vector<std::vector<HitRecord>> hits;  // per thread: room for the frame's hits in its rows
+#if defined(__x86_64__)
+  std::unique_ptr<avx512::TileRays> tile_rays;  // one thread's tile (AVX-512 setup)
+#endif
   std::vector<std::vector<Vote*>> block_at;  // per thread: WalkContext::block_at
   std::vector<std::vector<uint32_t>> block_bits;
   std::vector<size_t> chunk_begin;     // chunk c's first ray slot (its first pixel)
@@ -427,6 +439,28 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
   double thread_cpu_ms[256] = {};  // per thread, both phases: the frame's critical path
   constexpr int kTile = kInsertionTilePx;
   const int tile_rows = (height + kTile - 1) / kTile;
+  // One thread with the AVX-512 walk sets its rays up in lanes as well.
+#if defined(__x86_64__)
+  const bool lane_setup = threads == 1 && walk_rays == &avx512::WalkRaysInGroups;
+#else
+  const bool lane_setup = false;
+#endif
+  SetupFrame frame{};
+  if (lane_setup) {
+    for (int a = 0; a < 3; ++a) {
+      for (int b = 0; b < 3; ++b) frame.R[a][b] = R(a, b);
+      frame.o_W[a] = o_W[a];
+      frame.min_W[a] = min_W[a];
+      frame.o_g[a] = o_g[a];
+      frame.n[a] = n[a];
+    }
+    frame.voxel = voxel;
+    frame.ray_C = ws.ray_C.data();
+    frame.width = width;
+#if defined(__x86_64__)
+    if (ws.tile_rays == nullptr) ws.tile_rays = std::make_unique<avx512::TileRays>();
+#endif
+  }
   auto setup = [&](int chunk) {
     const double cpu0 = ThreadCpuMs();
     const int v0 = std::min(height, kTile * static_cast<int>(static_cast<int64_t>(tile_rows) * chunk / threads));
@@ -445,6 +479,13 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     size_t count = 0;
     for (int tv = v0; tv < v1; tv += kTile) {
      for (int tu = 0; tu < width; tu += kTile) {
+#if defined(__x86_64__)
+      if (lane_setup) {  // the tile set up in lanes too, and walked
+        avx512::InsertTile(frame, depth_m, tu, std::min(tu + kTile, width), tv, std::min(tv + kTile, v1),
+                           ws.tile_rays.get(), &context, &s);
+        continue;
+      }
+#endif
       for (int v = tv; v < std::min(tv + kTile, v1); ++v) {
       const float* row = depth_m.ptr<float>(v);
       for (int u = tu; u < std::min(tu + kTile, width); ++u) {
