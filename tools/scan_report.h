@@ -33,7 +33,7 @@ struct SampleDepths {
       first_m = frame.depth_m.clone();
       first_index = frame.index;
     } else if (first_index >= 0) {
-      frame.depth_m.copyTo(last_m);
+      last_m = frame.depth_m;  // a delivered frame's images are its own (frame_pipeline.h)
       last_index = frame.index;
     }
   }

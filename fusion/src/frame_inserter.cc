@@ -156,6 +156,20 @@ struct SetupFrame {
   int width;
 };
 
+// The (x, y) range, in grid units, of the segments a thread set up in a frame: the columns whose
+// votes the frame may change lie within it (FrameInserter::changed_columns()).
+struct SegmentBounds {
+  double x_lo = std::numeric_limits<double>::infinity(), x_hi = -std::numeric_limits<double>::infinity();
+  double y_lo = std::numeric_limits<double>::infinity(), y_hi = -std::numeric_limits<double>::infinity();
+  void Add(double xa, double xb, double ya, double yb) {
+    x_lo = std::min({x_lo, xa, xb});
+    x_hi = std::max({x_hi, xa, xb});
+    y_lo = std::min({y_lo, ya, yb});
+    y_hi = std::max({y_hi, ya, yb});
+  }
+  void Add(const SegmentBounds& o) { Add(o.x_lo, o.x_hi, o.y_lo, o.y_hi); }
+};
+
 // The start voxel on one axis: clamp(floor(x)) into [0, n).
 inline int StartIndex(double x, int n) { return static_cast<int>(std::clamp(std::floor(x), 0.0, n - 1.0)); }
 
@@ -350,6 +364,7 @@ struct FrameInserter::Workspace {
   std::vector<size_t> chunk_count;     // rays set up by chunk c
   std::vector<std::vector<size_t>> tile_end;  // per chunk: each tile's end in its rays
   std::vector<InsertStats> chunk_stats;
+  std::vector<SegmentBounds> chunk_bounds;
   std::vector<uint32_t> row_weight;    // threads x ny: rays per row, for balancing slabs
   std::vector<int> slab;               // threads + 1 row boundaries
 };
@@ -374,6 +389,7 @@ FrameInserter::FrameInserter(VotingGrid* grid, const InserterOptions& options)
   ws_->chunk_count.assign(options.threads, 0);
   ws_->tile_end.resize(options.threads);
   ws_->chunk_stats.assign(options.threads, InsertStats{});
+  ws_->chunk_bounds.assign(options.threads, SegmentBounds{});
   ws_->row_weight.assign(static_cast<size_t>(options.threads) * grid->ny(), 0);
   ws_->slab.assign(options.threads + 1, 0);
 }
@@ -467,6 +483,8 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     const int v1 = std::min(height, kTile * static_cast<int>(static_cast<int64_t>(tile_rows) * (chunk + 1) / threads));
     InsertStats& s = ws.chunk_stats[chunk];
     s = InsertStats{};
+    SegmentBounds& bounds = ws.chunk_bounds[chunk];
+    bounds = SegmentBounds{};
     const bool walk_now = threads == 1;
     uint32_t* weight = &ws.row_weight[static_cast<size_t>(chunk) * n[1]];
     if (!walk_now) std::fill(weight, weight + n[1], 0u);
@@ -482,7 +500,7 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
 #if defined(__x86_64__)
       if (lane_setup) {  // the tile set up in lanes too, and walked
         avx512::InsertTile(frame, depth_m, tu, std::min(tu + kTile, width), tv, std::min(tv + kTile, v1),
-                           ws.tile_rays.get(), &context, &s);
+                           ws.tile_rays.get(), &context, &s, &bounds);
         continue;
       }
 #endif
@@ -533,8 +551,9 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
         ray.t_enter = t0;
         ray.t_exit = t1;
         ray.ends_inside = inside;
+        const double y0 = o_g[1] + t0 * dg[1], y1 = o_g[1] + t1 * dg[1];
+        bounds.Add(o_g[0] + t0 * dg[0], o_g[0] + t1 * dg[0], y0, y1);
         if (!walk_now) {  // row bounds and slab balancing matter only when threads own slabs
-          const double y0 = o_g[1] + t0 * dg[1], y1 = o_g[1] + t1 * dg[1];
           ray.iy_lo = static_cast<int32_t>(std::clamp(std::floor(std::min(y0, y1)) - 1.0, 0.0, n[1] - 1.0));
           ray.iy_hi = static_cast<int32_t>(std::clamp(std::floor(std::max(y0, y1)) + 1.0, 0.0, n[1] - 1.0));
           ++weight[(ray.iy_lo + ray.iy_hi) / 2];
@@ -596,6 +615,18 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     thread_cpu_ms[thread] += ThreadCpuMs() - cpu0;
   };
   if (threads > 1) ws.pool.Run(walk);
+
+  // The columns the frame may have changed: its segments' (x, y) range, widened by a column for
+  // the rounding of the walk's crossings.
+  SegmentBounds all;
+  for (const SegmentBounds& b : ws.chunk_bounds) all.Add(b);
+  changed_columns_ = cv::Rect();
+  if (all.x_lo <= all.x_hi) {
+    auto column = [](double g, int n) { return static_cast<int>(std::clamp(std::floor(g), 0.0, n - 1.0)); };
+    const int x0 = column(all.x_lo - 1.0, n[0]), x1 = column(all.x_hi + 1.0, n[0]);
+    const int y0 = column(all.y_lo - 1.0, n[1]), y1 = column(all.y_hi + 1.0, n[1]);
+    changed_columns_ = cv::Rect(x0, y0, x1 - x0 + 1, y1 - y0 + 1);
+  }
 
   if (stats != nullptr) {
     InsertStats frame;

@@ -14,6 +14,7 @@
 #include <immintrin.h>
 #endif
 
+#include "romunect/sensor/check.h"
 #include "romunect/sensor/errors.h"
 
 namespace romunect::fusion {
@@ -214,24 +215,31 @@ void VotingGrid::Clear() {
   std::fill(hit_hi_, hit_hi_ + columns, uint16_t{0});
 }
 
-cv::Mat ExtractHeightMap(const VotingGrid& grid, ExtractKernel kernel) {
+void ExtractHeightMap(const VotingGrid& grid, const cv::Rect& columns, cv::Mat* height, ExtractKernel kernel) {
   constexpr size_t kPrefetchColumns = 16;
+  ROMUNECT_CHECK(height != nullptr);
+  const cv::Rect all(0, 0, grid.nx(), grid.ny());
+  ROMUNECT_CHECK((columns & all) == columns);
+  cv::Rect region = columns;
+  if (height->rows != grid.ny() || height->cols != grid.nx() || height->type() != CV_32F) {
+    height->create(grid.ny(), grid.nx(), CV_32F);
+    region = all;
+  }
   void (*max_vote)(const Vote*, int, int, int*, int*) = &MaxVoteSse2;
 #if defined(__x86_64__)
   if (kernel == ExtractKernel::kAuto && __builtin_cpu_supports("avx2")) max_vote = &MaxVoteAvx2;
 #endif
-  cv::Mat height(grid.ny(), grid.nx(), CV_32F);
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const double z0 = grid.options().min_W.z(), voxel = grid.voxel_m();
-  const size_t columns = static_cast<size_t>(grid.nx()) * grid.ny();
-  for (int iy = 0; iy < grid.ny(); ++iy) {
-    float* row = height.ptr<float>(iy);
-    for (int ix = 0; ix < grid.nx(); ++ix) {
+  for (int iy = region.y; iy < region.y + region.height; ++iy) {
+    float* row = height->ptr<float>(iy);
+    for (int ix = region.x; ix < region.x + region.width; ++ix) {
       const size_t c = grid.ColumnIndex(ix, iy);
       // Columns are read where they were hit, 512 B apart: fetch a few ahead (the latency of
       // the grid's memory, not the maximum, bounds extraction).
-      if (const size_t ahead = c + kPrefetchColumns; ahead < columns && grid.hit_lo(ahead) <= grid.hit_hi(ahead)) {
-        __builtin_prefetch(grid.column(0, 0) + ahead * grid.nz() + grid.hit_lo(ahead));
+      if (ix + kPrefetchColumns < static_cast<size_t>(region.x + region.width)) {
+        const size_t ahead = c + kPrefetchColumns;
+        if (grid.hit_lo(ahead) <= grid.hit_hi(ahead)) __builtin_prefetch(grid.column(0, 0) + ahead * grid.nz() + grid.hit_lo(ahead));
       }
       const int lo = grid.hit_lo(c), hi = grid.hit_hi(c);
       row[ix] = nan;
@@ -243,6 +251,11 @@ cv::Mat ExtractHeightMap(const VotingGrid& grid, ExtractKernel kernel) {
       row[ix] = static_cast<float>(z0 + (best_k + 0.5) * voxel);
     }
   }
+}
+
+cv::Mat ExtractHeightMap(const VotingGrid& grid, ExtractKernel kernel) {
+  cv::Mat height;
+  ExtractHeightMap(grid, cv::Rect(0, 0, grid.nx(), grid.ny()), &height, kernel);
   return height;
 }
 

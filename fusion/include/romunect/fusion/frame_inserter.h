@@ -75,6 +75,11 @@ class FrameInserter {
   void Insert(const CameraModel& camera, const cv::Mat& depth_m, const Pose& T_W_C,
               InsertStats* stats);
 
+  // The columns (x = ix, y = iy) whose votes the last Insert may have changed: the others kept
+  // theirs, so extraction can refresh just these (ExtractHeightMap's region). Empty before the
+  // first frame and after one whose rays all missed the box.
+  const cv::Rect& changed_columns() const { return changed_columns_; }
+
   int threads() const { return options_.threads; }
   // The kernel in use (kAuto resolved).
   InsertKernel kernel() const { return kernel_; }
@@ -84,6 +89,7 @@ class FrameInserter {
   VotingGrid* grid_;
   InserterOptions options_;
   InsertKernel kernel_ = InsertKernel::kScalar;
+  cv::Rect changed_columns_;
   std::unique_ptr<Workspace> ws_;
 };
 

@@ -114,5 +114,10 @@ enum class ExtractKernel { kAuto, kSse2 };
 // NaN where no voxel of the column has a positive vote. Winner: highest vote, ties the higher z.
 // Callable at any time between insertions.
 cv::Mat ExtractHeightMap(const VotingGrid& grid, ExtractKernel kernel = ExtractKernel::kAuto);
+// The same, refreshing only the cells of `columns` (x = ix, y = iy, inside the grid) of an
+// earlier map *height: after an insertion, FrameInserter::changed_columns() are the only cells
+// that can differ. A *height of another size (e.g. empty) is extracted whole.
+void ExtractHeightMap(const VotingGrid& grid, const cv::Rect& columns, cv::Mat* height,
+                      ExtractKernel kernel = ExtractKernel::kAuto);
 
 }  // namespace romunect::fusion
