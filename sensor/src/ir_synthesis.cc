@@ -34,15 +34,16 @@ std::vector<float> LevelSigmas(float s0, float max_sigma) {
 struct RowKernels {
   void (*shade)(const internal::ShadeArgs&, const internal::ShadeRowData&) = nullptr;
   void (*finish)(const internal::FinishArgs&, const internal::FinishRowData&) = nullptr;
+  void (*defocus)(const internal::DefocusArgs&, const internal::DefocusRowData&) = nullptr;
 };
 
 RowKernels KernelRows(IrKernel kernel) {
   switch (kernel) {
 #if ROMUNECT_IR_KERNEL_X86
-    case IrKernel::kAvx512: return {&internal::ShadeRowAvx512, &internal::FinishRowAvx512};
-    case IrKernel::kAvx2: return {&internal::ShadeRowAvx2, &internal::FinishRowAvx2};
+    case IrKernel::kAvx512: return {&internal::ShadeRowAvx512, &internal::FinishRowAvx512, &internal::DefocusRowAvx512};
+    case IrKernel::kAvx2: return {&internal::ShadeRowAvx2, &internal::FinishRowAvx2, &internal::DefocusRowAvx2};
 #endif
-    case IrKernel::kScalar: return {&internal::ShadeRowScalar, &internal::FinishRowScalar};
+    case IrKernel::kScalar: return {&internal::ShadeRowScalar, &internal::FinishRowScalar, &internal::DefocusRowScalar};
     default: return {};  // not compiled in
   }
 }
@@ -70,6 +71,7 @@ namespace ir_synthesis_internal {
 
 void ShadeRowScalar(const ShadeArgs& args, const ShadeRowData& row) { ShadeRow<ScalarLanes>(args, row); }
 void FinishRowScalar(const FinishArgs& args, const FinishRowData& row) { FinishRow<ScalarLanes>(args, row); }
+void DefocusRowScalar(const DefocusArgs& args, const DefocusRowData& row) { DefocusRow<ScalarLanes>(args, row); }
 
 }  // namespace ir_synthesis_internal
 
@@ -247,25 +249,17 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
   float min_sigma = s0, max_sigma = s0;
   if (defocus) {
     sigma_map_.create(size, CV_32F);
-    const float scale = static_cast<float>(rig.camera.fx * optics.aperture_m);
-    const float inv_focus = static_cast<float>(1.0 / optics.focus_distance_m);
-    const float psf2 = s0 * s0;
+    internal::DefocusArgs args;
+    args.width = size.width;
+    args.scale = static_cast<float>(rig.camera.fx * optics.aperture_m);
+    args.inv_focus = static_cast<float>(1.0 / optics.focus_distance_m);
+    args.psf2 = s0 * s0;
     const cv::Mat& p0 = geometry.layers[0].p_C;
     std::vector<float> row_min(size.height), row_max(size.height);
+    const auto defocus_row = KernelRows(kernel_).defocus;
     ParallelRows(options_.threads, size.height, [&](int row_begin, int row_end) {
       for (int y = row_begin; y < row_end; ++y) {
-        const cv::Vec3f* p = p0.ptr<cv::Vec3f>(y);
-        float* s = sigma_map_.ptr<float>(y);
-        float lo = std::numeric_limits<float>::max(), hi = 0.f;
-        for (int x = 0; x < size.width; ++x) {
-          const float z = p[x][2];
-          const float coc = std::isfinite(z) && z > 0 ? scale * std::abs(1.f / z - inv_focus) : 0.f;
-          s[x] = std::sqrt(psf2 + 0.0625f * coc * coc);
-          lo = std::min(lo, s[x]);
-          hi = std::max(hi, s[x]);
-        }
-        row_min[y] = lo;
-        row_max[y] = hi;
+        defocus_row(args, {p0.ptr<float>(y), sigma_map_.ptr<float>(y), &row_min[y], &row_max[y]});
       }
     });
     min_sigma = *std::min_element(row_min.begin(), row_min.end());

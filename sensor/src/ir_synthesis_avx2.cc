@@ -2,9 +2,11 @@
 // Compiled for AVX2 under a pragma, not a build flag, and called only where the CPU reports it
 // (ir_synthesis.cc). Standard headers and the shared structs come before the pragma so that
 // their inline functions stay baseline code.
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 
 #include "ir_synthesis_kernel.h"
 #include "romunect/sensor/pattern.h"
@@ -166,6 +168,7 @@ struct Avx2Lanes {
 
 void ShadeRowAvx2(const ShadeArgs& args, const ShadeRowData& row) { ShadeRow<Avx2Lanes>(args, row); }
 void FinishRowAvx2(const FinishArgs& args, const FinishRowData& row) { FinishRow<Avx2Lanes>(args, row); }
+void DefocusRowAvx2(const DefocusArgs& args, const DefocusRowData& row) { DefocusRow<Avx2Lanes>(args, row); }
 
 }  // namespace romunect::ir_synthesis_internal
 

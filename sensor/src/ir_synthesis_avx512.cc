@@ -2,9 +2,11 @@
 // registers. Compiled for AVX-512 under a pragma, not a build flag, and called only where the
 // CPU reports it (ir_synthesis.cc). Standard headers and the shared structs come before the
 // pragma so that their inline functions stay baseline code.
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 
 #include "ir_synthesis_kernel.h"
 #include "romunect/sensor/pattern.h"
@@ -150,6 +152,7 @@ struct Avx512Lanes {
 
 void ShadeRowAvx512(const ShadeArgs& args, const ShadeRowData& row) { ShadeRow<Avx512Lanes>(args, row); }
 void FinishRowAvx512(const FinishArgs& args, const FinishRowData& row) { FinishRow<Avx512Lanes>(args, row); }
+void DefocusRowAvx512(const DefocusArgs& args, const DefocusRowData& row) { DefocusRow<Avx512Lanes>(args, row); }
 
 }  // namespace romunect::ir_synthesis_internal
 

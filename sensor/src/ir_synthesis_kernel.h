@@ -73,14 +73,32 @@ struct FinishRowData {
   uint16_t* ir = nullptr;
 };
 
+// The camera's blur sigma per pixel (Synthesize's defocus pass): the focused lens' PSF plus the
+// defocus disk of layer 0's hit (sigma coc / 4).
+struct DefocusArgs {
+  int width = 0;
+  float scale = 0.f, inv_focus = 0.f, psf2 = 0.f;
+};
+
+// Writes row's sigmas, and their smallest and largest value into *lo and *hi.
+struct DefocusRowData {
+  const float* p_C = nullptr;  // 3 per pixel
+  float* sigma = nullptr;
+  float* lo = nullptr;
+  float* hi = nullptr;
+};
+
 void ShadeRowScalar(const ShadeArgs& args, const ShadeRowData& row);
 void FinishRowScalar(const FinishArgs& args, const FinishRowData& row);
+void DefocusRowScalar(const DefocusArgs& args, const DefocusRowData& row);
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #define ROMUNECT_IR_KERNEL_X86 1
 void ShadeRowAvx2(const ShadeArgs& args, const ShadeRowData& row);
 void FinishRowAvx2(const FinishArgs& args, const FinishRowData& row);
+void DefocusRowAvx2(const DefocusArgs& args, const DefocusRowData& row);
 void ShadeRowAvx512(const ShadeArgs& args, const ShadeRowData& row);
 void FinishRowAvx512(const FinishArgs& args, const FinishRowData& row);
+void DefocusRowAvx512(const DefocusArgs& args, const DefocusRowData& row);
 #endif
 
 }  // namespace romunect::ir_synthesis_internal

@@ -14,9 +14,11 @@
 // set, inside an anonymous namespace of its own.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 
 #include "ir_synthesis_kernel.h"
 #include "romunect/sensor/pattern.h"
@@ -68,6 +70,12 @@ struct ScalarLanes {
     *middle = static_cast<I>((h >> 8) & 0xFFFFFFu);
   }
 };
+
+// std::isfinite
+template <class L>
+typename L::M IsFinite(typename L::F v) {
+  return !((L::Bits(v) & 0x7F800000) == 0x7F800000);
+}
 
 // ln(x) for normal x > 0: the exponent plus the series 2 atanh(t), t = (m - 1) / (m + 1) with
 // the mantissa m in [sqrt(1/2), sqrt(2)), so |t| < 0.172 and four terms leave < 3e-8.
@@ -167,7 +175,7 @@ void ShadePixels(const ShadeArgs& a, const ShadeRowData& row, int x) {
       return;
     }
   }
-  const M valid = (material >= 0) & (material < a.material_count) & !((L::Bits(pz) & 0x7F800000) == 0x7F800000);
+  const M valid = (material >= 0) & (material < a.material_count) & IsFinite<L>(pz);
   const I mat = L::Select(valid, material * 3, I(0));  // index of the material's albedo
   const F albedo = L::Gather(a.materials, mat, valid);
   F e = a.ambient_e * albedo;
@@ -280,6 +288,21 @@ void FinishPixels(const FinishArgs& a, const FinishRowData& row, int x) {
   L::StoreU16(row.ir + x, L::Select(a.max_dn < dn, I(a.max_dn), dn));
 }
 
+// The camera blur sigma of the L pixels from column x; *lo and *hi take the smallest and the
+// largest so far, per lane.
+template <class L>
+void DefocusPixels(const DefocusArgs& a, const DefocusRowData& row, int x, typename L::F* lo, typename L::F* hi) {
+  using F = typename L::F;
+  F px, py, z;
+  L::LoadXyz(row.p_C + 3 * x, &px, &py, &z);
+  const typename L::M hit = IsFinite<L>(z) & (z > 0.f);
+  const F coc = L::Select(hit, a.scale * L::Abs(1.f / z - a.inv_focus), F(0.f));
+  const F s = L::Sqrt(a.psf2 + 0.0625f * coc * coc);
+  L::Store(row.sigma + x, s);
+  *lo = L::Select(s < *lo, s, *lo);  // std::min
+  *hi = L::Select(*hi < s, s, *hi);  // std::max
+}
+
 // One row: L lanes at a time, the last width % kLanes pixels one by one.
 template <class L>
 void ShadeRow(const ShadeArgs& a, const ShadeRowData& row) {
@@ -293,6 +316,25 @@ void FinishRow(const FinishArgs& a, const FinishRowData& row) {
   int x = 0;
   for (; x + L::kLanes <= a.width; x += L::kLanes) FinishPixels<L>(a, row, x);
   for (; x < a.width; ++x) FinishPixels<ScalarLanes>(a, row, x);
+}
+
+// The smallest and largest sigma do not depend on the order they are taken in (no NaN, no -0).
+template <class L>
+void DefocusRow(const DefocusArgs& a, const DefocusRowData& row) {
+  typename L::F lo = std::numeric_limits<float>::max(), hi = 0.f;
+  int x = 0;
+  for (; x + L::kLanes <= a.width; x += L::kLanes) DefocusPixels<L>(a, row, x, &lo, &hi);
+  float lanes_lo[L::kLanes], lanes_hi[L::kLanes];
+  L::Store(lanes_lo, lo);
+  L::Store(lanes_hi, hi);
+  float row_lo = lanes_lo[0], row_hi = lanes_hi[0];
+  for (int l = 1; l < L::kLanes; ++l) {
+    row_lo = std::min(row_lo, lanes_lo[l]);
+    row_hi = std::max(row_hi, lanes_hi[l]);
+  }
+  for (; x < a.width; ++x) DefocusPixels<ScalarLanes>(a, row, x, &row_lo, &row_hi);
+  *row.lo = row_lo;
+  *row.hi = row_hi;
 }
 
 }  // namespace
