@@ -129,6 +129,22 @@ struct Avx2Lanes {
   static F Gather(const float* base, I i) { return _mm256_i32gather_ps(base, i.v, 4); }
   static F Gather(const float* base, I i, M m) { return _mm256_mask_i32gather_ps(_mm256_setzero_ps(), base, i.v, m.v, 4); }
   static I Gather(const int32_t* base, I i) { return _mm256_i32gather_epi32(reinterpret_cast<const int*>(base), i.v, 4); }
+  // Both floats of a pair in one 64-bit element: half the loads of two gathers.
+  static void GatherPair(const float* base, I i, M m, F* first, F* second) {
+    const __m256i mask = _mm256_castps_si256(m.v);
+    __m256 half[2];
+    for (int h = 0; h < 2; ++h) {
+      const __m128i index = h == 0 ? _mm256_castsi256_si128(i.v) : _mm256_extracti128_si256(i.v, 1);
+      const __m128i lanes = h == 0 ? _mm256_castsi256_si128(mask) : _mm256_extracti128_si256(mask, 1);
+      half[h] = _mm256_castpd_ps(_mm256_mask_i32gather_pd(_mm256_setzero_pd(), reinterpret_cast<const double*>(base), index,
+                                                          _mm256_castsi256_pd(_mm256_cvtepi32_epi64(lanes)), 4));
+    }
+    // As in Narrow64: the even (odd) floats of both halves, in lane order.
+    *first = _mm256_castpd_ps(_mm256_permute4x64_pd(
+        _mm256_castps_pd(_mm256_shuffle_ps(half[0], half[1], _MM_SHUFFLE(2, 0, 2, 0))), _MM_SHUFFLE(3, 1, 2, 0)));
+    *second = _mm256_castpd_ps(_mm256_permute4x64_pd(
+        _mm256_castps_pd(_mm256_shuffle_ps(half[0], half[1], _MM_SHUFFLE(3, 1, 3, 1))), _MM_SHUFFLE(3, 1, 2, 0)));
+  }
   static F Select(M m, F a, F b) { return _mm256_blendv_ps(b.v, a.v, m.v); }
   static I Select(M m, I a, I b) {
     return _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(b.v), _mm256_castsi256_ps(a.v), m.v));

@@ -113,6 +113,16 @@ struct Avx512Lanes {
     return _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m.v, i.v, base, 4);
   }
   static I Gather(const int32_t* base, I i) { return _mm512_i32gather_epi32(i.v, base, 4); }
+  // Both floats of a pair in one 64-bit element: half the loads of two gathers.
+  static void GatherPair(const float* base, I i, M m, F* first, F* second) {
+    const __m512 lo = _mm512_castpd_ps(_mm512_mask_i32gather_pd(
+        _mm512_setzero_pd(), static_cast<__mmask8>(m.v), _mm512_castsi512_si256(i.v), base, 4));
+    const __m512 hi = _mm512_castpd_ps(_mm512_mask_i32gather_pd(
+        _mm512_setzero_pd(), static_cast<__mmask8>(m.v >> 8), _mm512_extracti64x4_epi64(i.v, 1), base, 4));
+    const __m512i even = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
+    *first = _mm512_permutex2var_ps(lo, even, hi);
+    *second = _mm512_permutex2var_ps(lo, _mm512_add_epi32(even, _mm512_set1_epi32(1)), hi);
+  }
   static F Select(M m, F a, F b) { return _mm512_mask_blend_ps(m.v, b.v, a.v); }
   static I Select(M m, I a, I b) { return _mm512_mask_blend_epi32(m.v, b.v, a.v); }
   static F Sqrt(F v) { return _mm512_sqrt_ps(v.v); }

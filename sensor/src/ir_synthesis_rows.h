@@ -5,6 +5,7 @@
 //     comparisons (giving M); M with & and !; F from a float and I from an int32 broadcast;
 //   Load, LoadU8 (zero-extended), LoadXyz (three interleaved floats), Store, StoreU16 (low 16
 //     bits), Iota (lane numbers), Gather (optionally masked: 0 where the mask is clear),
+//     GatherPair (masked: base[i] and base[i + 1]),
 //     Select (m ? a : b), Sqrt, Abs, ToFloat, Trunc (towards zero), Round (current rounding
 //     mode), Bits, FromBits, Any, All, and HashBits (the top and middle 24 bits of
 //     HashCounter(seed, counter + lane)).
@@ -45,6 +46,10 @@ struct ScalarLanes {
   static F Gather(const float* base, I i) { return base[i]; }
   static F Gather(const float* base, I i, M m) { return m ? base[i] : 0.f; }
   static I Gather(const int32_t* base, I i) { return base[i]; }
+  static void GatherPair(const float* base, I i, M m, F* first, F* second) {
+    *first = m ? base[i] : 0.f;
+    *second = m ? base[i + 1] : 0.f;
+  }
   static F Select(M m, F a, F b) { return m ? a : b; }
   static I Select(M m, I a, I b) { return m ? a : b; }
   static F Sqrt(F v) { return std::sqrt(v); }
@@ -205,9 +210,10 @@ void ShadePixels(const ShadeArgs& a, const ShadeRowData& row, int x) {
     const int stride = a.pattern.stride;
     const I tap = k * a.pattern.plane + y0 * stride + x0;
     auto bilinear = [&](I i, M m) {
-      const float* p = a.pattern.pixels;
-      return (1.f - fy) * ((1.f - fx) * L::Gather(p, i, m) + fx * L::Gather(p, i + 1, m)) +
-             fy * ((1.f - fx) * L::Gather(p, i + stride, m) + fx * L::Gather(p, i + (stride + 1), m));
+      F r00, r01, r10, r11;
+      L::GatherPair(a.pattern.pixels, i, m, &r00, &r01);
+      L::GatherPair(a.pattern.pixels, i + stride, m, &r10, &r11);
+      return (1.f - fy) * ((1.f - fx) * r00 + fx * r01) + fy * ((1.f - fx) * r10 + fx * r11);
     };
     const F value = bilinear(tap, on);
     const M blend = on & (w > 0.f);
