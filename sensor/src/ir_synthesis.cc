@@ -53,11 +53,12 @@ RowKernels KernelRows(IrKernel kernel) {
 template <class LevelTable>
 internal::LevelStack StackOf(const LevelTable& table, const float* pixels, size_t plane, int stride) {
   ROMUNECT_CHECK(plane * table.sigmas.size() < (size_t{1} << 31));  // lanes index with int32
+  ROMUNECT_CHECK(table.sigmas.size() <= internal::kTableSize);  // 11 pattern levels, <= 14 camera levels
   internal::LevelStack stack;
   stack.pixels = pixels;
   stack.plane = static_cast<int>(plane);
   stack.stride = stride;
-  stack.sigmas = table.sigmas.data();
+  std::copy(table.sigmas.begin(), table.sigmas.end(), stack.sigmas);
   stack.count = static_cast<int>(table.sigmas.size());
   stack.start = table.start.data();
   stack.start_count = static_cast<int>(table.start.size());
@@ -156,8 +157,8 @@ void IrSynthesizer::PreparePattern(const Rig& rig) {
   cached_projector_ = rig.projector;
 }
 
-void IrSynthesizer::ShadeLayer(const Rig& rig, const GeometryLayer& layer, const GeometryLayer* base,
-                               const cv::Mat* base_electrons, cv::Mat* electrons) const {
+void IrSynthesizer::ShadeLayer(const Rig& rig, const GeometryLayer& layer, const std::vector<IrMaterial>& materials,
+                               const GeometryLayer* base, const cv::Mat* base_electrons, cv::Mat* electrons) const {
   const Pose T_P_C = rig.T_C_P.inverse();
   const Eigen::Matrix3f R_P_C = T_P_C.linear().cast<float>();
   const Eigen::Vector3f t_P_C = T_P_C.translation().cast<float>();
@@ -165,8 +166,11 @@ void IrSynthesizer::ShadeLayer(const Rig& rig, const GeometryLayer& layer, const
   const ProjectorModel& pr = rig.projector;
   internal::ShadeArgs args;
   args.width = layer.p_C.cols;
-  args.materials = material_table_.data();
-  args.material_count = static_cast<int>(material_table_.size() / 3);
+  const size_t table_size = material_table_.size() / 3;
+  args.albedo = material_table_.data();
+  args.specular = args.albedo + table_size;
+  args.shininess = args.specular + table_size;
+  args.material_count = static_cast<int>(materials.size());
   for (int r = 0; r < 3; ++r) {
     for (int c = 0; c < 3; ++c) args.R_P_C[3 * r + c] = R_P_C(r, c);
     args.t_P_C[r] = t_P_C[r];
@@ -222,22 +226,28 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
     ROMUNECT_CHECK(layer.lit.size() == size && layer.lit.type() == CV_8U);
   }
   PreparePattern(rig);
-  material_table_.clear();
-  for (const IrMaterial& m : geometry.materials) material_table_.insert(material_table_.end(), {m.albedo, m.specular, m.shininess});
+  const std::vector<IrMaterial>& materials = geometry.materials;
+  const size_t table_size = std::max<size_t>(materials.size(), internal::kTableSize);
+  material_table_.assign(3 * table_size, 0.f);
+  for (size_t m = 0; m < materials.size(); ++m) {
+    material_table_[m] = materials[m].albedo;
+    material_table_[table_size + m] = materials[m].specular;
+    material_table_[2 * table_size + m] = materials[m].shininess;
+  }
 
   // Radiance summed over the layers (the quality mode's samples), then averaged. Samples that
   // repeat layer 0's hit (adaptive sampling away from edges) reuse its radiance.
   const size_t layer_count = geometry.layers.size();
   cv::Mat& first = layer_count > 1 ? layer0_electrons_ : electrons_;
   first.create(size, CV_32F);
-  ShadeLayer(rig, geometry.layers[0], nullptr, nullptr, &first);
+  ShadeLayer(rig, geometry.layers[0], materials, nullptr, nullptr, &first);
   bool lens_sampled = !geometry.layers[0].lens_offset_m.isZero();
   if (layer_count > 1) {
     first.copyTo(electrons_);
     for (size_t i = 1; i < layer_count; ++i) {
       const GeometryLayer& layer = geometry.layers[i];
       lens_sampled = lens_sampled || !layer.lens_offset_m.isZero();
-      ShadeLayer(rig, layer, &geometry.layers[0], &first, &electrons_);
+      ShadeLayer(rig, layer, materials, &geometry.layers[0], &first, &electrons_);
     }
     electrons_ *= 1.0 / layer_count;
   }

@@ -129,6 +129,11 @@ struct Avx2Lanes {
   static F Gather(const float* base, I i) { return _mm256_i32gather_ps(base, i.v, 4); }
   static F Gather(const float* base, I i, M m) { return _mm256_mask_i32gather_ps(_mm256_setzero_ps(), base, i.v, m.v, 4); }
   static I Gather(const int32_t* base, I i) { return _mm256_i32gather_epi32(reinterpret_cast<const int*>(base), i.v, 4); }
+  static F Lookup(const float* table, I i) {
+    const __m256 low = _mm256_permutevar8x32_ps(_mm256_loadu_ps(table), i.v);
+    const __m256 high = _mm256_permutevar8x32_ps(_mm256_loadu_ps(table + 8), i.v);  // the low 3 bits of i
+    return _mm256_blendv_ps(low, high, _mm256_castsi256_ps(_mm256_cmpgt_epi32(i.v, _mm256_set1_epi32(7))));
+  }
   // Both floats of a pair in one 64-bit element: half the loads of two gathers.
   static void GatherPair(const float* base, I i, M m, F* first, F* second) {
     const __m256i mask = _mm256_castps_si256(m.v);

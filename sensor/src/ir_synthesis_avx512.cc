@@ -113,6 +113,7 @@ struct Avx512Lanes {
     return _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m.v, i.v, base, 4);
   }
   static I Gather(const int32_t* base, I i) { return _mm512_i32gather_epi32(i.v, base, 4); }
+  static F Lookup(const float* table, I i) { return _mm512_permutexvar_ps(i.v, _mm512_loadu_ps(table)); }
   // Both floats of a pair in one 64-bit element: half the loads of two gathers.
   static void GatherPair(const float* base, I i, M m, F* first, F* second) {
     const __m512 lo = _mm512_castpd_ps(_mm512_mask_i32gather_pd(

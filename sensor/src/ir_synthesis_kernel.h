@@ -12,6 +12,10 @@
 
 namespace romunect::ir_synthesis_internal {
 
+// Small tables (level sigmas, materials) hold kTableSize floats or more, so that lanes can look
+// up their first kTableSize entries by a permutation instead of a gather.
+inline constexpr int kTableSize = 16;
+
 // A blur stack (IrSynthesizer::LevelTable plus the levels' pixels): level k's sample at index
 // i (row * stride + column) is at pixels[k * plane + i]. Find's lookup: start[bin], bins of
 // 1 / lut_per_px of sigma.
@@ -19,8 +23,8 @@ struct LevelStack {
   const float* pixels = nullptr;
   int plane = 0;  // levels * plane < 2^31: lanes index with int32
   int stride = 0;
-  const float* sigmas = nullptr;
-  int count = 0;  // levels
+  float sigmas[kTableSize] = {};  // the first `count`, then padding
+  int count = 0;  // levels, at most kTableSize
   const int* start = nullptr;
   int start_count = 0;
   float lut_per_px = 0.f;
@@ -29,7 +33,10 @@ struct LevelStack {
 // Everything ShadeRow needs but the row itself (ShadeLayer in ir_synthesis.cc).
 struct ShadeArgs {
   int width = 0;
-  const float* materials = nullptr;  // IrMaterial as (albedo, specular, shininess) triples
+  // IrMaterial's fields by material, each table max(material_count, kTableSize) long.
+  const float* albedo = nullptr;
+  const float* specular = nullptr;
+  const float* shininess = nullptr;
   int material_count = 0;
   float R_P_C[9] = {};  // row-major
   float t_P_C[3] = {}, c_P[3] = {};

@@ -5,7 +5,7 @@
 //     comparisons (giving M); M with & and !; F from a float and I from an int32 broadcast;
 //   Load, LoadU8 (zero-extended), LoadXyz (three interleaved floats), Store, StoreU16 (low 16
 //     bits), Iota (lane numbers), Gather (optionally masked: 0 where the mask is clear),
-//     GatherPair (masked: base[i] and base[i + 1]),
+//     GatherPair (masked: base[i] and base[i + 1]), Lookup (table[i], 0 <= i < kTableSize),
 //     Select (m ? a : b), Sqrt, Abs, ToFloat, Trunc (towards zero), Round (current rounding
 //     mode), Bits, FromBits, Any, All, and HashBits (the top and middle 24 bits of
 //     HashCounter(seed, counter + lane)).
@@ -46,6 +46,7 @@ struct ScalarLanes {
   static F Gather(const float* base, I i) { return base[i]; }
   static F Gather(const float* base, I i, M m) { return m ? base[i] : 0.f; }
   static I Gather(const int32_t* base, I i) { return base[i]; }
+  static F Lookup(const float* table, I i) { return table[i]; }
   static void GatherPair(const float* base, I i, M m, F* first, F* second) {
     *first = m ? base[i] : 0.f;
     *second = m ? base[i + 1] : 0.f;
@@ -145,11 +146,11 @@ void FindLevel(const LevelStack& table, typename L::F sigma, typename L::I* k, t
   bin = L::Select(bin > 0.f, bin, F(0.f));
   I i = L::Gather(table.start, L::Trunc(bin));
   for (;;) {
-    const M up = (i < n - 2) & (sigma > L::Gather(table.sigmas, i + 1));
+    const M up = (i < n - 2) & (sigma > L::Lookup(table.sigmas, i + 1));
     if (!L::Any(up)) break;
     i = i + L::Select(up, I(1), I(0));
   }
-  const F lo = L::Gather(table.sigmas, i), hi = L::Gather(table.sigmas, i + 1);
+  const F lo = L::Lookup(table.sigmas, i), hi = L::Lookup(table.sigmas, i + 1);
   const M below = sigma <= table.sigmas[0], above = sigma >= table.sigmas[n - 1];
   *k = L::Select(below, I(0), L::Select(above, I(n - 2), i));
   *w = L::Select(below, F(0.f), L::Select(above, F(1.f), (sigma - lo) / (hi - lo)));
@@ -181,8 +182,12 @@ void ShadePixels(const ShadeArgs& a, const ShadeRowData& row, int x) {
     }
   }
   const M valid = (material >= 0) & (material < a.material_count) & IsFinite<L>(pz);
-  const I mat = L::Select(valid, material * 3, I(0));  // index of the material's albedo
-  const F albedo = L::Gather(a.materials, mat, valid);
+  const I mat = L::Select(valid, material, I(0));
+  // The material's field, 0 where m is clear.
+  auto field = [&](const float* table, M m) {
+    return a.material_count <= kTableSize ? L::Select(m, L::Lookup(table, mat), F(0.f)) : L::Gather(table, mat, m);
+  };
+  const F albedo = field(a.albedo, valid);
   F e = a.ambient_e * albedo;
   const float* R = a.R_P_C;
   const F ppx = R[0] * px + (R[1] * py + R[2] * pz) + a.t_P_C[0];
@@ -230,10 +235,10 @@ void ShadePixels(const ShadeArgs& a, const ShadeRowData& row, int x) {
       const F cos_in = nx * tx + (ny * ty + nz * tz);
       const M facing = bright & (cos_in > 0.f);
       F brdf_pi = albedo;  // pi * BRDF
-      const F specular = L::Gather(a.materials + 1, mat, facing);
+      const F specular = field(a.specular, facing);
       const M shiny = facing & (specular > 0.f);
       if (L::Any(shiny)) {
-        const F shininess = L::Gather(a.materials + 2, mat, shiny);
+        const F shininess = field(a.shininess, shiny);
         const F two_cos = 2.f * cos_in;
         const F rx = two_cos * nx - tx, ry = two_cos * ny - ty, rz = two_cos * nz - tz;  // reflected
         const F cos_r = -(rx * px + (ry * py + rz * pz)) / L::Sqrt(px * px + (py * py + pz * pz));

@@ -147,7 +147,8 @@ TEST(IrSynthesisTest, ThreadsGiveTheSameBytes) {
 // Every kernel (scalar, AVX2, AVX-512, those this CPU has) gives the scalar kernel's bytes: IR
 // and expected electrons, on full frames of both rigs with shiny and dull materials, shadows,
 // the pattern's edge, camera defocus, noise, and lens-like layers that partly repeat layer 0;
-// and on an odd-sized camera, whose rows end in a partial vector.
+// with more materials than fit a lookup register; and on an odd-sized camera, whose rows end in
+// a partial vector.
 TEST(IrSynthesisTest, EveryKernelGivesTheScalarBytes) {
   for (const char* preset : {"romunect", "kinect-v1"}) {
     const Rig rig = RigPreset(preset);
@@ -172,13 +173,19 @@ TEST(IrSynthesisTest, EveryKernelGivesTheScalarBytes) {
     moved.lens_offset_m = Eigen::Vector2f(1e-3f, 0.f);
     layered.layers.push_back(moved);
     layered.layers.push_back(frame.layers[0]);
+    // More materials than the kernels look up by permutation (16): the same scene at indices 17+.
+    GeometryBuffer many = frame;
+    many.materials.insert(many.materials.begin(), 17, IrMaterial{0.1f, 0.9f, 3.0f});
+    cv::Mat& material = many.layers[0].material;
+    cv::add(material, 17, material, material >= 0);
     struct Case {
       const Rig* rig;
       const GeometryBuffer* geometry;
       bool noise, defocus;
     };
     for (const Case& c : {Case{&rig, &frame, true, true}, Case{&rig, &frame, false, true}, Case{&rig, &frame, true, false},
-                          Case{&rig, &layered, true, true}, Case{&odd, &odd_frame, true, true}}) {
+                          Case{&rig, &layered, true, true}, Case{&rig, &many, true, true},
+                          Case{&odd, &odd_frame, true, true}}) {
       IrSynthesisOptions options;
       options.noise = c.noise;
       options.camera_defocus = c.defocus;
@@ -189,8 +196,9 @@ TEST(IrSynthesisTest, EveryKernelGivesTheScalarBytes) {
       for (IrKernel kernel : {IrKernel::kAvx2, IrKernel::kAvx512}) {
         if (!IrKernelAvailable(kernel)) continue;
         SCOPED_TRACE(std::string(preset) + ", " + IrKernelName(kernel) + ", " + std::to_string(c.geometry->layers.size()) +
-                     " layers, " + std::to_string(c.rig->camera.width) + " wide, noise " + std::to_string(c.noise) +
-                     ", defocus " + std::to_string(c.defocus));
+                     " layers, " + std::to_string(c.geometry->materials.size()) + " materials, " +
+                     std::to_string(c.rig->camera.width) + " wide, noise " + std::to_string(c.noise) + ", defocus " +
+                     std::to_string(c.defocus));
         IrSynthesizer fast(options);
         fast.set_kernel(kernel);
         cv::Mat ir;

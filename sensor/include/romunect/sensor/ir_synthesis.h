@@ -93,8 +93,9 @@ class IrSynthesizer {
   void PreparePattern(const Rig& rig);
   // Writes the layer's radiance (electrons) into *electrons or, given layer 0 as `base` with
   // its radiance, adds it to *electrons, reusing base's value where the hit is the same.
-  void ShadeLayer(const Rig& rig, const GeometryLayer& layer, const GeometryLayer* base, const cv::Mat* base_electrons,
-                  cv::Mat* electrons) const;
+  // material_table_ holds `materials`.
+  void ShadeLayer(const Rig& rig, const GeometryLayer& layer, const std::vector<IrMaterial>& materials,
+                  const GeometryLayer* base, const cv::Mat* base_electrons, cv::Mat* electrons) const;
 
   IrSynthesisOptions options_;
   IrKernel kernel_;
@@ -105,8 +106,9 @@ class IrSynthesizer {
   ProjectorModel cached_projector_;
   cv::Mat pattern_stack_;
   LevelTable pattern_table_;
-  // Per-frame workspace, reused: the materials as (albedo, specular, shininess) triples, and
-  // the camera blur levels stacked like the pattern's (camera_levels_ views them).
+  // Per-frame workspace, reused: the materials' albedos, speculars and shininesses, each padded
+  // to internal::kTableSize (ir_synthesis_kernel.h), and the camera blur levels stacked like the
+  // pattern's (camera_levels_ views them).
   std::vector<float> material_table_;
   cv::Mat electrons_, layer0_electrons_, blurred_, sigma_map_, camera_stack_;
   std::vector<cv::Mat> camera_levels_;
