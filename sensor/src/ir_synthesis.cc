@@ -3,19 +3,20 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <cstring>
-#include <limits>
 #include <sstream>
-#include <thread>
 
 #include <opencv2/imgproc.hpp>
 
+#include "ir_synthesis_kernel.h"
+#include "ir_synthesis_rows.h"
 #include "parallel_rows.h"
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/pattern.h"
 
 namespace romunect {
 namespace {
+
+namespace internal = ir_synthesis_internal;
 
 // A DLP mirror or laser dot is a small square: a box of one pixel has sigma 1/sqrt(12).
 constexpr float kPixelBoxSigma = 0.29f;
@@ -29,66 +30,75 @@ std::vector<float> LevelSigmas(float s0, float max_sigma) {
   return sigmas;
 }
 
-// ln(x) for normal x > 0: the exponent plus the series 2 atanh(t), t = (m - 1) / (m + 1) with
-// the mantissa m in [sqrt(1/2), sqrt(2)), so |t| < 0.172 and four terms leave < 3e-8.
-inline float FastLog(float x) {
-  int32_t bits;
-  std::memcpy(&bits, &x, sizeof bits);
-  int32_t mantissa = (bits & 0x7FFFFF) | 0x3F800000;
-  const int32_t high = mantissa > 0x3FB504F3 ? 1 : 0;  // m > sqrt(2): halve it
-  mantissa -= high << 23;
-  const float exponent = static_cast<float>(((bits >> 23) & 0xFF) - 127 + high);
-  float m;
-  std::memcpy(&m, &mantissa, sizeof m);
-  const float t = (m - 1.f) / (m + 1.f), t2 = t * t;
-  return exponent * 0.693147181f + 2.f * t * (1.f + t2 * (1.f / 3.f + t2 * (0.2f + t2 * (1.f / 7.f))));
+struct RowKernels {
+  void (*shade)(const internal::ShadeArgs&, const internal::ShadeRowData&) = nullptr;
+  void (*finish)(const internal::FinishArgs&, const internal::FinishRowData&) = nullptr;
+  void (*defocus)(const internal::DefocusArgs&, const internal::DefocusRowData&) = nullptr;
+};
+
+RowKernels KernelRows(IrKernel kernel) {
+  switch (kernel) {
+#if ROMUNECT_IR_KERNEL_X86
+    case IrKernel::kAvx512: return {&internal::ShadeRowAvx512, &internal::FinishRowAvx512, &internal::DefocusRowAvx512};
+    case IrKernel::kAvx2: return {&internal::ShadeRowAvx2, &internal::FinishRowAvx2, &internal::DefocusRowAvx2};
+#endif
+    case IrKernel::kScalar: return {&internal::ShadeRowScalar, &internal::FinishRowScalar, &internal::DefocusRowScalar};
+    default: return {};  // not compiled in
+  }
 }
 
-// exp(x) for x in [-87, 0]: 2^(integer part) times a degree-6 Taylor polynomial of 2^f on
-// [-0.5, 0.5]: relative error < 2e-7.
-inline float FastExp(float x) {
-  const float y = std::max(x, -87.f) * 1.44269504f;
-  const float n = std::nearbyint(y);
-  const float f = (y - n) * 0.693147181f;  // |f| <= ln(2) / 2
-  const float p =
-      1.f + f * (1.f + f * (0.5f + f * (1.f / 6.f + f * (1.f / 24.f + f * (1.f / 120.f + f * (1.f / 720.f))))));
-  const int32_t bits = (static_cast<int32_t>(n) + 127) << 23;
-  float scale;
-  std::memcpy(&scale, &bits, sizeof scale);
-  return p * scale;
-}
-
-// cos and sin of 2 pi u for u in [0, 1): the quadrant, then Taylor series of degree 10 and 11
-// on [0, pi/2]: error < 1e-7.
-inline void FastCosSin2Pi(float u, float* c, float* s) {
-  const float q = u * 4.f;
-  const int quadrant = std::min(static_cast<int>(q), 3);
-  const float a = (q - quadrant) * 1.57079633f, a2 = a * a;
-  const float sin_a =
-      a * (1.f - a2 / 6.f * (1.f - a2 / 20.f * (1.f - a2 / 42.f * (1.f - a2 / 72.f * (1.f - a2 / 110.f)))));
-  const float cos_a = 1.f - a2 / 2.f * (1.f - a2 / 12.f * (1.f - a2 / 30.f * (1.f - a2 / 56.f * (1.f - a2 / 90.f))));
-  // Quadrant k turns (cos a, sin a) by k * 90 degrees.
-  const float cs[4] = {cos_a, -sin_a, -cos_a, sin_a};
-  const float sn[4] = {sin_a, cos_a, -sin_a, -cos_a};
-  *c = cs[quadrant];
-  *s = sn[quadrant];
-}
-
-// Two independent standard normal values for one pixel: Box-Muller on the two halves of a hash
-// of (seed, pixel), so each pixel's values depend on nothing else. 24-bit uniforms reach 5.9
-// sigma, beyond anything photon counts of a frame show.
-inline void NormalPair(uint64_t seed, uint64_t pixel, float* g1, float* g2) {
-  const uint64_t h = HashCounter(seed, pixel);
-  const float u1 = (static_cast<float>(h >> 40) + 0.5f) * 0x1p-24f;  // (0, 1)
-  const float u2 = static_cast<float>((h >> 8) & 0xFFFFFFu) * 0x1p-24f;  // [0, 1)
-  const float r = std::sqrt(-2.f * FastLog(u1));
-  float c, s;
-  FastCosSin2Pi(u2, &c, &s);
-  *g1 = r * c;
-  *g2 = r * s;
+// A level table (IrSynthesizer::LevelTable) and its stacked levels (rows of `stride` floats,
+// `plane` floats per level).
+template <class LevelTable>
+internal::LevelStack StackOf(const LevelTable& table, const float* pixels, size_t plane, int stride) {
+  ROMUNECT_CHECK(plane * table.sigmas.size() < (size_t{1} << 31));  // lanes index with int32
+  ROMUNECT_CHECK(table.sigmas.size() <= internal::kTableSize);  // 11 pattern levels, <= 14 camera levels
+  internal::LevelStack stack;
+  stack.pixels = pixels;
+  stack.plane = static_cast<int>(plane);
+  stack.stride = stride;
+  std::copy(table.sigmas.begin(), table.sigmas.end(), stack.sigmas);
+  stack.count = static_cast<int>(table.sigmas.size());
+  stack.start = table.start.data();
+  stack.start_count = static_cast<int>(table.start.size());
+  stack.lut_per_px = LevelTable::kLutPerPx;
+  return stack;
 }
 
 }  // namespace
+
+namespace ir_synthesis_internal {
+
+void ShadeRowScalar(const ShadeArgs& args, const ShadeRowData& row) { ShadeRow<ScalarLanes>(args, row); }
+void FinishRowScalar(const FinishArgs& args, const FinishRowData& row) { FinishRow<ScalarLanes>(args, row); }
+void DefocusRowScalar(const DefocusArgs& args, const DefocusRowData& row) { DefocusRow<ScalarLanes>(args, row); }
+
+}  // namespace ir_synthesis_internal
+
+const char* IrKernelName(IrKernel kernel) {
+  switch (kernel) {
+    case IrKernel::kScalar: return "scalar";
+    case IrKernel::kAvx2: return "avx2";
+    case IrKernel::kAvx512: return "avx512";
+  }
+  return "?";
+}
+
+bool IrKernelAvailable(IrKernel kernel) {
+  if (KernelRows(kernel).shade == nullptr) return false;
+#if ROMUNECT_IR_KERNEL_X86
+  if (kernel == IrKernel::kAvx2) return __builtin_cpu_supports("avx2");
+  if (kernel == IrKernel::kAvx512) return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq");
+#endif
+  return true;
+}
+
+IrKernel FastestIrKernel() {
+  for (IrKernel k : {IrKernel::kAvx512, IrKernel::kAvx2}) {
+    if (IrKernelAvailable(k)) return k;
+  }
+  return IrKernel::kScalar;
+}
 
 IrSynthesizer::LevelTable::LevelTable(std::vector<float> level_sigmas) : sigmas(std::move(level_sigmas)) {
   ROMUNECT_CHECK(!sigmas.empty());
@@ -114,59 +124,36 @@ std::string IrSynthesisStats::BriefReport() const {
   return s.str();
 }
 
-IrSynthesizer::IrSynthesizer(const IrSynthesisOptions& options) : options_(options) {
+IrSynthesizer::IrSynthesizer(const IrSynthesisOptions& options) : options_(options), kernel_(FastestIrKernel()) {
   ROMUNECT_CHECK_MSG(options.Problem().empty(), options.Problem().c_str());
 }
 
+void IrSynthesizer::set_kernel(IrKernel kernel) {
+  ROMUNECT_CHECK_MSG(IrKernelAvailable(kernel), IrKernelName(kernel));
+  kernel_ = kernel;
+}
+
 void IrSynthesizer::PreparePattern(const Rig& rig) {
-  if (!pattern_levels_.empty() && cached_pattern_ == rig.pattern && cached_H_ == rig.H_P_rec &&
+  if (!pattern_stack_.empty() && cached_pattern_ == rig.pattern && cached_H_ == rig.H_P_rec &&
       cached_projector_ == rig.projector) {
     return;
   }
   const cv::Mat displayed = ProjectorImage(rig);
   pattern_table_ = LevelTable(LevelSigmas(kPixelBoxSigma, kMaxPatternSigma));
-  pattern_levels_.assign(pattern_table_.sigmas.size(), cv::Mat());
+  const int levels = static_cast<int>(pattern_table_.sigmas.size());
+  const int padded_rows = displayed.rows + 2;
+  pattern_stack_.create(levels * padded_rows, displayed.cols + 2, CV_32F);
   cv::Mat blurred;
-  for (size_t k = 0; k < pattern_levels_.size(); ++k) {
+  for (int k = 0; k < levels; ++k) {
     const float sigma = pattern_table_.sigmas[k];
     cv::GaussianBlur(displayed, blurred, cv::Size(0, 0), sigma, sigma, cv::BORDER_CONSTANT);
     // A zero border of one pixel: bilinear taps need no bounds checks.
-    cv::copyMakeBorder(blurred, pattern_levels_[k], 1, 1, 1, 1, cv::BORDER_CONSTANT, cv::Scalar(0));
+    cv::Mat level = pattern_stack_.rowRange(k * padded_rows, (k + 1) * padded_rows);
+    cv::copyMakeBorder(blurred, level, 1, 1, 1, 1, cv::BORDER_CONSTANT, cv::Scalar(0));
   }
   cached_pattern_ = rig.pattern;
   cached_H_ = rig.H_P_rec;
   cached_projector_ = rig.projector;
-}
-
-namespace {
-
-// Whether pixel (y, x) of `layer` holds exactly the hit of `base` (then it shades the same).
-inline bool SameSample(const GeometryLayer& base, const GeometryLayer& layer, int y, int x) {
-  return std::memcmp(&base.p_C.ptr<cv::Vec3f>(y)[x], &layer.p_C.ptr<cv::Vec3f>(y)[x], sizeof(cv::Vec3f)) == 0 &&
-         std::memcmp(&base.normal_C.ptr<cv::Vec3f>(y)[x], &layer.normal_C.ptr<cv::Vec3f>(y)[x], sizeof(cv::Vec3f)) == 0 &&
-         base.material.ptr<int>(y)[x] == layer.material.ptr<int>(y)[x] &&
-         base.lit.ptr<uint8_t>(y)[x] == layer.lit.ptr<uint8_t>(y)[x];
-}
-
-}  // namespace
-
-inline float IrSynthesizer::PatternAt(float x, float y, float sigma) const {
-  const int cols = pattern_levels_[0].cols - 2, rows = pattern_levels_[0].rows - 2;
-  if (!(x > -1.f && y > -1.f && x < cols && y < rows)) return 0.f;  // off the pattern: dark
-  int k;
-  float w;
-  pattern_table_.Find(sigma, &k, &w);
-  // In the padded image, pixel (x, y) sits at (x + 1, y + 1); all four taps are inside.
-  const float xs = x + 1.f, ys = y + 1.f;
-  const int x0 = static_cast<int>(xs), y0 = static_cast<int>(ys);
-  const float fx = xs - x0, fy = ys - y0;
-  auto bilinear = [&](const cv::Mat& level) {
-    const float* r0 = level.ptr<float>(y0) + x0;
-    const float* r1 = level.ptr<float>(y0 + 1) + x0;
-    return (1 - fy) * ((1 - fx) * r0[0] + fx * r0[1]) + fy * ((1 - fx) * r1[0] + fx * r1[1]);
-  };
-  const float value = bilinear(pattern_levels_[k]);
-  return w > 0.f ? (1 - w) * value + w * bilinear(pattern_levels_[k + 1]) : value;
 }
 
 void IrSynthesizer::ShadeLayer(const Rig& rig, const GeometryLayer& layer, const std::vector<IrMaterial>& materials,
@@ -176,62 +163,51 @@ void IrSynthesizer::ShadeLayer(const Rig& rig, const GeometryLayer& layer, const
   const Eigen::Vector3f t_P_C = T_P_C.translation().cast<float>();
   const Eigen::Vector3f c_P = rig.T_C_P.translation().cast<float>();  // projector centre in C
   const ProjectorModel& pr = rig.projector;
+  internal::ShadeArgs args;
+  args.width = layer.p_C.cols;
+  const size_t table_size = material_table_.size() / 3;
+  args.albedo = material_table_.data();
+  args.specular = args.albedo + table_size;
+  args.shininess = args.specular + table_size;
+  args.material_count = static_cast<int>(materials.size());
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) args.R_P_C[3 * r + c] = R_P_C(r, c);
+    args.t_P_C[r] = t_P_C[r];
+    args.c_P[r] = c_P[r];
+  }
   const float exposure = static_cast<float>(rig.optics.exposure_s);
-  const float projector_e = static_cast<float>(pr.brightness_e_per_s) * exposure;
-  const float ambient_e = static_cast<float>(rig.optics.ambient_e_per_s) * exposure;
-  const float footprint = static_cast<float>(pr.fx / rig.camera.fx) / std::sqrt(12.f);
-  const float coc_scale = static_cast<float>(pr.fx * pr.aperture_m);
-  const float inv_focus = static_cast<float>(1.0 / pr.focus_distance_m);
-  const float pfx = static_cast<float>(pr.fx), pfy = static_cast<float>(pr.fy);
-  const float pcx = static_cast<float>(pr.cx), pcy = static_cast<float>(pr.cy);
-  const int n_materials = static_cast<int>(materials.size());
+  args.projector_e = static_cast<float>(pr.brightness_e_per_s) * exposure;
+  args.ambient_e = static_cast<float>(rig.optics.ambient_e_per_s) * exposure;
+  args.footprint = static_cast<float>(pr.fx / rig.camera.fx) / std::sqrt(12.f);
+  args.coc_scale = static_cast<float>(pr.fx * pr.aperture_m);
+  args.inv_focus = static_cast<float>(1.0 / pr.focus_distance_m);
+  args.box_sigma2 = kPixelBoxSigma * kPixelBoxSigma;
+  args.pfx = static_cast<float>(pr.fx);
+  args.pfy = static_cast<float>(pr.fy);
+  args.pcx = static_cast<float>(pr.cx);
+  args.pcy = static_cast<float>(pr.cy);
+  const int levels = static_cast<int>(pattern_table_.sigmas.size());
+  args.pattern_cols = pattern_stack_.cols - 2;
+  args.pattern_rows = pattern_stack_.rows / levels - 2;
+  args.pattern = StackOf(pattern_table_, pattern_stack_.ptr<float>(), pattern_stack_.total() / levels,
+                         pattern_stack_.cols);
+  const auto shade_row = KernelRows(kernel_).shade;
   ParallelRows(options_.threads, layer.p_C.rows, [&](int row_begin, int row_end) {
     for (int y = row_begin; y < row_end; ++y) {
-      const cv::Vec3f* p_row = layer.p_C.ptr<cv::Vec3f>(y);
-      const cv::Vec3f* n_row = layer.normal_C.ptr<cv::Vec3f>(y);
-      const int* m_row = layer.material.ptr<int>(y);
-      const uint8_t* lit_row = layer.lit.ptr<uint8_t>(y);
-      float* out = electrons->ptr<float>(y);
-      for (int x = 0; x < layer.p_C.cols; ++x) {
-        const int m = m_row[x];
-        if (base != nullptr && SameSample(*base, layer, y, x)) {
-          out[x] += base_electrons->ptr<float>(y)[x];  // the same hit shades the same
-          continue;
-        }
-        float e = 0.f;
-        if (m >= 0 && m < n_materials && std::isfinite(p_row[x][2])) {
-          const IrMaterial& mat = materials[m];
-          e = ambient_e * mat.albedo;
-          const Eigen::Vector3f p_C(p_row[x][0], p_row[x][1], p_row[x][2]);
-          const Eigen::Vector3f p_P = R_P_C * p_C + t_P_C;
-          if (lit_row[x] != 0 && projector_e > 0.f && p_P.z() > 0.f) {
-            const float inv_z = 1.f / p_P.z();
-            // Projector defocus (disk of diameter coc: sigma coc / 4) and the camera pixel's
-            // footprint on the pattern, both in projector pixels.
-            const float coc = coc_scale * std::abs(inv_z - inv_focus);
-            const float fp = footprint * p_C.z() * inv_z;
-            const float sigma = std::sqrt(kPixelBoxSigma * kPixelBoxSigma + fp * fp + 0.0625f * coc * coc);
-            const float pattern = PatternAt(pfx * p_P.x() * inv_z + pcx, pfy * p_P.y() * inv_z + pcy, sigma);
-            if (pattern > 0.f) {
-              const Eigen::Vector3f n(n_row[x][0], n_row[x][1], n_row[x][2]);
-              Eigen::Vector3f to_light = c_P - p_C;
-              const float d2 = to_light.squaredNorm();
-              to_light *= 1.f / std::sqrt(d2);
-              const float cos_in = n.dot(to_light);
-              if (cos_in > 0.f) {
-                float brdf_pi = mat.albedo;  // pi * BRDF
-                if (mat.specular > 0.f) {
-                  const Eigen::Vector3f reflected = 2.f * cos_in * n - to_light;
-                  const float cos_r = -reflected.dot(p_C) / p_C.norm();
-                  if (cos_r > 0.f) brdf_pi += mat.specular * 0.5f * (mat.shininess + 2.f) * FastExp(mat.shininess * FastLog(cos_r));
-                }
-                e += projector_e * pattern * brdf_pi * cos_in / d2;
-              }
-            }
-          }
-        }
-        out[x] = base != nullptr ? out[x] + e : e;
+      internal::ShadeRowData row;
+      row.p_C = layer.p_C.ptr<float>(y);
+      row.normal_C = layer.normal_C.ptr<float>(y);
+      row.material = layer.material.ptr<int>(y);
+      row.lit = layer.lit.ptr<uint8_t>(y);
+      row.electrons = electrons->ptr<float>(y);
+      if (base != nullptr) {
+        row.base_p_C = base->p_C.ptr<float>(y);
+        row.base_normal_C = base->normal_C.ptr<float>(y);
+        row.base_material = base->material.ptr<int>(y);
+        row.base_lit = base->lit.ptr<uint8_t>(y);
+        row.base_electrons = base_electrons->ptr<float>(y);
       }
+      shade_row(args, row);
     }
   });
 }
@@ -249,24 +225,31 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
     ROMUNECT_CHECK(layer.lit.size() == size && layer.lit.type() == CV_8U);
   }
   PreparePattern(rig);
+  const std::vector<IrMaterial>& materials = geometry.materials;
+  const size_t table_size = std::max<size_t>(materials.size(), internal::kTableSize);
+  material_table_.assign(3 * table_size, 0.f);
+  for (size_t m = 0; m < materials.size(); ++m) {
+    material_table_[m] = materials[m].albedo;
+    material_table_[table_size + m] = materials[m].specular;
+    material_table_[2 * table_size + m] = materials[m].shininess;
+  }
 
   // Radiance summed over the layers (the quality mode's samples), then averaged. Samples that
   // repeat layer 0's hit (adaptive sampling away from edges) reuse its radiance.
   const size_t layer_count = geometry.layers.size();
   cv::Mat& first = layer_count > 1 ? layer0_electrons_ : electrons_;
   first.create(size, CV_32F);
-  ShadeLayer(rig, geometry.layers[0], geometry.materials, nullptr, nullptr, &first);
+  ShadeLayer(rig, geometry.layers[0], materials, nullptr, nullptr, &first);
   bool lens_sampled = !geometry.layers[0].lens_offset_m.isZero();
   if (layer_count > 1) {
     first.copyTo(electrons_);
     for (size_t i = 1; i < layer_count; ++i) {
       const GeometryLayer& layer = geometry.layers[i];
       lens_sampled = lens_sampled || !layer.lens_offset_m.isZero();
-      ShadeLayer(rig, layer, geometry.materials, &geometry.layers[0], &first, &electrons_);
+      ShadeLayer(rig, layer, materials, &geometry.layers[0], &first, &electrons_);
     }
     electrons_ *= 1.0 / layer_count;
   }
-
   // Camera blur: the focused lens' PSF everywhere, plus the defocus disk (sigma coc / 4) unless
   // the layers already sampled the aperture. Only the levels some pixel blends are blurred.
   const CameraOptics& optics = rig.optics;
@@ -275,25 +258,17 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
   float min_sigma = s0, max_sigma = s0;
   if (defocus) {
     sigma_map_.create(size, CV_32F);
-    const float scale = static_cast<float>(rig.camera.fx * optics.aperture_m);
-    const float inv_focus = static_cast<float>(1.0 / optics.focus_distance_m);
-    const float psf2 = s0 * s0;
+    internal::DefocusArgs args;
+    args.width = size.width;
+    args.scale = static_cast<float>(rig.camera.fx * optics.aperture_m);
+    args.inv_focus = static_cast<float>(1.0 / optics.focus_distance_m);
+    args.psf2 = s0 * s0;
     const cv::Mat& p0 = geometry.layers[0].p_C;
     std::vector<float> row_min(size.height), row_max(size.height);
+    const auto defocus_row = KernelRows(kernel_).defocus;
     ParallelRows(options_.threads, size.height, [&](int row_begin, int row_end) {
       for (int y = row_begin; y < row_end; ++y) {
-        const cv::Vec3f* p = p0.ptr<cv::Vec3f>(y);
-        float* s = sigma_map_.ptr<float>(y);
-        float lo = std::numeric_limits<float>::max(), hi = 0.f;
-        for (int x = 0; x < size.width; ++x) {
-          const float z = p[x][2];
-          const float coc = std::isfinite(z) && z > 0 ? scale * std::abs(1.f / z - inv_focus) : 0.f;
-          s[x] = std::sqrt(psf2 + 0.0625f * coc * coc);
-          lo = std::min(lo, s[x]);
-          hi = std::max(hi, s[x]);
-        }
-        row_min[y] = lo;
-        row_max[y] = hi;
+        defocus_row(args, {p0.ptr<float>(y), sigma_map_.ptr<float>(y), &row_min[y], &row_max[y]});
       }
     });
     min_sigma = *std::min_element(row_min.begin(), row_min.end());
@@ -312,7 +287,14 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
     camera_table_.Find(max_sigma, &k_last, &w);
     k_last += 1;
   }
-  camera_levels_.resize(levels.size());
+  // The levels in one stack (one level: blurred_ itself, read in place by the last pass).
+  blurred_.create(size, CV_32F);
+  const int count = static_cast<int>(levels.size());
+  if (count > 1) camera_stack_.create(count * size.height, size.width, CV_32F);
+  camera_levels_.resize(count);
+  for (int k = 0; k < count; ++k) {
+    camera_levels_[k] = count > 1 ? camera_stack_.rowRange(k * size.height, (k + 1) * size.height) : blurred_;
+  }
   for (int k = k_first; k <= k_last; ++k) {
     if (levels[k] <= 0.f) {
       electrons_.copyTo(camera_levels_[k]);
@@ -324,47 +306,33 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
   // Blend, noise, full well, gain and quantization, row by row; noise from a hash of (seed,
   // pixel): the same bytes at any thread count.
   ir->create(size, CV_16U);
-  blurred_.create(size, CV_32F);
-  const float gain = static_cast<float>(optics.gain_dn_per_e);
-  const float full_well = static_cast<float>(optics.full_well_e);
-  const float read = static_cast<float>(optics.read_noise_e);
-  const int max_dn = optics.MaxDn();
-  const bool noise = options_.noise;
-  const bool shot = optics.shot_noise;
-  const uint64_t noise_seed = HashCounter(seed, 0x1234567ULL);
+  internal::FinishArgs args;
+  args.width = size.width;
+  args.camera = StackOf(camera_table_, camera_levels_[0].ptr<float>(), size.area(), size.width);
+  args.noise = options_.noise;
+  args.shot = optics.shot_noise;
+  args.noise_seed = HashCounter(seed, 0x1234567ULL);
+  args.gain = static_cast<float>(optics.gain_dn_per_e);
+  args.full_well = static_cast<float>(optics.full_well_e);
+  args.read = static_cast<float>(optics.read_noise_e);
+  args.max_dn = optics.MaxDn();
+  const auto finish_row = KernelRows(kernel_).finish;
   ParallelRows(options_.threads, size.height, [&](int row_begin, int row_end) {
     for (int y = row_begin; y < row_end; ++y) {
-      float* e_row = blurred_.ptr<float>(y);
-      if (levels.size() == 1) {
-        std::copy_n(camera_levels_[0].ptr<float>(y), size.width, e_row);
-      } else {
-        const float* s = sigma_map_.ptr<float>(y);
-        for (int x = 0; x < size.width; ++x) {
-          int k;
-          float w;
-          camera_table_.Find(s[x], &k, &w);
-          const float a = camera_levels_[k].ptr<float>(y)[x];
-          e_row[x] = w > 0.f ? (1 - w) * a + w * camera_levels_[k + 1].ptr<float>(y)[x] : a;
-        }
-      }
-      uint16_t* out = ir->ptr<uint16_t>(y);
-      for (int x = 0; x < size.width; ++x) {
-        float e = e_row[x];
-        if (noise) {
-          float g1, g2;
-          NormalPair(noise_seed, static_cast<uint64_t>(y) * size.width + x, &g1, &g2);
-          e += (shot ? std::sqrt(std::max(e, 0.f)) * g1 : 0.f) + read * g2;
-        }
-        e = std::clamp(e, 0.f, full_well);
-        out[x] = static_cast<uint16_t>(std::min(static_cast<int>(gain * e + 0.5f), max_dn));
-      }
+      internal::FinishRowData row;
+      row.y = y;
+      row.sigma = count > 1 ? sigma_map_.ptr<float>(y) : nullptr;
+      row.camera_levels = camera_levels_[0].ptr<float>(y);
+      row.electrons = blurred_.ptr<float>(y);
+      row.ir = ir->ptr<uint16_t>(y);
+      finish_row(args, row);
     }
   });
 
   if (stats != nullptr) {
     *stats = IrSynthesisStats{};
     const GeometryLayer& l0 = geometry.layers[0];
-    const int saturated_dn = std::min(max_dn, static_cast<int>(gain * full_well + 0.5f));
+    const int saturated_dn = std::min(args.max_dn, static_cast<int>(args.gain * args.full_well + 0.5f));
     double sum = 0;
     for (int y = 0; y < size.height; ++y) {
       const int* m = l0.material.ptr<int>(y);

@@ -144,6 +144,72 @@ TEST(IrSynthesisTest, ThreadsGiveTheSameBytes) {
   EXPECT_TRUE(testing::ImagesBitEqual(ir_a, ir_b));
 }
 
+// Every kernel (scalar, AVX2, AVX-512, those this CPU has) gives the scalar kernel's bytes: IR
+// and expected electrons, on full frames of both rigs with shiny and dull materials, shadows,
+// the pattern's edge, camera defocus, noise, and lens-like layers that partly repeat layer 0;
+// with more materials than fit a lookup register; and on an odd-sized camera, whose rows end in
+// a partial vector.
+TEST(IrSynthesisTest, EveryKernelGivesTheScalarBytes) {
+  for (const char* preset : {"romunect", "kinect-v1"}) {
+    const Rig rig = RigPreset(preset);
+    const double z = preset == std::string("romunect") ? 0.205 : 1.2, r = z / 20;
+    testing::AnalyticScene scene = testing::AnalyticScene::TiltedPlane(z, 0.3);
+    scene.materials = {IrMaterial{0.5f, 0.0f, 50.0f}, IrMaterial{0.9f, 0.6f, 80.0f}, IrMaterial{0.2f, 0.3f, 5.0f}};
+    scene.spheres.push_back({Eigen::Vector3d(r, 0, z - 2 * r), r, 1, 2});
+    scene.spheres.push_back({Eigen::Vector3d(-r, r, z - 3 * r), 0.8 * r, 2, 3});
+    Rig odd = rig;
+    odd.camera.width = 83;
+    odd.camera.height = 61;
+    odd.camera.cx = 41;
+    odd.camera.cy = 30;
+    const GeometryBuffer frame = testing::RenderAnalytic(scene, rig.camera, rig.T_C_P.translation());
+    const GeometryBuffer odd_frame = testing::RenderAnalytic(scene, odd.camera, odd.T_C_P.translation());
+    // Layers: the frame, a copy with every other row moved 1 mm closer, and the frame again.
+    GeometryBuffer layered = frame;
+    GeometryLayer moved = frame.layers[0];
+    for (int y = 0; y < moved.p_C.rows; y += 2) {
+      for (int x = 0; x < moved.p_C.cols; ++x) moved.p_C.at<cv::Vec3f>(y, x) *= 1.f - 0.001f / static_cast<float>(z);
+    }
+    moved.lens_offset_m = Eigen::Vector2f(1e-3f, 0.f);
+    layered.layers.push_back(moved);
+    layered.layers.push_back(frame.layers[0]);
+    // More materials than the kernels look up by permutation (16): the same scene at indices 17+.
+    GeometryBuffer many = frame;
+    many.materials.insert(many.materials.begin(), 17, IrMaterial{0.1f, 0.9f, 3.0f});
+    cv::Mat& material = many.layers[0].material;
+    cv::add(material, 17, material, material >= 0);
+    struct Case {
+      const Rig* rig;
+      const GeometryBuffer* geometry;
+      bool noise, defocus;
+    };
+    for (const Case& c : {Case{&rig, &frame, true, true}, Case{&rig, &frame, false, true}, Case{&rig, &frame, true, false},
+                          Case{&rig, &layered, true, true}, Case{&rig, &many, true, true},
+                          Case{&odd, &odd_frame, true, true}}) {
+      IrSynthesisOptions options;
+      options.noise = c.noise;
+      options.camera_defocus = c.defocus;
+      IrSynthesizer scalar(options);
+      scalar.set_kernel(IrKernel::kScalar);
+      cv::Mat ir_scalar;
+      scalar.Synthesize(*c.rig, *c.geometry, 11, &ir_scalar, nullptr);
+      for (IrKernel kernel : {IrKernel::kAvx2, IrKernel::kAvx512}) {
+        if (!IrKernelAvailable(kernel)) continue;
+        SCOPED_TRACE(std::string(preset) + ", " + IrKernelName(kernel) + ", " + std::to_string(c.geometry->layers.size()) +
+                     " layers, " + std::to_string(c.geometry->materials.size()) + " materials, " +
+                     std::to_string(c.rig->camera.width) + " wide, noise " + std::to_string(c.noise) + ", defocus " +
+                     std::to_string(c.defocus));
+        IrSynthesizer fast(options);
+        fast.set_kernel(kernel);
+        cv::Mat ir;
+        fast.Synthesize(*c.rig, *c.geometry, 11, &ir, nullptr);
+        EXPECT_TRUE(testing::ImagesBitEqual(ir, ir_scalar));
+        EXPECT_TRUE(testing::ImagesBitEqual(fast.expected_electrons(), scalar.expected_electrons()));
+      }
+    }
+  }
+}
+
 
 // The slow obvious pattern lookup: the displayed image blurred by a Gaussian of exactly sigma
 // (OpenCV's kernel for that sigma, zero outside), sampled bilinearly at (x, y), tap by tap.

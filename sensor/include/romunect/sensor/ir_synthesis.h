@@ -28,6 +28,14 @@ struct IrSynthesisOptions {
   std::string Problem() const;
 };
 
+// The code that shades and finishes the pixels. Every kernel gives the same bytes (tests/sensor
+// compare them).
+enum class IrKernel { kScalar, kAvx2, kAvx512 };
+const char* IrKernelName(IrKernel kernel);  // "scalar", "avx2", "avx512"
+// Compiled in, and supported by this CPU.
+bool IrKernelAvailable(IrKernel kernel);
+IrKernel FastestIrKernel();
+
 struct IrSynthesisStats {
   int pixels_hit = 0;        // rays that hit a surface (layer 0)
   int pixels_lit = 0;        // ... and whose hit the projector sees
@@ -49,6 +57,10 @@ class IrSynthesizer {
 
   // Expected electrons per pixel of the last frame, before noise and clipping (CV_32F).
   const cv::Mat& expected_electrons() const { return blurred_; }
+
+  // The kernel Synthesize uses: FastestIrKernel() unless set. set_kernel needs an available one.
+  IrKernel kernel() const { return kernel_; }
+  void set_kernel(IrKernel kernel);
 
  private:
   // Blur levels (sigmas increasing) and where to start looking for a sigma's pair of levels:
@@ -79,24 +91,26 @@ class IrSynthesizer {
   };
 
   void PreparePattern(const Rig& rig);
-  // The displayed pattern at projector pixel (x, y) blurred by a Gaussian of sigma (px),
-  // blended between the two nearest levels; 0 off the pattern.
-  float PatternAt(float x, float y, float sigma) const;
   // Writes the layer's radiance (electrons) into *electrons or, given layer 0 as `base` with
   // its radiance, adds it to *electrons, reusing base's value where the hit is the same.
+  // material_table_ holds `materials`.
   void ShadeLayer(const Rig& rig, const GeometryLayer& layer, const std::vector<IrMaterial>& materials,
                   const GeometryLayer* base, const cv::Mat* base_electrons, cv::Mat* electrons) const;
 
   IrSynthesisOptions options_;
+  IrKernel kernel_;
   // Cached per rig: the displayed image blurred at increasing sigmas (projector pixels), each
-  // with a zero border of one pixel.
+  // with a zero border of one pixel, stacked level after level in one CV_32F image.
   PatternSpec cached_pattern_;
   Eigen::Matrix3d cached_H_ = Eigen::Matrix3d::Zero();
   ProjectorModel cached_projector_;
-  std::vector<cv::Mat> pattern_levels_;
+  cv::Mat pattern_stack_;
   LevelTable pattern_table_;
-  // Per-frame workspace, reused.
-  cv::Mat electrons_, layer0_electrons_, blurred_, sigma_map_;
+  // Per-frame workspace, reused: the materials' albedos, speculars and shininesses, each padded
+  // to internal::kTableSize (ir_synthesis_kernel.h), and the camera blur levels stacked like the
+  // pattern's (camera_levels_ views them).
+  std::vector<float> material_table_;
+  cv::Mat electrons_, layer0_electrons_, blurred_, sigma_map_, camera_stack_;
   std::vector<cv::Mat> camera_levels_;
   LevelTable camera_table_;
 };
