@@ -361,7 +361,6 @@ struct FrameInserter::Workspace {
   std::vector<std::vector<Vote*>> block_at;  // per thread: WalkContext::block_at
   std::vector<std::vector<uint32_t>> block_bits;
   std::vector<size_t> chunk_begin;     // chunk c's first ray slot (its first pixel)
-  std::vector<size_t> chunk_count;     // rays set up by chunk c
   std::vector<std::vector<size_t>> tile_end;  // per chunk: each tile's end in its rays
   std::vector<InsertStats> chunk_stats;
   std::vector<SegmentBounds> chunk_bounds;
@@ -386,7 +385,6 @@ FrameInserter::FrameInserter(VotingGrid* grid, const InserterOptions& options)
   ws_->hits.resize(options.threads);
   ws_->block_at.resize(options.threads);
   ws_->block_bits.resize(options.threads);
-  ws_->chunk_count.assign(options.threads, 0);
   ws_->tile_end.resize(options.threads);
   ws_->chunk_stats.assign(options.threads, InsertStats{});
   ws_->chunk_bounds.assign(options.threads, SegmentBounds{});
@@ -407,7 +405,7 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     ws.camera = camera;
     ws.has_camera = true;
     ws.ray_C.resize(2 * pixels);
-    // One thread walks batches of rays as it sets them up; threads share a frame's setups.
+    // One thread walks each tile's rays as it sets them up; threads share a frame's setups.
     const size_t slots = options_.threads == 1 ? static_cast<size_t>(kInsertionTilePx) * kInsertionTilePx : pixels;
     ws.rays.reset(static_cast<RaySetup*>(std::malloc(slots * sizeof(RaySetup))));
     if (ws.rays == nullptr) throw std::bad_alloc();
@@ -461,18 +459,18 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
 #else
   const bool lane_setup = false;
 #endif
-  SetupFrame frame{};
+  SetupFrame setup_frame{};
   if (lane_setup) {
     for (int a = 0; a < 3; ++a) {
-      for (int b = 0; b < 3; ++b) frame.R[a][b] = R(a, b);
-      frame.o_W[a] = o_W[a];
-      frame.min_W[a] = min_W[a];
-      frame.o_g[a] = o_g[a];
-      frame.n[a] = n[a];
+      for (int b = 0; b < 3; ++b) setup_frame.R[a][b] = R(a, b);
+      setup_frame.o_W[a] = o_W[a];
+      setup_frame.min_W[a] = min_W[a];
+      setup_frame.o_g[a] = o_g[a];
+      setup_frame.n[a] = n[a];
     }
-    frame.voxel = voxel;
-    frame.ray_C = ws.ray_C.data();
-    frame.width = width;
+    setup_frame.voxel = voxel;
+    setup_frame.ray_C = ws.ray_C.data();
+    setup_frame.width = width;
 #if defined(__x86_64__)
     if (ws.tile_rays == nullptr) ws.tile_rays = std::make_unique<avx512::TileRays>();
 #endif
@@ -499,7 +497,7 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
      for (int tu = 0; tu < width; tu += kTile) {
 #if defined(__x86_64__)
       if (lane_setup) {  // the tile set up in lanes too, and walked
-        avx512::InsertTile(frame, depth_m, tu, std::min(tu + kTile, width), tv, std::min(tv + kTile, v1),
+        avx512::InsertTile(setup_frame, depth_m, tu, std::min(tu + kTile, width), tv, std::min(tv + kTile, v1),
                            ws.tile_rays.get(), &context, &s, &bounds);
         continue;
       }
@@ -574,7 +572,6 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
       thread_hits[0] = context.hit_count;
       thread_misses[0] = context.misses;
     }
-    ws.chunk_count[chunk] = count;
     s.pixels = static_cast<size_t>(v1 - v0) * width;
     thread_cpu_ms[chunk] += ThreadCpuMs() - cpu0;
   };
@@ -622,9 +619,8 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
   for (const SegmentBounds& b : ws.chunk_bounds) all.Add(b);
   changed_columns_ = cv::Rect();
   if (all.x_lo <= all.x_hi) {
-    auto column = [](double g, int n) { return static_cast<int>(std::clamp(std::floor(g), 0.0, n - 1.0)); };
-    const int x0 = column(all.x_lo - 1.0, n[0]), x1 = column(all.x_hi + 1.0, n[0]);
-    const int y0 = column(all.y_lo - 1.0, n[1]), y1 = column(all.y_hi + 1.0, n[1]);
+    const int x0 = StartIndex(all.x_lo - 1.0, n[0]), x1 = StartIndex(all.x_hi + 1.0, n[0]);
+    const int y0 = StartIndex(all.y_lo - 1.0, n[1]), y1 = StartIndex(all.y_hi + 1.0, n[1]);
     changed_columns_ = cv::Rect(x0, y0, x1 - x0 + 1, y1 - y0 + 1);
   }
 
