@@ -1,7 +1,7 @@
 // Render benchmark (issue 4, speed table): the Embree renderer on a procedural 300k-triangle
 // bin at 640 x 480 (the `romunect` rig preset: camera at 200 mm above the bin floor), at 1 and
 // 2 threads and 1 and 4 samples per pixel (samples -4: the adaptive quality mode, 4 samples at
-// edges only); the one-off static BVH build; a per-frame pose
+// edges only), and with each kernel of its own per-ray work; the one-off static BVH build; a per-frame pose
 // update of a moving part; and, when the sensor model's IR synthesis and depth engine are
 // present, the full frame (render + IR synthesis + depth engine), sequential and pipelined
 // (rendering frame n+1 while frame n is synthesized and matched).
@@ -113,6 +113,35 @@ BENCHMARK(BM_Render)
     ->Args({2, 4})
     ->Args({1, -4})
     ->Args({2, -4})
+    ->UseRealTime()
+    ->MeasureProcessCPUTime()
+    ->Unit(benchmark::kMillisecond);
+
+// One thread, one sample per pixel, with each kernel of the renderer's own per-ray work
+// (RenderKernel: 1 avx512, 2 avx2, 3 sse2); skipped where the CPU lacks it.
+void BM_RenderKernel(benchmark::State& state) {
+  Fixture& f = GetFixture();
+  RenderOptions options = f.Options(1, 1);
+  options.kernel = static_cast<RenderKernel>(state.range(0));
+  if (!options.Problem().empty()) {
+    state.SkipWithError(options.Problem().c_str());
+    return;
+  }
+  GeometryRenderer renderer;
+  GeometryBuffer buffer;
+  RenderStats stats = renderer.Render(f.scene, f.rig.camera, Pose::Identity(), f.rig.T_C_P, options, &buffer);
+  for (auto _ : state) {
+    stats = renderer.Render(f.scene, f.rig.camera, Pose::Identity(), f.rig.T_C_P, options, &buffer);
+    benchmark::DoNotOptimize(buffer.layers[0].p_C.data);
+  }
+  SetRenderCounters(state, stats, state.iterations());
+  state.SetLabel(RenderKernelName(options.kernel));
+}
+BENCHMARK(BM_RenderKernel)
+    ->ArgNames({"kernel"})
+    ->Arg(static_cast<int>(RenderKernel::kAvx512))
+    ->Arg(static_cast<int>(RenderKernel::kAvx2))
+    ->Arg(static_cast<int>(RenderKernel::kSse2))
     ->UseRealTime()
     ->MeasureProcessCPUTime()
     ->Unit(benchmark::kMillisecond);

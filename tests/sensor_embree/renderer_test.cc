@@ -323,6 +323,61 @@ TEST(RendererTest, ResultsAreBitIdenticalAtAnyThreadCountAndTileSize) {
   for (const GeometryBuffer* other : {&two, &small_tiles}) ExpectBitEqual(one, *other);
 }
 
+// Every kernel the CPU has writes the bytes of the portable SSE2 one (the same IEEE operations
+// in the same order), for a turned camera (every rotation element in use), border packets with
+// fewer than 16 lanes, moving parts, the thin lens and adaptive sampling. The hit points are, bit
+// for bit, Eigen's o_C + t (ray - o_C / focus, 1) with t their depth.
+TEST(RendererTest, EveryKernelWritesTheBytesOfThePortableOneAndOfEigen) {
+  PileScene pile;
+  CameraModel camera = pile.camera;
+  camera.width = 94;
+  camera.height = 70;
+  const Pose T_W_C = MakePose(Eigen::AngleAxisd(0.05, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix(),
+                              Eigen::Vector3d(0.002, -0.001, 0.003));
+  GeometryRenderer renderer;
+  for (int samples : {1, 4, -4}) {
+    SCOPED_TRACE(samples);
+    RenderOptions options;
+    options.samples_per_pixel = std::abs(samples);
+    options.adaptive = samples < 0;
+    options.aperture_radius_m = 0.003;
+    options.kernel = RenderKernel::kSse2;
+    GeometryBuffer portable;
+    const RenderStats stats = renderer.Render(pile.scene, camera, T_W_C, pile.T_C_P, options, &portable);
+    EXPECT_LT(stats.lit, stats.hits);
+    for (RenderKernel kernel : {RenderKernel::kAvx2, RenderKernel::kAvx512, RenderKernel::kAuto}) {
+      options.kernel = kernel;
+      if (!options.Problem().empty()) continue;  // not on this CPU
+      SCOPED_TRACE(RenderKernelName(kernel));
+      GeometryBuffer other;
+      renderer.Render(pile.scene, camera, T_W_C, pile.T_C_P, options, &other);
+      ExpectBitEqual(portable, other);
+    }
+    const float inv_focus_m = static_cast<float>(1.0 / options.focus_distance_m);
+    const size_t traced_layers = options.adaptive ? 1 : portable.layers.size();  // adaptive: some repeat layer 0
+    int checked = 0;
+    for (size_t k = 0; k < traced_layers; ++k) {
+      const GeometryLayer& layer = portable.layers[k];
+      const Eigen::Vector3f o_C(layer.lens_offset_m.x(), layer.lens_offset_m.y(), 0.0f);
+      for (int v = 0; v < camera.height; ++v) {
+        for (int u = 0; u < camera.width; ++u) {
+          if (layer.object_id.at<int>(v, u) < 0) continue;
+          const Eigen::Vector2f ray = camera.Ray(Eigen::Vector2d(u + layer.pixel_offset_px.x(), v + layer.pixel_offset_px.y()))
+                                          .head<2>()
+                                          .cast<float>();
+          const cv::Vec3f p = layer.p_C.at<cv::Vec3f>(v, u);
+          const Eigen::Vector3f expected =
+              o_C + p[2] * Eigen::Vector3f(ray.x() - o_C.x() * inv_focus_m, ray.y() - o_C.y() * inv_focus_m, 1.0f);
+          ASSERT_TRUE(expected.x() == p[0] && expected.y() == p[1] && expected.z() == p[2])
+              << "layer " << k << " pixel " << u << "," << v;
+          ++checked;
+        }
+      }
+    }
+    EXPECT_GT(checked, camera.width * camera.height / 2);
+  }
+}
+
 // A sample 1/3 px off the centre crosses an edge that neither neighbour pair shows only at
 // corners and sub-pixel features (a sliver of a sphere's rim): at most this share of the
 // pixels whose samples see another object or shadow state than their centre.
@@ -406,6 +461,9 @@ TEST(RendererTest, OptionsNameTheFieldValueAndRule) {
   EXPECT_EQ(o.Problem(), "");
   o.edge_slope = 0.0;
   EXPECT_EQ(o.Problem(), "edge_slope = 0: must be positive");
+  o = RenderOptions{};
+  o.kernel = RenderKernel::kSse2;
+  EXPECT_EQ(o.Problem(), "");  // every x86-64 CPU has it
 }
 
 }  // namespace

@@ -4,12 +4,12 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <sstream>
 #include <thread>
 
-#include <pmmintrin.h>
-#include <xmmintrin.h>
+#include <immintrin.h>
 
 #include <Eigen/Geometry>
 
@@ -22,20 +22,24 @@ namespace {
 constexpr int kPacket = 4;  // packets are 4 x 4 pixels: one RTCRayHit16
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
-// Per-frame constants shared by all threads (read only while tracing).
+// A part rays can hit: the rotation taking its normals into C (row-major) and its geometries.
+struct PartSetup {
+  float R_C_part[9];
+  const std::vector<GeometryInfo>* info = nullptr;
+};
+
+// Per-frame constants shared by all threads (read only while tracing). Rotations are row-major.
 struct FrameSetup {
   RTCScene static_scene = nullptr;  // the static part, in W, traced directly
   RTCScene moving = nullptr;        // instances of the moving parts; null when there are none
   int width = 0, height = 0;
-  Eigen::Matrix3f R_W_C, R_C_W;
-  Eigen::Vector3f t_W_C;
-  Eigen::Vector3f p_P_C;  // projector centre in C
-  Eigen::Vector3f p_P_W;  // projector centre in W
+  float R_W_C[9];
+  float t_W_C[3];
+  float p_P_C[3];  // projector centre in C
+  float p_P_W[3];  // projector centre in W
   float shadow_bias_m = 0.0f;
   float inv_focus_m = 0.0f;
-  const std::vector<GeometryInfo>* static_info = nullptr;
-  std::vector<Eigen::Matrix3f> R_C_O;                  // by moving instance id
-  std::vector<const std::vector<GeometryInfo>*> info;  // by moving instance id
+  std::vector<PartSetup> parts;  // the static part, then the moving ones by instance id
   std::vector<LensSample> samples;
   const std::vector<cv::Mat>* ray_tables = nullptr;  // one CV_32FC2 per sample
 };
@@ -45,65 +49,14 @@ struct alignas(64) Counters {
   int64_t camera_rays = 0, hits = 0, shadow_rays = 0, lit = 0;
 };
 
-bool AnyValid(const int* valid) {
-  int any = 0;
-  for (int i = 0; i < 16; ++i) any |= valid[i];
-  return any != 0;
-}
-
-// Closest hits of a packet: the static part (coherent, no instance to enter), then the moving
-// parts up to that distance. A hit on a moving part carries its instance id; a static hit
-// carries RTC_INVALID_GEOMETRY_ID there.
-void IntersectPacket(const FrameSetup& f, const int* valid, RTCRayHit16* rh) {
-  RTCIntersectContext coherent;
-  rtcInitIntersectContext(&coherent);
-  coherent.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
-  rtcIntersect16(valid, f.static_scene, &coherent, rh);
-  if (f.moving == nullptr) return;
-  RTCHit16& hit = rh->hit;
-  alignas(64) unsigned static_geometry[16];
-  for (int i = 0; i < 16; ++i) {
-    static_geometry[i] = hit.geomID[i];
-    hit.geomID[i] = RTC_INVALID_GEOMETRY_ID;
-  }
-  alignas(64) float ng[3][16];
-  std::copy_n(hit.Ng_x, 16, ng[0]);
-  std::copy_n(hit.Ng_y, 16, ng[1]);
-  std::copy_n(hit.Ng_z, 16, ng[2]);
-  rtcIntersect16(valid, f.moving, &coherent, rh);  // tfar holds the static hit: nearer only
-  for (int i = 0; i < 16; ++i) {
-    if (hit.geomID[i] != RTC_INVALID_GEOMETRY_ID) continue;  // a moving part is nearer
-    hit.geomID[i] = static_geometry[i];
-    hit.instID[0][i] = RTC_INVALID_GEOMETRY_ID;
-    hit.Ng_x[i] = ng[0][i];
-    hit.Ng_y[i] = ng[1][i];
-    hit.Ng_z[i] = ng[2][i];
-  }
-}
-
-// Occlusion of the shadow rays: the static part with a coherent packet, then the moving parts
-// for the rays still free. Coherent occlusion rays through instances never return in Debian's
-// Embree 3.13.5 on AVX-512 (seen on this machine), so the instances get the default context.
-void OccludedPacket(const FrameSetup& f, int* valid, RTCRay16* shadow) {
-  if (!AnyValid(valid)) return;
-  RTCIntersectContext coherent;
-  rtcInitIntersectContext(&coherent);
-  coherent.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
-  rtcOccluded16(valid, f.static_scene, &coherent, shadow);
-  if (f.moving == nullptr) return;
-  alignas(64) int free_rays[16];
-  for (int i = 0; i < 16; ++i) free_rays[i] = (valid[i] && shadow->tfar[i] >= 0.0f) ? -1 : 0;
-  if (!AnyValid(free_rays)) return;
-  RTCIntersectContext incoherent;
-  rtcInitIntersectContext(&incoherent);
-  rtcOccluded16(free_rays, f.moving, &incoherent, shadow);
-}
-
 // Up to 16 samples traced together, each a pixel and a layer: a 4 x 4 block of one layer, or
 // in adaptive sampling the extra samples of the next marked pixels of a tile (packets cost
 // about the same however few of their lanes are in use, and a pixel's samples are coherent).
 struct Lanes {
   int count = 0;
+  // A whole 4 x 4 block of one layer: lane 4 r + c is pixel (u[0] + c, v[0] + r) of layer[0],
+  // and only entries 0 are set.
+  bool block = false;
   int u[16], v[16], layer[16];
   void Add(int u_px, int v_px, int layer_index) {
     u[count] = u_px;
@@ -115,6 +68,12 @@ struct Lanes {
 
 Lanes Block(const FrameSetup& f, int layer_index, int u0, int v0) {
   Lanes lanes;
+  if (u0 + kPacket <= f.width && v0 + kPacket <= f.height) {
+    lanes.Add(u0, v0, layer_index);
+    lanes.count = 16;
+    lanes.block = true;
+    return lanes;
+  }
   for (int i = 0; i < 16; ++i) {
     const int u = u0 + i % kPacket, v = v0 + i / kPacket;
     if (u < f.width && v < f.height) lanes.Add(u, v, layer_index);
@@ -122,117 +81,60 @@ Lanes Block(const FrameSetup& f, int layer_index, int u0, int v0) {
   return lanes;
 }
 
-// Traces the samples of `lanes` and writes them into their layers of *out.
-void RenderPacket(const FrameSetup& f, const Lanes& lanes, GeometryBuffer* out, Counters* counters) {
-  alignas(64) RTCRayHit16 rh;
-  alignas(64) int valid[16];
-  alignas(64) float dir_x[16], dir_y[16];  // direction in C (z = 1)
-  Eigen::Vector3f o_C[16];                   // ray origin on the lens, in C
-  for (int i = 0; i < 16; ++i) {
-    valid[i] = i < lanes.count ? -1 : 0;
-    const LensSample& sample = f.samples[valid[i] ? lanes.layer[i] : 0];
-    o_C[i] = Eigen::Vector3f(sample.lens_offset_m.x(), sample.lens_offset_m.y(), 0.0f);
-    const Eigen::Vector3f o_W = f.R_W_C * o_C[i] + f.t_W_C;
-    rh.ray.org_x[i] = o_W.x();
-    rh.ray.org_y[i] = o_W.y();
-    rh.ray.org_z[i] = o_W.z();
-    rh.ray.tnear[i] = 0.0f;
-    rh.ray.time[i] = 0.0f;
-    rh.ray.mask[i] = 0xFFFFFFFFu;
-    rh.ray.id[i] = static_cast<unsigned>(i);
-    rh.ray.flags[i] = 0;
-    rh.hit.geomID[i] = RTC_INVALID_GEOMETRY_ID;
-    rh.hit.instID[0][i] = RTC_INVALID_GEOMETRY_ID;
-    dir_x[i] = dir_y[i] = 0.0f;
-    if (valid[i]) {
-      // Thin lens: through the lens point o_C towards the point the pinhole ray meets at the
-      // focus depth; scaled to z = 1, so that the hit depth (z in C) is exactly t.
-      const cv::Vec2f xy_n = (*f.ray_tables)[lanes.layer[i]].ptr<cv::Vec2f>(lanes.v[i])[lanes.u[i]];
-      dir_x[i] = xy_n[0] - o_C[i].x() * f.inv_focus_m;
-      dir_y[i] = xy_n[1] - o_C[i].y() * f.inv_focus_m;
-    }
-    const Eigen::Vector3f dir_W = f.R_W_C * Eigen::Vector3f(dir_x[i], dir_y[i], 1.0f);
-    rh.ray.dir_x[i] = dir_W.x();
-    rh.ray.dir_y[i] = dir_W.y();
-    rh.ray.dir_z[i] = dir_W.z();
-    rh.ray.tfar[i] = valid[i] ? std::numeric_limits<float>::infinity() : -1.0f;
-  }
-  IntersectPacket(f, valid, &rh);
+// The kernels: render_packet.inc on GCC vectors of each instruction set's register width.
+namespace sse2 {
+constexpr int kWidth = 4;
+using F = float __attribute__((vector_size(16)));
+using U = unsigned __attribute__((vector_size(16)));
+inline F Sqrt(F x) { return _mm_sqrt_ps(x); }
+#include "render_packet.inc"
+}  // namespace sse2
 
-  alignas(64) RTCRay16 shadow;
-  alignas(64) int shadow_valid[16];
-  Eigen::Vector3f p_C[16], n_C[16];
-  int64_t camera_rays = 0, shadow_rays = 0;
-  for (int i = 0; i < 16; ++i) {
-    camera_rays += valid[i] != 0;
-    shadow_valid[i] = 0;
-    shadow.org_x[i] = shadow.org_y[i] = shadow.org_z[i] = 0.0f;
-    shadow.dir_x[i] = shadow.dir_y[i] = shadow.dir_z[i] = 1.0f;
-    shadow.tnear[i] = 0.0f;
-    shadow.tfar[i] = 1.0f;
-    shadow.time[i] = 0.0f;
-    shadow.mask[i] = 0xFFFFFFFFu;
-    shadow.id[i] = static_cast<unsigned>(i);
-    shadow.flags[i] = 0;
-    if (!valid[i] || rh.hit.geomID[i] == RTC_INVALID_GEOMETRY_ID) continue;
-    const float t = rh.ray.tfar[i];
-    p_C[i] = o_C[i] + t * Eigen::Vector3f(dir_x[i], dir_y[i], 1.0f);
-    const unsigned instance = rh.hit.instID[0][i];
-    ROMUNECT_DCHECK(instance == RTC_INVALID_GEOMETRY_ID || instance < f.R_C_O.size());
-    // Embree reports the geometric normal in the frame of the part it hit (W or O).
-    const Eigen::Matrix3f& R_C_hit = instance == RTC_INVALID_GEOMETRY_ID ? f.R_C_W : f.R_C_O[instance];
-    Eigen::Vector3f n = R_C_hit * Eigen::Vector3f(rh.hit.Ng_x[i], rh.hit.Ng_y[i], rh.hit.Ng_z[i]);
-    n.normalize();
-    if (n.dot(p_C[i] - o_C[i]) > 0.0f) n = -n;
-    n_C[i] = n;
-    // A surface facing away from the projector shadows itself: no ray needed.
-    if (n.dot(f.p_P_C - p_C[i]) <= 0.0f) continue;
-    const Eigen::Vector3f origin_W = f.R_W_C * (p_C[i] + f.shadow_bias_m * n) + f.t_W_C;
-    const Eigen::Vector3f to_P_W = f.p_P_W - origin_W;
-    shadow.org_x[i] = origin_W.x();
-    shadow.org_y[i] = origin_W.y();
-    shadow.org_z[i] = origin_W.z();
-    shadow.dir_x[i] = to_P_W.x();
-    shadow.dir_y[i] = to_P_W.y();
-    shadow.dir_z[i] = to_P_W.z();
-    shadow_valid[i] = -1;
-    ++shadow_rays;
-  }
-  OccludedPacket(f, shadow_valid, &shadow);
+#pragma GCC push_options
+#pragma GCC target("avx2")
+namespace avx2 {
+constexpr int kWidth = 8;
+using F = float __attribute__((vector_size(32)));
+using U = unsigned __attribute__((vector_size(32)));
+inline F Sqrt(F x) { return _mm256_sqrt_ps(x); }
+#include "render_packet.inc"
+}  // namespace avx2
+#pragma GCC pop_options
 
-  int64_t hits = 0, lit_count = 0;
-  for (int i = 0; i < lanes.count; ++i) {
-    const int u = lanes.u[i], v = lanes.v[i];
-    GeometryLayer* layer = &out->layers[lanes.layer[i]];
-    cv::Vec3f& p_out = layer->p_C.ptr<cv::Vec3f>(v)[u];
-    cv::Vec3f& n_out = layer->normal_C.ptr<cv::Vec3f>(v)[u];
-    int& material = layer->material.ptr<int>(v)[u];
-    int& object_id = layer->object_id.ptr<int>(v)[u];
-    uint8_t& lit = layer->lit.ptr<uint8_t>(v)[u];
-    if (rh.hit.geomID[i] == RTC_INVALID_GEOMETRY_ID) {
-      p_out = cv::Vec3f(kNaN, kNaN, kNaN);
-      n_out = cv::Vec3f(0.0f, 0.0f, 0.0f);
-      material = object_id = -1;
-      lit = 0;
-      continue;
-    }
-    ++hits;
-    p_out = cv::Vec3f(p_C[i].x(), p_C[i].y(), p_C[i].z());
-    n_out = cv::Vec3f(n_C[i].x(), n_C[i].y(), n_C[i].z());
-    const unsigned instance = rh.hit.instID[0][i];
-    const std::vector<GeometryInfo>& info =
-        instance == RTC_INVALID_GEOMETRY_ID ? *f.static_info : *f.info[instance];
-    const GeometryInfo& g = info[rh.hit.geomID[i]];
-    material = g.material;
-    object_id = g.object_id;
-    // Embree sets tfar to -inf for occluded rays.
-    lit = (shadow_valid[i] && shadow.tfar[i] >= 0.0f) ? 1 : 0;
-    lit_count += lit;
+#pragma GCC push_options
+#pragma GCC target("avx2,avx512f,avx512dq")
+// GCC 12 warns inside its own AVX-512 headers (their _mm512_undefined_* placeholders).
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+namespace avx512 {
+constexpr int kWidth = 16;
+using F = float __attribute__((vector_size(64)));
+using U = unsigned __attribute__((vector_size(64)));
+inline F Sqrt(F x) { return _mm512_sqrt_ps(x); }
+#include "render_packet.inc"
+}  // namespace avx512
+#pragma GCC diagnostic pop
+#pragma GCC pop_options
+
+bool CpuHasAvx2() { return __builtin_cpu_supports("avx2"); }
+
+bool CpuHasAvx512() { return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq"); }
+
+using RenderPacketFn = void (*)(const FrameSetup&, const Lanes&, GeometryBuffer*, Counters*);
+
+RenderPacketFn KernelFor(RenderKernel kernel) {
+  if (kernel == RenderKernel::kAuto) {
+    kernel = CpuHasAvx512() ? RenderKernel::kAvx512 : CpuHasAvx2() ? RenderKernel::kAvx2 : RenderKernel::kSse2;
   }
-  counters->camera_rays += camera_rays;
-  counters->hits += hits;
-  counters->shadow_rays += shadow_rays;
-  counters->lit += lit_count;
+  switch (kernel) {
+    case RenderKernel::kAvx512:
+      return &avx512::RenderPacket;
+    case RenderKernel::kAvx2:
+      return &avx2::RenderPacket;
+    default:
+      return &sse2::RenderPacket;
+  }
 }
 
 // Marks (1 in *refine, CV_8U) both pixels of every horizontal and vertical neighbour pair of
@@ -289,6 +191,20 @@ cv::Mat OffsetRayTable(const CameraModel& camera, const Eigen::Vector2f& offset_
 
 }  // namespace
 
+const char* RenderKernelName(RenderKernel kernel) {
+  switch (kernel) {
+    case RenderKernel::kAuto:
+      return "auto";
+    case RenderKernel::kAvx512:
+      return "avx512";
+    case RenderKernel::kAvx2:
+      return "avx2";
+    case RenderKernel::kSse2:
+      return "sse2";
+  }
+  return "?";
+}
+
 std::string RenderOptions::Problem() const {
   std::ostringstream s;
   if (samples_per_pixel != 1 && samples_per_pixel != 4) {
@@ -307,6 +223,8 @@ std::string RenderOptions::Problem() const {
     s << "adaptive = true: needs samples_per_pixel = 4 (the samples it adds at edges)";
   } else if (!(edge_slope > 0.0) || !std::isfinite(edge_slope)) {
     s << "edge_slope = " << edge_slope << ": must be positive";
+  } else if ((kernel == RenderKernel::kAvx512 && !CpuHasAvx512()) || (kernel == RenderKernel::kAvx2 && !CpuHasAvx2())) {
+    s << "kernel = " << RenderKernelName(kernel) << ": this CPU does not support it";
   }
   return s.str();
 }
@@ -364,7 +282,6 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
   FrameSetup f;
   f.static_scene = s.static_part.scene.get();
   f.moving = s.moving.empty() ? nullptr : s.top.get();
-  f.static_info = &s.static_part.geometries;
   f.width = camera.width;
   f.height = camera.height;
   // Adaptive: sub-pixel samples through the pinhole; the lens' defocus is left to synthesis.
@@ -386,22 +303,27 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
   for (int l = 0; l < layers; ++l) ROMUNECT_CHECK(cache.offsets[l] == f.samples[l].pixel_offset_px);
   f.ray_tables = &cache.tables;
 
-  f.R_W_C = T_W_C.rotation().cast<float>();
-  f.t_W_C = T_W_C.translation().cast<float>();
-  f.p_P_C = T_C_P.translation().cast<float>();
-  f.p_P_W = (T_W_C * T_C_P.translation()).cast<float>();
+  const Eigen::Matrix3d R_W_C = T_W_C.rotation();
+  const Eigen::Matrix3d R_C_W = R_W_C.transpose();
+  auto to_floats = [](const auto& m, float* to) {
+    for (int k = 0; k < static_cast<int>(m.size()); ++k) to[k] = static_cast<float>(m(k / m.cols(), k % m.cols()));
+  };
+  to_floats(R_W_C, f.R_W_C);
+  to_floats(T_W_C.translation(), f.t_W_C);
+  to_floats(T_C_P.translation(), f.p_P_C);
+  const Eigen::Vector3d p_P_W = T_W_C * T_C_P.translation();
+  to_floats(p_P_W, f.p_P_W);
   f.shadow_bias_m = static_cast<float>(options.shadow_bias_m);
   f.inv_focus_m = static_cast<float>(1.0 / options.focus_distance_m);
-  const Eigen::Matrix3d R_C_W = T_W_C.rotation().transpose();
-  f.R_C_W = R_C_W.cast<float>();
-  f.R_C_O.resize(s.moving.size());
-  f.info.resize(s.moving.size());
+  f.parts.resize(1 + s.moving.size());
+  to_floats(R_C_W, f.parts[0].R_C_part);
+  f.parts[0].info = &s.static_part.geometries;
   for (size_t id = 0; id < s.moving.size(); ++id) {  // instance id = index in moving
     const Part& part = s.moving[id];
-    f.R_C_O[id] = (R_C_W * part.T_W_O.rotation()).cast<float>();
-    f.info[id] = &part.geometries;
+    const Eigen::Matrix3d R_C_O = R_C_W * part.T_W_O.rotation();
+    to_floats(R_C_O, f.parts[1 + id].R_C_part);
+    f.parts[1 + id].info = &part.geometries;
   }
-
   out->materials = s.materials;
   out->layers.resize(layers);
   for (int l = 0; l < layers; ++l) {
@@ -423,6 +345,7 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
   const int tile_count = tiles_x * tiles_y;
   const int thread_count = std::min(options.threads, tile_count);
   std::vector<Counters> counters(thread_count);
+  const RenderPacketFn render_packet = KernelFor(options.kernel);
   // Traces layers [first, last) of every tile. With `refine` (adaptive), only the pixels it
   // marks, packed 16 to a packet in the tile's row order; the others repeat layer 0's sample
   // (the centre sample stands for the whole pixel).
@@ -442,7 +365,7 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
           for (int l = first; l < last; ++l) {
             for (int v = tv; v < v_end; v += kPacket) {
               for (int u = tu; u < u_end; u += kPacket) {
-                RenderPacket(f, Block(f, l, u, v), out, &counters[thread]);
+                render_packet(f, Block(f, l, u, v), out, &counters[thread]);
               }
             }
           }
@@ -460,7 +383,7 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
                 for (int l = first; l < last; ++l) {
                   lanes.Add(u, v, l);
                   if (lanes.count == 16) {
-                    RenderPacket(f, lanes, out, &counters[thread]);
+                    render_packet(f, lanes, out, &counters[thread]);
                     lanes.count = 0;
                   }
                 }
@@ -468,7 +391,7 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
             }
           }
         }
-        if (lanes.count > 0) RenderPacket(f, lanes, out, &counters[thread]);
+        if (lanes.count > 0) render_packet(f, lanes, out, &counters[thread]);
       }
       _mm_setcsr(saved_mxcsr);
     };

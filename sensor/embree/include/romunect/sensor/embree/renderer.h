@@ -29,6 +29,11 @@
 
 namespace romunect::embree {
 
+// The instruction set of the renderer's own per-ray work around the Embree calls (Embree picks
+// its own). Every kernel gives the same bytes; kAuto takes the widest the CPU has.
+enum class RenderKernel { kAuto, kAvx512, kAvx2, kSse2 };
+const char* RenderKernelName(RenderKernel kernel);
+
 struct RenderOptions {
   int samples_per_pixel = 1;        // 1 (pinhole) or 4 (quality mode, thin lens)
   double focus_distance_m = 0.2;    // camera lens focus: depth (z in C) that is sharp, > 0
@@ -40,6 +45,7 @@ struct RenderOptions {
   // Adaptive: neighbouring depths further apart than this many pixel footprints (z / fx) mark
   // a depth edge; 4 = surfaces steeper than 76 degrees to the view count as edges.
   double edge_slope = 4.0;
+  RenderKernel kernel = RenderKernel::kAuto;  // a named one must be supported by the CPU
 
   // Why the options are unusable, or "" (names the field, its value and the rule).
   std::string Problem() const;
