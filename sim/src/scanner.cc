@@ -2,7 +2,14 @@
 
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <cstdio>
+#include <exception>
+#include <functional>
+#include <mutex>
+#include <optional>
+#include <thread>
+#include <utility>
 
 #include <opencv2/imgproc.hpp>
 
@@ -115,6 +122,64 @@ DepthRange MeasurableDepthRange(const Rig& rig, double usable_fraction) {
   return range;
 }
 
+// The imaging of one frame at a time on its own thread (Scanner::Next): frame k is imaged from
+// its own geometry buffer while frame k + 1 is rendered into the other.
+class ImagingThread {
+ public:
+  ImagingThread() : thread_([this] { Run(); }) {}
+  ~ImagingThread() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stop_ = true;
+    }
+    changed_.notify_all();
+    thread_.join();
+  }
+  // Starts job(); the previous one must have been waited for.
+  void Start(std::function<void()> job) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      job_ = std::move(job);
+      busy_ = true;
+    }
+    changed_.notify_all();
+  }
+  // Waits for the started job (if any); rethrows what it threw.
+  void Wait() {
+    std::unique_lock<std::mutex> lock(mutex_);
+    changed_.wait(lock, [this] { return !busy_; });
+    if (failure_) std::rethrow_exception(std::exchange(failure_, nullptr));
+  }
+
+ private:
+  void Run() {
+    std::unique_lock<std::mutex> lock(mutex_);
+    for (;;) {
+      changed_.wait(lock, [this] { return stop_ || busy_; });
+      if (stop_) return;
+      std::function<void()> job = std::move(job_);
+      lock.unlock();
+      std::exception_ptr failure;
+      try {
+        job();
+      } catch (...) {
+        failure = std::current_exception();
+      }
+      lock.lock();
+      failure_ = failure;
+      busy_ = false;
+      changed_.notify_all();
+    }
+  }
+
+  std::mutex mutex_;
+  std::condition_variable changed_;
+  std::function<void()> job_;
+  bool busy_ = false, stop_ = false;
+  std::exception_ptr failure_;
+  std::thread thread_;  // last: starts after the rest is constructed
+};
+
 struct Scanner::Impl {
   ScanOptions options;
   std::unique_ptr<World> world;
@@ -125,8 +190,19 @@ struct Scanner::Impl {
   std::vector<Pose> T_W_G;
   embree::GeometryRenderer renderer;
   embree::RenderOptions render_options;
-  GeometryBuffer geometry;
+  GeometryBuffer geometry[2];  // frame k renders into geometry[k % 2]
   std::unique_ptr<FrameImager> imager;
+  // With an imager and options.imaging_thread: the frame being imaged, delivered by the next
+  // Next() (frames come out one call late, the last one after rendering has ended), and the
+  // thread imaging it (declared last: it is joined before what its job uses goes away).
+  std::optional<Frame> in_imaging;
+  double in_imaging_s = 0.0;  // the job's imaging time, added to stats once waited for
+  std::unique_ptr<ImagingThread> imaging;
+
+  void WaitForImaging() {
+    imaging->Wait();
+    stats.imaging_s += in_imaging_s;
+  }
   ScanStats stats;
   int next = 0;
   int count = 0;
@@ -189,7 +265,6 @@ const ScanStats& Scanner::stats() const { return impl_->stats; }
 const ApproachPlan& Scanner::plan() const { return impl_->plan; }
 World& Scanner::world() { return *impl_->world; }
 const World& Scanner::world() const { return *impl_->world; }
-const GeometryBuffer& Scanner::geometry() const { return impl_->geometry; }
 
 std::string Scanner::Describe() const {
   const Impl& s = *impl_;
@@ -203,8 +278,16 @@ std::string Scanner::Describe() const {
 FrameStatus Scanner::Next(Frame* frame, std::string* error) {
   ROMUNECT_CHECK(frame != nullptr && error != nullptr);
   Impl& s = *impl_;
-  if (s.next >= s.count) return FrameStatus::kEndOfStream;
-  const double t = s.next / s.options.rig.frame_rate_hz;
+  const bool pipelined = s.imager != nullptr && s.options.imaging_thread;
+  if (s.next >= s.count) {
+    if (!pipelined || !s.in_imaging) return FrameStatus::kEndOfStream;
+    s.WaitForImaging();
+    *frame = std::move(*s.in_imaging);
+    s.in_imaging.reset();
+    return FrameStatus::kOk;
+  }
+  const int k = s.next;
+  const double t = k / s.options.rig.frame_rate_hz;
 
   auto start = Clock::now();
   s.executor->AdvanceTo(t);
@@ -214,28 +297,51 @@ FrameStatus Scanner::Next(Frame* frame, std::string* error) {
   World& world = *s.world;
   UpdatePoses(world, s.handles, &s.T_W_G, &s.scene);
   const Pose T_W_C = world.T_W_C();
+  GeometryBuffer& geometry = s.geometry[k % 2];
   // The rig is the optics' truth (a saved scene may carry another projector site).
-  s.renderer.Render(s.scene, s.options.rig.camera, T_W_C, s.options.rig.T_C_P, s.render_options, &s.geometry);
-  *frame = Frame{};
-  frame->index = s.next;
-  frame->time_s = t;
-  frame->T_W_C = T_W_C;
-  frame->T_B_H = world.T_B_H();
-  frame->gt_depth_m = embree::GroundTruthDepth(s.geometry);
+  s.renderer.Render(s.scene, s.options.rig.camera, T_W_C, s.options.rig.T_C_P, s.render_options, &geometry);
+  Frame rendered;
+  rendered.index = k;
+  rendered.time_s = t;
+  rendered.T_W_C = T_W_C;
+  rendered.T_B_H = world.T_B_H();
+  rendered.gt_depth_m = embree::GroundTruthDepth(geometry);
   s.stats.render_s += Seconds(start);
-
-  start = Clock::now();
-  if (s.imager) {
-    s.imager->Image(s.options.rig, s.geometry, s.options.seed * 1000003ULL + s.next, frame);
-  } else {
-    frame->depth_m = frame->gt_depth_m.clone();  // an ideal sensor
-  }
-  s.stats.imaging_s += Seconds(start);
-
   s.stats.tracking = s.executor->tracking();
   s.stats.simulated_s = t;
   ++s.stats.frames;
   ++s.next;
+
+  const uint64_t seed = s.options.seed * 1000003ULL + k;
+  // Images *f, the time into *seconds (the imaging thread must not touch stats).
+  auto image = [&s, &geometry, seed](Frame* f, double* seconds) {
+    const auto imaging_start = Clock::now();
+    s.imager->Image(s.options.rig, geometry, seed, f);
+    *seconds = Seconds(imaging_start);
+  };
+  if (!s.imager) {
+    rendered.depth_m = rendered.gt_depth_m.clone();  // an ideal sensor
+    *frame = std::move(rendered);
+    return FrameStatus::kOk;
+  }
+  if (!pipelined) {
+    double seconds = 0.0;
+    image(&rendered, &seconds);
+    s.stats.imaging_s += seconds;
+    *frame = std::move(rendered);
+    return FrameStatus::kOk;
+  }
+  // Frame k - 1 (imaged meanwhile from the other buffer) goes out; frame k starts imaging.
+  if (!s.imaging) s.imaging = std::make_unique<ImagingThread>();
+  std::optional<Frame> ready;
+  if (s.in_imaging) {
+    s.WaitForImaging();
+    ready = std::move(s.in_imaging);
+  }
+  s.in_imaging = std::move(rendered);
+  s.imaging->Start([image, imaged = &*s.in_imaging, seconds = &s.in_imaging_s] { image(imaged, seconds); });
+  if (!ready) return Next(frame, error);  // the first frame: render the second meanwhile
+  *frame = std::move(*ready);
   return FrameStatus::kOk;
 }
 

@@ -58,6 +58,9 @@ struct ScanOptions {
   IkOptions ik;
   int samples_per_pixel = 1;          // renderer: 1 (pinhole) or 4 (thin lens, defocus)
   int threads = 2;                    // renderer threads
+  // With an imager: image frame k on a thread of its own while frame k + 1 renders (the same
+  // frames, each delivered once the next is rendered). The imager's own threads add to it.
+  bool imaging_thread = true;
   uint64_t seed = 1;                  // per-frame imaging seeds derive from it
 
   std::string Problem() const;  // "" when valid; otherwise "field = value: rule"
@@ -97,8 +100,6 @@ class Scanner : public FrameSource {
   const ApproachPlan& plan() const;
   World& world();
   const World& world() const;
-  // The last rendered geometry (for tests and pictures).
-  const GeometryBuffer& geometry() const;
 
  private:
   struct Impl;
