@@ -3,11 +3,15 @@
 #include <algorithm>
 #include <atomic>
 #include <bit>
+#include <cerrno>
 #include <cstdint>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <memory>
 #include <string>
 
+#include <fcntl.h>
 #include <unistd.h>
 
 #include <ImfChannelList.h>
@@ -164,14 +168,74 @@ void WriteAtomically(const fs::path& path, const std::function<void(const fs::pa
   }
 }
 
+namespace {
+// Writes text to file (no temporary); errors name `path`.
+void WritePlain(const fs::path& file, const std::string& text, const fs::path& path) {
+  std::ofstream out(file, std::ios::binary);
+  out << text;
+  out.close();
+  if (!out) throw InputError(path.string(), "", "cannot write file");
+}
+}  // namespace
+
 void WriteTextAtomically(const fs::path& path, const std::string& text) {
+  WriteAtomically(path, [&](const fs::path& tmp) { WritePlain(tmp, text, path); });
+}
+
+namespace {
+
+// Writes all of data to fd; false on an error (errno set).
+bool WriteAll(int fd, const char* data, size_t size) {
+  while (size > 0) {
+    const ssize_t n = ::write(fd, data, size);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) return false;
+    data += n;
+    size -= static_cast<size_t>(n);
+  }
+  return true;
+}
+
+// The bytes of a fast image file, atomically, with direct I/O where the filesystem takes it: a
+// scan writes ~3.6 MB of frame files per 30 Hz frame, and copying them into fresh page-cache pages
+// cost ~8 ms of kernel CPU per frame on the 2-core machine (perf: copy_folio_from_iter_atomic);
+// O_DIRECT sends them from an aligned buffer (0.1 ms per 1.2 MB file). Elsewhere a plain write.
+void WriteFrameFileAtomically(const fs::path& path, const std::string& bytes) {
+  constexpr size_t kAlign = 4096;  // buffer, length and offset alignment of O_DIRECT
   WriteAtomically(path, [&](const fs::path& tmp) {
-    std::ofstream out(tmp, std::ios::binary);
-    out << text;
-    out.close();
-    if (!out) throw InputError(path.string(), "", "cannot write file");
+    const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC | O_DIRECT, 0644);
+    if (fd < 0) {
+      if (errno != EINVAL) throw InputError(path.string(), "", std::string("cannot write file: ") + std::strerror(errno));
+      WritePlain(tmp, bytes, path);  // no direct I/O on this filesystem (tmpfs, say)
+      return;
+    }
+    struct Free {
+      void operator()(void* p) const { std::free(p); }
+    };
+    thread_local std::unique_ptr<char, Free> buffer;
+    thread_local size_t capacity = 0;
+    const size_t padded = (bytes.size() + kAlign - 1) / kAlign * kAlign;
+    if (capacity < padded) {
+      buffer.reset(static_cast<char*>(std::aligned_alloc(kAlign, padded)));
+      if (buffer == nullptr) throw std::bad_alloc();
+      capacity = padded;
+    }
+    std::memcpy(buffer.get(), bytes.data(), bytes.size());
+    std::memset(buffer.get() + bytes.size(), 0, padded - bytes.size());
+    bool ok = WriteAll(fd, buffer.get(), padded);
+    if (!ok && errno == EINVAL) {  // direct I/O refused after all: plain writes from the start
+      ok = ::ftruncate(fd, 0) == 0 && ::lseek(fd, 0, SEEK_SET) == 0 && ::fcntl(fd, F_SETFL, 0) == 0 &&
+           WriteAll(fd, bytes.data(), bytes.size());
+    }
+    ok = ok && ::ftruncate(fd, static_cast<off_t>(bytes.size())) == 0;  // drop the padding
+    const int error = errno;
+    if (::close(fd) != 0 || !ok) {
+      throw InputError(path.string(), "", std::string("cannot write file: ") + std::strerror(ok ? errno : error));
+    }
   });
 }
+
+}  // namespace
 
 cv::Mat ReadDepthExr(const fs::path& path) {
   if (!fs::exists(path)) throw InputError(path.string(), "", "file not found");
@@ -215,7 +279,7 @@ void WriteDepthExr(const fs::path& path, const cv::Mat& depth, ImageCompression 
   if (compression == ImageCompression::kFast) {
     thread_local std::string exr;
     EncodeExrUncompressed(depth, &exr);
-    WriteTextAtomically(path, exr);
+    WriteFrameFileAtomically(path, exr);
     return;
   }
   const cv::Mat continuous = depth.isContinuous() ? depth : depth.clone();
@@ -275,7 +339,7 @@ void WritePng16(const fs::path& path, const cv::Mat& image, ImageCompression com
   if (compression == ImageCompression::kFast) {
     thread_local std::string raw, png;
     EncodePng16Stored(image, &raw, &png);
-    WriteTextAtomically(path, png);
+    WriteFrameFileAtomically(path, png);
     return;
   }
   WritePng(path, image);
