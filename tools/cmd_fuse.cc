@@ -179,6 +179,7 @@ void RunFuse(const FuseArguments& args) {
                          std::to_string(grid.nx()) + " x " + std::to_string(grid.ny()) + " (same box and voxel)");
   }
   fusion::FrameInserter inserter(&grid, inserter_options);
+  fusion::CompletenessTracker tracker(grid);  // the per-frame curve, without extracting every frame
 
   fusion::FusionReport report;
   report.input = args.source;
@@ -227,7 +228,7 @@ void RunFuse(const FuseArguments& args) {
     const double t0 = NowMs();
     inserter.Insert(camera, frame.depth_m, *frame.T_W_C, &report.stats);
     report.insert_ms.push_back(NowMs() - t0);
-    const double completeness = fusion::Completeness(fusion::ExtractHeightMap(grid));
+    const double completeness = tracker.Update(inserter.changed_columns());
     report.completeness_per_frame.push_back(completeness);
     ++report.frames;
     if (frame_count > 0) {

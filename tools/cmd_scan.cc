@@ -179,10 +179,12 @@ void RunScan(const ScanArguments& args) {
   // the next frames on its own thread while this one fuses, and the frame directory is written
   // on a third. Frames keep their order and content, so a seed gives the same bytes.
   sim::PrefetchingSource source(&scanner);
-  sim::FrameWorker frame_writer([&writer](const Frame& f) { writer.Add(f); });
+  // The writer may lag up to 16 frames (~60 MB of images) at a lower priority: it runs on what
+  // rendering, imaging and fusion leave (steadier loop times on 2 cores).
+  sim::FrameWorker frame_writer([&writer](const Frame& f) { writer.Add(f); }, 16, 10);
   Frame frame;
   std::string error;
-  cv::Mat fused_so_far;
+  fusion::CompletenessTracker completeness(grid);  // the curve, without extracting every frame
   for (;;) {
     const FrameStatus status = source.Next(&frame, &error);
     if (status == FrameStatus::kEndOfStream) break;
@@ -199,10 +201,8 @@ void RunScan(const ScanArguments& args) {
     report.fusion.insert_ms.push_back(1e3 * Seconds(t));
     ++report.fusion.frames;
     t = std::chrono::steady_clock::now();
-    // The completeness curve: only the columns the frame could change are extracted again.
-    fusion::ExtractHeightMap(grid, inserter.changed_columns(), &fused_so_far);
+    report.fusion.completeness_per_frame.push_back(completeness.Update(inserter.changed_columns()));
     report.extract_each_ms.push_back(1e3 * Seconds(t));
-    report.fusion.completeness_per_frame.push_back(fusion::Completeness(fused_so_far));
     report.valid_fraction_per_frame.push_back(static_cast<double>(cv::countNonZero(frame.depth_m)) /
                                               frame.depth_m.total());
     report.sample_depths.Offer(frame, report.valid_fraction_per_frame.back());

@@ -61,9 +61,40 @@ void MaxVoteSse2(const Vote* votes, int lo, int hi, int* best, int* best_k) {
   *best_k = top;
 }
 
+// Whether votes[lo..hi] hold a positive vote, from the top down: a filled column's winner lies
+// near its highest hit, so the search stops early.
+bool AnyPositive(const Vote* votes, int lo, int hi) {
+  for (int k = hi; k >= lo; --k) {
+    if (votes[k] > 0) return true;
+  }
+  return false;
+}
+
+bool HasAvx2() {
+#if defined(__x86_64__)
+  return __builtin_cpu_supports("avx2");
+#else
+  return false;
+#endif
+}
+
 #if defined(__x86_64__)
 #pragma GCC push_options
 #pragma GCC target("avx2")
+// AnyPositive, 16 lanes at a time from the top (loads start at lo or later, as MaxVoteAvx2's).
+bool AnyPositiveAvx2(const Vote* votes, int lo, int hi) {
+  const __m256i lane = _mm256_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  for (int top = hi; top >= lo; top -= 16) {
+    const int start = std::max(lo, top - 15);
+    const __m256i v = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(votes + start));
+    const __m256i in_range = _mm256_cmpgt_epi16(_mm256_set1_epi16(static_cast<int16_t>(top - start + 1)), lane);
+    if (!_mm256_testz_si256(_mm256_and_si256(_mm256_cmpgt_epi16(v, _mm256_setzero_si256()), in_range), in_range)) {
+      return true;
+    }
+  }
+  return false;
+}
+
 // MaxVoteSse2 with 16 lanes and masked ends: loads start at lo or later and may read up to 15
 // votes past hi (the grid's mapping has room after its last column), never before lo.
 void MaxVoteAvx2(const Vote* votes, int lo, int hi, int* best, int* best_k) {
@@ -97,10 +128,12 @@ void MaxVoteAvx2(const Vote* votes, int lo, int hi, int* best, int* best_k) {
 
 constexpr size_t kHugePage = size_t{2} << 20;
 
-// Zeroed memory for the votes, paged in on first touch: an anonymous mapping aligned to 2 MB and
-// marked for transparent huge pages. A frame's rays touch a frustum of the grid in scattered
-// columns; with 4 KB pages its ~14 MB miss the TLB (measured: insertion ~12 % faster with huge
-// pages on the benchmark). Returns the mapping's start (for munmap) and the aligned votes.
+// Zeroed memory for the votes: an anonymous mapping aligned to 2 MB, marked for transparent huge
+// pages and paged in at once. A frame's rays touch a frustum of the grid in scattered columns;
+// with 4 KB pages its ~14 MB miss the TLB (measured: insertion ~12 % faster with huge pages on
+// the benchmark). Paging in up front keeps the zeroing of fresh pages out of the 30 Hz loop (it
+// took ~0.3 s of a scan's first frames with depth). Returns the mapping's start (for munmap) and
+// the aligned votes.
 Vote* MapVotes(size_t bytes, void** mapping, size_t* mapped) {
   *mapped = bytes + kHugePage;
   void* p = mmap(nullptr, *mapped, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
@@ -108,6 +141,7 @@ Vote* MapVotes(size_t bytes, void** mapping, size_t* mapped) {
   *mapping = p;
   char* aligned = reinterpret_cast<char*>((reinterpret_cast<uintptr_t>(p) + kHugePage - 1) & ~(kHugePage - 1));
   madvise(aligned, bytes, MADV_HUGEPAGE);  // advice only: without it the grid works with small pages
+  madvise(aligned, bytes, MADV_POPULATE_WRITE);  // advice only (Linux >= 5.14): else paged on first touch
   return reinterpret_cast<Vote*>(aligned);
 }
 
@@ -215,31 +249,24 @@ void VotingGrid::Clear() {
   std::fill(hit_hi_, hit_hi_ + columns, uint16_t{0});
 }
 
-void ExtractHeightMap(const VotingGrid& grid, const cv::Rect& columns, cv::Mat* height, ExtractKernel kernel) {
-  constexpr size_t kPrefetchColumns = 16;
-  ROMUNECT_CHECK(height != nullptr);
-  const cv::Rect all(0, 0, grid.nx(), grid.ny());
-  ROMUNECT_CHECK((columns & all) == columns);
-  cv::Rect region = columns;
-  if (height->rows != grid.ny() || height->cols != grid.nx() || height->type() != CV_32F) {
-    height->create(grid.ny(), grid.nx(), CV_32F);
-    region = all;
-  }
+cv::Mat ExtractHeightMap(const VotingGrid& grid, ExtractKernel kernel) {
+  constexpr int kPrefetchColumns = 16;
   void (*max_vote)(const Vote*, int, int, int*, int*) = &MaxVoteSse2;
 #if defined(__x86_64__)
   if (kernel == ExtractKernel::kAuto && __builtin_cpu_supports("avx2")) max_vote = &MaxVoteAvx2;
 #endif
+  cv::Mat height(grid.ny(), grid.nx(), CV_32F);
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const double z0 = grid.options().min_W.z(), voxel = grid.voxel_m();
-  for (int iy = region.y; iy < region.y + region.height; ++iy) {
-    float* row = height->ptr<float>(iy);
-    for (int ix = region.x; ix < region.x + region.width; ++ix) {
+  for (int iy = 0; iy < grid.ny(); ++iy) {
+    float* row = height.ptr<float>(iy);
+    for (int ix = 0; ix < grid.nx(); ++ix) {
       const size_t c = grid.ColumnIndex(ix, iy);
       // Columns are read where they were hit, 512 B apart: fetch a few ahead (the latency of
       // the grid's memory, not the maximum, bounds extraction).
-      if (ix + kPrefetchColumns < static_cast<size_t>(region.x + region.width)) {
+      if (ix + kPrefetchColumns < grid.nx()) {
         const size_t ahead = c + kPrefetchColumns;
-        if (grid.hit_lo(ahead) <= grid.hit_hi(ahead)) __builtin_prefetch(grid.column(0, 0) + ahead * grid.nz() + grid.hit_lo(ahead));
+        if (grid.hit_lo(ahead) <= grid.hit_hi(ahead)) __builtin_prefetch(grid.column(ix + kPrefetchColumns, iy) + grid.hit_lo(ahead));
       }
       const int lo = grid.hit_lo(c), hi = grid.hit_hi(c);
       row[ix] = nan;
@@ -251,12 +278,26 @@ void ExtractHeightMap(const VotingGrid& grid, const cv::Rect& columns, cv::Mat* 
       row[ix] = static_cast<float>(z0 + (best_k + 0.5) * voxel);
     }
   }
+  return height;
 }
 
-cv::Mat ExtractHeightMap(const VotingGrid& grid, ExtractKernel kernel) {
-  cv::Mat height;
-  ExtractHeightMap(grid, cv::Rect(0, 0, grid.nx(), grid.ny()), &height, kernel);
-  return height;
+CompletenessTracker::CompletenessTracker(const VotingGrid& grid)
+    : grid_(grid), filled_(static_cast<size_t>(grid.nx()) * grid.ny(), 0) {}
+
+double CompletenessTracker::Update(const cv::Rect& changed_columns) {
+  ROMUNECT_CHECK((changed_columns & cv::Rect(0, 0, grid_.nx(), grid_.ny())) == changed_columns);
+  const bool avx2 = HasAvx2();
+  for (int iy = changed_columns.y; iy < changed_columns.y + changed_columns.height; ++iy) {
+    for (int ix = changed_columns.x; ix < changed_columns.x + changed_columns.width; ++ix) {
+      const size_t c = grid_.ColumnIndex(ix, iy);
+      const int lo = grid_.hit_lo(c), hi = grid_.hit_hi(c);
+      const bool now = lo <= hi && (avx2 ? AnyPositiveAvx2(grid_.column(ix, iy), lo, hi)
+                                         : AnyPositive(grid_.column(ix, iy), lo, hi));
+      filled_count_ += static_cast<size_t>(now) - filled_[c];
+      filled_[c] = now;
+    }
+  }
+  return static_cast<double>(filled_count_) / static_cast<double>(filled_.size());
 }
 
 }  // namespace romunect::fusion

@@ -1,5 +1,10 @@
 #include "romunect/sim/frame_pipeline.h"
 
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#include <algorithm>
 #include <chrono>
 #include <utility>
 
@@ -81,9 +86,9 @@ FrameStatus PrefetchingSource::Next(Frame* frame, std::string* error) {
   return item.status;
 }
 
-FrameWorker::FrameWorker(std::function<void(const Frame&)> job, int depth)
-    : job_(std::move(job)), depth_(static_cast<size_t>(depth)), thread_([this] { Run(); }) {
-  ROMUNECT_CHECK(depth >= 1);
+FrameWorker::FrameWorker(std::function<void(const Frame&)> job, int depth, int nice)
+    : job_(std::move(job)), depth_(static_cast<size_t>(depth)), nice_(nice), thread_([this] { Run(); }) {
+  ROMUNECT_CHECK(depth >= 1 && nice >= 0 && nice <= 19);
 }
 
 FrameWorker::~FrameWorker() {
@@ -96,6 +101,11 @@ FrameWorker::~FrameWorker() {
 }
 
 void FrameWorker::Run() {
+  // Lower the thread's priority (always allowed): it runs on what the other stages leave.
+  if (nice_ != 0) {
+    const id_t self = static_cast<id_t>(syscall(SYS_gettid));
+    setpriority(PRIO_PROCESS, self, std::min(19, getpriority(PRIO_PROCESS, self) + nice_));
+  }
   for (;;) {
     Frame frame;
     bool skip = false;

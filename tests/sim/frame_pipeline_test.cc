@@ -1,5 +1,10 @@
 #include "romunect/sim/frame_pipeline.h"
 
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <stdexcept>
@@ -176,6 +181,19 @@ TEST(FramePipelineTest, WorkerRunsTheJobInOrderAndRethrowsItsFailure) {
   EXPECT_TRUE(thrown);
   failing.Finish();        // drained; the failure was reported once
   EXPECT_EQ(runs.load(), 4);  // frames after the failure are dropped
+}
+
+// A worker started with a nice value runs its job at that lower priority (the caller's own
+// priority is untouched).
+TEST(FramePipelineTest, WorkerRunsItsJobAtTheLowerPriorityAskedFor) {
+  const int caller = getpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)));
+  std::atomic<int> job_nice{-100};
+  FrameWorker worker([&](const Frame&) { job_nice = getpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid))); },
+                     1, 10);
+  worker.Push(Frame{});
+  worker.Finish();
+  EXPECT_EQ(job_nice.load(), std::min(19, caller + 10));
+  EXPECT_EQ(getpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid))), caller);
 }
 
 }  // namespace

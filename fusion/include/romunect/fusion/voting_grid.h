@@ -31,6 +31,7 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
@@ -114,10 +115,21 @@ enum class ExtractKernel { kAuto, kSse2 };
 // NaN where no voxel of the column has a positive vote. Winner: highest vote, ties the higher z.
 // Callable at any time between insertions.
 cv::Mat ExtractHeightMap(const VotingGrid& grid, ExtractKernel kernel = ExtractKernel::kAuto);
-// The same, refreshing only the cells of `columns` (x = ix, y = iy, inside the grid) of an
-// earlier map *height: after an insertion, FrameInserter::changed_columns() are the only cells
-// that can differ. A *height of another size (e.g. empty) is extracted whole.
-void ExtractHeightMap(const VotingGrid& grid, const cv::Rect& columns, cv::Mat* height,
-                      ExtractKernel kernel = ExtractKernel::kAuto);
+
+// The completeness of the height map (the share of its cells with a value) frame after frame,
+// without extracting it: after each insertion, Update(FrameInserter::changed_columns()) looks
+// again only at the columns that frame could change, and only at whether each holds a positive
+// vote (searched from its highest hit down). The grid must outlive the tracker and start empty.
+class CompletenessTracker {
+ public:
+  explicit CompletenessTracker(const VotingGrid& grid);
+  // `changed_columns` (x = ix, y = iy) within the grid; returns the completeness now.
+  double Update(const cv::Rect& changed_columns);
+
+ private:
+  const VotingGrid& grid_;
+  std::vector<uint8_t> filled_;  // per column: has a positive vote
+  size_t filled_count_ = 0;
+};
 
 }  // namespace romunect::fusion

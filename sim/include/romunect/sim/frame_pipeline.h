@@ -63,10 +63,11 @@ class PrefetchingSource : public FrameSource {
 
 // Runs `job` on each pushed frame on a background thread, in push order, with at most
 // `depth` frames waiting. An exception from the job is rethrown by the next Push() or by
-// Finish() (later frames are dropped).
+// Finish() (later frames are dropped). `nice` (0..19) lowers the thread's priority by that much
+// (to 19 at most), for a job that may lag behind the others by up to `depth` frames.
 class FrameWorker {
  public:
-  FrameWorker(std::function<void(const Frame&)> job, int depth = 4);
+  FrameWorker(std::function<void(const Frame&)> job, int depth = 4, int nice = 0);
   ~FrameWorker();  // finishes the queued frames (exceptions are dropped here: call Finish())
   FrameWorker(const FrameWorker&) = delete;
   FrameWorker& operator=(const FrameWorker&) = delete;
@@ -81,6 +82,7 @@ class FrameWorker {
 
   std::function<void(const Frame&)> job_;
   const size_t depth_;
+  const int nice_;
   std::mutex mutex_;
   std::condition_variable changed_;
   std::deque<Frame> queue_;
