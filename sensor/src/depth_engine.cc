@@ -411,10 +411,23 @@ cv::Mat ApplyRows(const DepthCorrection& correction, const cv::Mat& raw, ChipDep
   ROMUNECT_CHECK(raw.type() == CV_16UC1);
   ROMUNECT_CHECK(correction.a.type() == CV_64FC1 && correction.b.type() == CV_64FC1);
   ROMUNECT_CHECK(correction.a.size() == raw.size() && correction.b.size() == raw.size());
-  cv::Mat depth(raw.size(), CV_32F, cv::Scalar(0));
+  cv::Mat depth(raw.size(), CV_32F);
   for (int y = 0; y < depth.rows; ++y) {
     const uint16_t* in = raw.ptr<uint16_t>(y);
     float* out = depth.ptr<float>(y);
+    if (correction.model == DepthCorrectionModel::kInverseAffineInRaw) {
+      // ApplyDepthCorrectionPixel's exact model without a branch per pixel (the same double
+      // operations, so the same floats): the compiler turns the row into vector code.
+      const double* a = correction.a.ptr<double>(y);
+      const double* b = correction.b.ptr<double>(y);
+      for (int x = 0; x < depth.cols; ++x) {
+        const double inv = a[x] * in[x] + b[x];
+        const bool ok = in[x] != kRawInvalid && std::isfinite(a[x]) && std::isfinite(b[x]) && inv > 0.0;
+        const double z = ok ? 1.0 / inv : 0.0;
+        out[x] = static_cast<float>(z > 0.0 ? z : 0.0);
+      }
+      continue;
+    }
     for (int x = 0; x < depth.cols; ++x) {
       out[x] = static_cast<float>(ApplyDepthCorrectionPixel(correction, y, x, in[x], chip_depth(in[x], x, y)));
     }

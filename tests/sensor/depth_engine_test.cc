@@ -1,6 +1,8 @@
 #include "romunect/sensor/depth_engine.h"
 
 #include <cmath>
+#include <cstring>
+#include <limits>
 #include <random>
 #include <string>
 
@@ -259,6 +261,40 @@ TEST(DepthCorrectionTest, BothModelsRecoverAKnownMapping) {
   // The affine-in-depth model is not exact for this mapping but close over a short range.
   const DepthCorrection affine = FitDepthCorrection(DepthCorrectionModel::kAffineInChipDepth, outputs, truth);
   EXPECT_NEAR(ApplyDepthCorrection(affine, outputs[1]).at<float>(2, 3), truth[1].at<float>(2, 3), 0.02);
+}
+
+// The whole-map correction equals the per-pixel function for both models, bit for bit: random
+// maps with NaN and infinite entries, maps that make 1/Z negative or zero, invalid raw values.
+TEST(DepthCorrectionTest, WholeMapEqualsThePerPixelFunction) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> a(-3e-3, -1e-3), b(2.0, 8.0);
+  for (const DepthCorrectionModel model : {DepthCorrectionModel::kInverseAffineInRaw, DepthCorrectionModel::kAffineInChipDepth}) {
+    DepthCorrection c;
+    c.model = model;
+    c.a = cv::Mat(37, 53, CV_64F);
+    c.b = cv::Mat(37, 53, CV_64F);
+    DepthEngineOutput out;
+    out.raw = cv::Mat(37, 53, CV_16U);
+    out.depth_m = cv::Mat(37, 53, CV_32F);
+    for (int y = 0; y < 37; ++y) {
+      for (int x = 0; x < 53; ++x) {
+        c.a.at<double>(y, x) = model == DepthCorrectionModel::kAffineInChipDepth ? 1.0 + 0.1 * (a(rng) * 1e3 + 2) : a(rng);
+        c.b.at<double>(y, x) = model == DepthCorrectionModel::kAffineInChipDepth ? 0.01 * (b(rng) - 5) : b(rng);
+        out.raw.at<uint16_t>(y, x) = static_cast<uint16_t>(rng() % 4 == 0 ? kRawInvalid : rng() % 3000);
+        out.depth_m.at<float>(y, x) = static_cast<float>(rng() % 5 == 0 ? 0.0 : 0.15 + 1e-4 * (rng() % 1000));
+      }
+    }
+    c.a.at<double>(1, 2) = std::numeric_limits<double>::quiet_NaN();
+    c.b.at<double>(3, 4) = std::numeric_limits<double>::infinity();
+    const cv::Mat depth = ApplyDepthCorrection(c, out);
+    for (int y = 0; y < 37; ++y) {
+      for (int x = 0; x < 53; ++x) {
+        const float expected = static_cast<float>(
+            ApplyDepthCorrectionPixel(c, y, x, out.raw.at<uint16_t>(y, x), out.depth_m.at<float>(y, x)));
+        ASSERT_EQ(std::memcmp(&depth.at<float>(y, x), &expected, sizeof(float)), 0) << y << ", " << x;
+      }
+    }
+  }
 }
 
 }  // namespace
