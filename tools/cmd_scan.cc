@@ -64,6 +64,7 @@ fusion::GridOptions FusionBox(const sim::World& world, const sim::ApproachOption
   box.min_W = region.min_W;
   box.max_W = region.max_W;
   box.voxel_m = voxel_m;
+  box.prefault = true;  // before the 30 Hz loop, not in it
   return box;
 }
 
