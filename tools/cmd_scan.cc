@@ -203,7 +203,7 @@ void RunScan(const ScanArguments& args) {
     ++report.fusion.frames;
     t = std::chrono::steady_clock::now();
     report.fusion.completeness_per_frame.push_back(completeness.Update(inserter.changed_columns()));
-    report.extract_each_ms.push_back(1e3 * Seconds(t));
+    report.completeness_each_ms.push_back(1e3 * Seconds(t));
     report.valid_fraction_per_frame.push_back(static_cast<double>(cv::countNonZero(frame.depth_m)) /
                                               frame.depth_m.total());
     report.sample_depths.Offer(frame, report.valid_fraction_per_frame.back());

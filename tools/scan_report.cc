@@ -204,13 +204,13 @@ std::string ScanReportJson(const ScanReport& r) {
   const sim::ScanStats& s = r.scan_stats;
   double fusion_s = 0.0;
   for (double ms : r.fusion.insert_ms) fusion_s += ms / 1e3;
-  for (double ms : r.extract_each_ms) fusion_s += ms / 1e3;
+  for (double ms : r.completeness_each_ms) fusion_s += ms / 1e3;
   j["timings_s"] = {{"settle_wall", s.settle.wall_s},
                     {"setup", s.setup_s},
                     {"physics", s.physics_s},
                     {"rendering", s.render_s},
                     {"imaging (IR synthesis + depth engine)", s.imaging_s},
-                    {"fusion (insert + extract per frame)", fusion_s},
+                    {"fusion (insert + completeness per frame)", fusion_s},
                     {"frame directory writing (own thread)", r.write_s},
                     {"fusion waiting for the simulator (pipelined)", r.wait_s},
                     {"picking", r.pick.wall_s},

@@ -49,7 +49,7 @@ struct ScanReport {
   // threads, the grid's geometry, insert and extract times, stats, completeness per frame,
   // the metrics against ground truth (always set by the scan) and memory.
   fusion::FusionReport fusion;
-  std::vector<double> extract_each_ms, valid_fraction_per_frame;
+  std::vector<double> completeness_each_ms, valid_fraction_per_frame;
   SampleDepths sample_depths;
   // write_s: the frame directory's writer thread; wait_s: fusion waiting for the simulator.
   double write_s = 0.0, wait_s = 0.0, loop_wall_s = 0.0, total_wall_s = 0.0;

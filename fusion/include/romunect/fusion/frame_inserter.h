@@ -76,7 +76,7 @@ class FrameInserter {
               InsertStats* stats);
 
   // The columns (x = ix, y = iy) whose votes the last Insert may have changed: the others kept
-  // theirs, so extraction can refresh just these (ExtractHeightMap's region). Empty before the
+  // theirs, so CompletenessTracker looks again at just these (voting_grid.h). Empty before the
   // first frame and after one whose rays all missed the box.
   const cv::Rect& changed_columns() const { return changed_columns_; }
 
