@@ -93,9 +93,9 @@ void SetRenderCounters(benchmark::State& state, const RenderStats& stats, int64_
   state.counters["refined_fraction"] = static_cast<double>(stats.refined_pixels) / (camera.width * camera.height);
 }
 
-void BM_Render(benchmark::State& state) {
+// Renders the fixture from the identity pose once (warm-up) and then once per iteration.
+void RunRender(benchmark::State& state, const RenderOptions& options) {
   Fixture& f = GetFixture();
-  const RenderOptions options = f.Options(static_cast<int>(state.range(0)), static_cast<int>(state.range(1)));
   GeometryRenderer renderer;
   GeometryBuffer buffer;
   RenderStats stats = renderer.Render(f.scene, f.rig.camera, Pose::Identity(), f.rig.T_C_P, options, &buffer);
@@ -104,6 +104,10 @@ void BM_Render(benchmark::State& state) {
     benchmark::DoNotOptimize(buffer.layers[0].p_C.data);
   }
   SetRenderCounters(state, stats, state.iterations());
+}
+
+void BM_Render(benchmark::State& state) {
+  RunRender(state, GetFixture().Options(static_cast<int>(state.range(0)), static_cast<int>(state.range(1))));
 }
 BENCHMARK(BM_Render)
     ->ArgNames({"threads", "samples"})
@@ -120,21 +124,13 @@ BENCHMARK(BM_Render)
 // One thread, one sample per pixel, with each kernel of the renderer's own per-ray work
 // (RenderKernel: 1 avx512, 2 avx2, 3 sse2); skipped where the CPU lacks it.
 void BM_RenderKernel(benchmark::State& state) {
-  Fixture& f = GetFixture();
-  RenderOptions options = f.Options(1, 1);
+  RenderOptions options = GetFixture().Options(1, 1);
   options.kernel = static_cast<RenderKernel>(state.range(0));
   if (!options.Problem().empty()) {
     state.SkipWithError(options.Problem().c_str());
     return;
   }
-  GeometryRenderer renderer;
-  GeometryBuffer buffer;
-  RenderStats stats = renderer.Render(f.scene, f.rig.camera, Pose::Identity(), f.rig.T_C_P, options, &buffer);
-  for (auto _ : state) {
-    stats = renderer.Render(f.scene, f.rig.camera, Pose::Identity(), f.rig.T_C_P, options, &buffer);
-    benchmark::DoNotOptimize(buffer.layers[0].p_C.data);
-  }
-  SetRenderCounters(state, stats, state.iterations());
+  RunRender(state, options);
   state.SetLabel(RenderKernelName(options.kernel));
 }
 BENCHMARK(BM_RenderKernel)
