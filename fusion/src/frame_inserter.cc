@@ -137,11 +137,11 @@ struct WalkContext {
   int nx, ny, nz;
   int ya, yb;         // this thread's rows [ya, yb)
   Vote* votes;
-  HitRecord* hits;    // this thread's hits (in its rows): room for one per pixel, plus a group
+  HitRecord* hits;    // this thread's hits (in its rows): room for one per pixel
   size_t hit_count;
   size_t misses;
   // Lane walks (AVX-512): each step's block per lane, room for block_capacity; one group of
-  // eight rays needs at most group_blocks (nx + ny + 1 steps).
+  // eight rays needs at most group_blocks (8 blocks per step, at most nx + ny + 1 steps).
   Vote** block_at;
   uint32_t* block_bits;
   size_t block_capacity, group_blocks;
@@ -167,7 +167,13 @@ struct SegmentBounds {
     y_lo = std::min({y_lo, ya, yb});
     y_hi = std::max({y_hi, ya, yb});
   }
-  void Add(const SegmentBounds& o) { Add(o.x_lo, o.x_hi, o.y_lo, o.y_hi); }
+  // The union with another range, which may be empty (lo > hi).
+  void Merge(const SegmentBounds& o) {
+    x_lo = std::min(x_lo, o.x_lo);
+    x_hi = std::max(x_hi, o.x_hi);
+    y_lo = std::min(y_lo, o.y_lo);
+    y_hi = std::max(y_hi, o.y_hi);
+  }
 };
 
 // The start voxel on one axis: clamp(floor(x)) into [0, n).
@@ -433,8 +439,7 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
   VotingGrid* mutable_grid = grid_;
   const WalkRaysFn walk_rays = KernelWalk(kernel_, n[2]);
   auto make_context = [&](int thread, int ya, int yb) {
-    // At most one hit per pixel; the AVX-512 walk stores a whole group's (8) at a time.
-    if (ws.hits[thread].size() < pixels + 8) ws.hits[thread].resize(pixels + 8);
+    if (ws.hits[thread].size() < pixels) ws.hits[thread].resize(pixels);  // at most one hit per pixel
     const size_t group_blocks = 8 * (static_cast<size_t>(n[0]) + n[1] + 2);
     const size_t capacity = group_blocks + (size_t{1} << 16);
     if (ws.block_at[thread].size() < capacity) {
@@ -616,7 +621,7 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
   // The columns the frame may have changed: its segments' (x, y) range, widened by a column for
   // the rounding of the walk's crossings.
   SegmentBounds all;
-  for (const SegmentBounds& b : ws.chunk_bounds) all.Add(b);
+  for (const SegmentBounds& b : ws.chunk_bounds) all.Merge(b);
   changed_columns_ = cv::Rect();
   if (all.x_lo <= all.x_hi) {
     const int x0 = StartIndex(all.x_lo - 1.0, n[0]), x1 = StartIndex(all.x_hi + 1.0, n[0]);

@@ -126,14 +126,14 @@ void MaxVoteAvx2(const Vote* votes, int lo, int hi, int* best, int* best_k) {
 #pragma GCC pop_options
 #endif
 
-// Zeroed memory for the votes, paged in on first touch (parts no ray reaches cost no memory) or,
-// with `prefault`, all at once. Huge pages were measured too: no faster at one thread (the
-// tile order keeps the TLB's working set small), 18 % faster at two, but +12 MB resident on the
-// benchmark (the whole grid at 2 MB granularity), so the grid stays on normal pages.
 // The mapping of `bytes` of votes: 64 bytes more, so that a 16-lane load at the last column's top
 // (MaxVoteAvx2, AnyPositiveAvx2: up to 15 votes past the hit range) stays inside it.
 size_t MappedBytes(size_t bytes) { return bytes + 64; }
 
+// Zeroed memory for the votes, paged in on first touch (parts no ray reaches cost no memory) or,
+// with `prefault`, all at once. Huge pages were measured too: no faster at one thread (the
+// tile order keeps the TLB's working set small), 18 % faster at two, but +12 MB resident on the
+// benchmark (the whole grid at 2 MB granularity), so the grid stays on normal pages.
 Vote* MapVotes(size_t bytes, bool prefault) {
   void* p = mmap(nullptr, MappedBytes(bytes), PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
   if (p == MAP_FAILED) return nullptr;

@@ -189,7 +189,11 @@ bool WriteAll(int fd, const char* data, size_t size) {
   while (size > 0) {
     const ssize_t n = ::write(fd, data, size);
     if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) return false;
+    if (n < 0) return false;
+    if (n == 0) {  // no progress and no error: report one rather than a stale errno
+      errno = EIO;
+      return false;
+    }
     data += n;
     size -= static_cast<size_t>(n);
   }

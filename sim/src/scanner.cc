@@ -200,7 +200,12 @@ struct Scanner::Impl {
   std::unique_ptr<ImagingThread> imaging;
 
   void WaitForImaging() {
-    imaging->Wait();
+    try {
+      imaging->Wait();
+    } catch (...) {
+      in_imaging.reset();  // never delivered half-imaged
+      throw;
+    }
     stats.imaging_s += in_imaging_s;
   }
   ScanStats stats;
@@ -257,7 +262,10 @@ Scanner::Scanner(const ScanOptions& options) : impl_(std::make_unique<Impl>()) {
 
 Scanner::~Scanner() = default;
 
-void Scanner::SetImager(std::unique_ptr<FrameImager> imager) { impl_->imager = std::move(imager); }
+void Scanner::SetImager(std::unique_ptr<FrameImager> imager) {
+  ROMUNECT_CHECK_MSG(!impl_->in_imaging, "Scanner::SetImager while a frame is being imaged");
+  impl_->imager = std::move(imager);
+}
 const CameraModel& Scanner::camera() const { return impl_->options.rig.camera; }
 int Scanner::frame_count() const { return impl_->count; }
 const ScanOptions& Scanner::options() const { return impl_->options; }

@@ -2,7 +2,7 @@
 // approach, then per 30 Hz frame advance the physics, update the instances, render at the
 // romunect rig's full resolution, and (range(1) = 1) image it: IR synthesis, depth engine and
 // ground-truth depth correction (SensorImager). range(2) = 1 also fuses every frame (insert
-// and the per-frame extraction for the completeness curve, as `romunect scan` does) with the
+// and the completeness curve's CompletenessTracker, as `romunect scan` does) with the
 // simulator on its own thread ahead of fusion (PrefetchingSource); 2: the same, serially;
 // range(3): fusion's threads.
 // Counters: per-frame milliseconds per stage, the wall time per frame and the real-time
@@ -51,9 +51,12 @@ void BM_DefaultScan(benchmark::State& state) {
     box.max_W = region.max_W;
     std::unique_ptr<fusion::VotingGrid> grid;
     std::unique_ptr<fusion::FrameInserter> inserter;
+    std::unique_ptr<fusion::CompletenessTracker> completeness;
     if (state.range(2) > 0) {
+      box.prefault = true;  // as romunect scan: no first touches in the loop
       grid = std::make_unique<fusion::VotingGrid>(box);
       inserter = std::make_unique<fusion::FrameInserter>(grid.get(), fusion::InserterOptions{static_cast<int>(state.range(3))});
+      completeness = std::make_unique<fusion::CompletenessTracker>(*grid);
     }
     std::unique_ptr<PrefetchingSource> prefetching;
     FrameSource* source = &scanner;
@@ -75,7 +78,7 @@ void BM_DefaultScan(benchmark::State& state) {
       const auto t = std::chrono::steady_clock::now();
       const double cpu1 = ProcessCpuS();
       inserter->Insert(scanner.camera(), frame.depth_m, *frame.T_W_C, nullptr);
-      benchmark::DoNotOptimize(fusion::ExtractHeightMap(*grid).data);
+      benchmark::DoNotOptimize(completeness->Update(inserter->changed_columns()));
       fusion_cpu_s += ProcessCpuS() - cpu1;
       fusion_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
     }

@@ -356,6 +356,21 @@ TEST(FrameInserterTest, ChangedColumnsBoundWhatAFrameChanges) {
       EXPECT_EQ(completeness.Update(changed), Completeness(ExtractHeightMap(grid))) << "frame " << i;
     }
     EXPECT_TRUE(some_frame_sees_part);
+    // Depth in one small patch only (most tiles and threads' chunks cast no ray): the bound
+    // stays around the patch's rays; a frame without depth changes nothing.
+    const Frame frame = bin.RenderFrame(bin.frames() - 1);
+    std::vector<cv::Point> measured;
+    cv::findNonZero(frame.depth_m > 0.0f, measured);
+    ASSERT_FALSE(measured.empty());
+    const cv::Rect around = cv::Rect(measured[measured.size() / 2] - cv::Point(3, 3), cv::Size(6, 6)) &
+                            cv::Rect(cv::Point(0, 0), frame.depth_m.size());
+    cv::Mat patch(frame.depth_m.size(), CV_32F, cv::Scalar(0.0f));
+    frame.depth_m(around).copyTo(patch(around));
+    inserter.Insert(bin.camera(), patch, *frame.T_W_C, nullptr);
+    EXPECT_FALSE(inserter.changed_columns().empty());
+    EXPECT_LT(inserter.changed_columns().area(), grid.nx() * grid.ny() / 4);
+    inserter.Insert(bin.camera(), cv::Mat(frame.depth_m.size(), CV_32F, cv::Scalar(0.0f)), *frame.T_W_C, nullptr);
+    EXPECT_TRUE(inserter.changed_columns().empty());
   }
 }
 

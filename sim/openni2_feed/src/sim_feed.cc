@@ -92,7 +92,7 @@ SimFeed::SimFeed(const SimFeedOptions& options) : options_(options) {
   scanner_ = std::make_unique<sim::Scanner>(scan);
   if (!options.ideal_depth) {
     sim::SensorImagerOptions imager;
-    imager.threads = options.threads;
+    imager.threads = std::max(1, options.threads - 1);  // on its own thread beside rendering, as in scan
     scanner_->SetImager(std::make_unique<sim::SensorImager>(scan.rig, imager));
   }
 }

@@ -69,9 +69,9 @@ using HeightMapGeometry = ::romunect::HeightMapGeometry;
 
 class VotingGrid {
  public:
-  // Validates the options and allocates (zeroed, lazily paged) memory. Throws InputError
-  // (source "fusion grid") naming the field on invalid options, and with the bytes needed when
-  // the grid does not fit.
+  // Validates the options and allocates zeroed memory (paged in now with `prefault`, else as
+  // rays reach it). Throws InputError (source "fusion grid") naming the field on invalid
+  // options, and with the bytes needed when the grid does not fit.
   explicit VotingGrid(const GridOptions& options);
   ~VotingGrid();
   VotingGrid(const VotingGrid&) = delete;

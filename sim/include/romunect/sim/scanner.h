@@ -87,7 +87,8 @@ class Scanner : public FrameSource {
   explicit Scanner(const ScanOptions& options);
   ~Scanner() override;
 
-  // Replaces the imaging stage (IR synthesis, depth engine, depth correction).
+  // Replaces the imaging stage (IR synthesis, depth engine, depth correction). Before the first
+  // Next(), or after the stream ended: with ScanOptions::imaging_thread a frame may be in it.
   void SetImager(std::unique_ptr<FrameImager> imager);
 
   const CameraModel& camera() const override;
