@@ -197,7 +197,6 @@ struct Scanner::Impl {
   // thread imaging it (declared last: it is joined before what its job uses goes away).
   std::optional<Frame> in_imaging;
   double in_imaging_s = 0.0;  // the job's imaging time, added to stats once waited for
-  std::unique_ptr<ImagingThread> imaging;
 
   void WaitForImaging() {
     try {
@@ -211,6 +210,7 @@ struct Scanner::Impl {
   ScanStats stats;
   int next = 0;
   int count = 0;
+  std::unique_ptr<ImagingThread> imaging;  // see in_imaging
 };
 
 Scanner::Scanner(const ScanOptions& options) : impl_(std::make_unique<Impl>()) {

@@ -2,9 +2,12 @@
 
 #include <algorithm>
 #include <cmath>
+#include <string>
 #include <vector>
 
 #include <gtest/gtest.h>
+
+#include "romunect/testing/test_support.h"
 
 namespace romunect::sim {
 namespace {
@@ -56,6 +59,43 @@ TEST(SensorImagerTest, ScanFramesCarryIrRawAndMetricDepthCloseToGroundTruth) {
   EXPECT_GT(static_cast<double>(valid) / compared, 0.2);
   // The paper's single-scan accuracy is about 0.1 mm; the median error stays below 0.2 mm.
   EXPECT_LT(median, 0.2e-3);
+}
+
+// Imaging frame k on its own thread while k + 1 renders changes nothing: the same frames, in
+// order, bit for bit, as imaging in line.
+TEST(SensorImagerTest, ImagingOnItsOwnThreadGivesTheSameFrames) {
+  ScanOptions options;
+  options.pile.num_objects = 3;
+  options.pile.seed = 5;
+  options.approach.start_distance_m = 0.215;
+  options.approach.end_distance_m = 0.205;
+  options.approach.region_size_m = Eigen::Vector2d(0.02, 0.02);
+  options.levels_from_rig = false;
+  std::vector<Frame> frames[2];
+  for (int pipelined = 0; pipelined < 2; ++pipelined) {
+    options.imaging_thread = pipelined == 1;
+    Scanner scanner(options);
+    scanner.SetImager(std::make_unique<SensorImager>(options.rig, SensorImagerOptions{}));
+    Frame frame;
+    std::string error;
+    while (scanner.Next(&frame, &error) == FrameStatus::kOk) frames[pipelined].push_back(frame);
+    EXPECT_EQ(static_cast<int>(frames[pipelined].size()), scanner.frame_count());
+  }
+  ASSERT_EQ(frames[0].size(), frames[1].size());
+  ASSERT_GE(frames[0].size(), 4u);
+  for (size_t i = 0; i < frames[0].size(); ++i) {
+    const Frame &a = frames[0][i], &b = frames[1][i];
+    SCOPED_TRACE("frame " + std::to_string(i));
+    EXPECT_EQ(a.index, b.index);
+    EXPECT_EQ(a.time_s, b.time_s);
+    ASSERT_TRUE(a.T_W_C && b.T_W_C);
+    EXPECT_TRUE(a.T_W_C->matrix() == b.T_W_C->matrix());
+    EXPECT_TRUE(testing::ImagesBitEqual(a.ir, b.ir));
+    EXPECT_TRUE(testing::ImagesBitEqual(a.raw, b.raw));
+    EXPECT_TRUE(testing::ImagesBitEqual(a.depth_m, b.depth_m));
+    EXPECT_TRUE(testing::ImagesBitEqual(a.gt_depth_m, b.gt_depth_m));
+    EXPECT_GT(cv::countNonZero(a.depth_m), 0);
+  }
 }
 
 // Fronto-parallel planes through and beyond the rig's matchable range: inside it the imager

@@ -1,10 +1,11 @@
 // The twin's loop and the main job's engine: a Scanner loads the scene, drops and settles the
 // pile, freezes it, plans the approach, moves the arm to its start, mirrors the MuJoCo world
-// into the Embree renderer (static parts once, every moving geom as an instance), and is then
-// a FrameSource: each Next() advances the physics to the next 30 Hz sensor frame, updates the
-// instances' poses, renders, and images the frame (IR synthesis and depth engine through a
-// FrameImager; without one, depth_m is the ideal ground truth). Frames carry the EXECUTED
-// T_W_C and T_B_H, and gt_depth_m. Frames: W world, B base, H hand, C camera; SI units.
+// into the Embree renderer (static parts once, the frozen pile among them, so moving a pile
+// object through world() afterwards does not show in renders; the arm's geoms as instances),
+// and is then a FrameSource: each Next() advances the physics to the next 30 Hz sensor frame,
+// updates the instances' poses, renders, and images the frame (IR synthesis and depth engine
+// through a FrameImager; without one, depth_m is the ideal ground truth). Frames carry the
+// EXECUTED T_W_C and T_B_H, and gt_depth_m. Frames: W world, B base, H hand, C camera; SI units.
 #pragma once
 
 #include <cstdint>
