@@ -20,6 +20,7 @@
 #endif
 
 #include "romunect/sensor/check.h"
+#include "romunect/sensor/cpu_features.h"
 #include "romunect/sensor/errors.h"
 
 namespace romunect::fusion {
@@ -267,21 +268,6 @@ constexpr bool CompiledForX86() {
 #endif
 }
 
-bool CpuHasAvx2() {
-#if defined(__x86_64__)
-  return __builtin_cpu_supports("avx2");
-#else
-  return false;
-#endif
-}
-
-bool CpuHasAvx512() {
-#if defined(__x86_64__)
-  return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("avx512dq");
-#else
-  return false;
-#endif
-}
 
 using WalkRaysFn = void (*)(const RaySetup*, size_t, WalkContext*);
 

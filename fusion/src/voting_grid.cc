@@ -15,6 +15,7 @@
 #endif
 
 #include "romunect/sensor/check.h"
+#include "romunect/sensor/cpu_features.h"
 #include "romunect/sensor/errors.h"
 
 namespace romunect::fusion {
@@ -68,14 +69,6 @@ bool AnyPositive(const Vote* votes, int lo, int hi) {
     if (votes[k] > 0) return true;
   }
   return false;
-}
-
-bool HasAvx2() {
-#if defined(__x86_64__)
-  return __builtin_cpu_supports("avx2");
-#else
-  return false;
-#endif
 }
 
 #if defined(__x86_64__)
@@ -249,7 +242,7 @@ cv::Mat ExtractHeightMap(const VotingGrid& grid, ExtractKernel kernel) {
   constexpr int kPrefetchColumns = 16;
   void (*max_vote)(const Vote*, int, int, int*, int*) = &MaxVoteSse2;
 #if defined(__x86_64__)
-  if (kernel == ExtractKernel::kAuto && __builtin_cpu_supports("avx2")) max_vote = &MaxVoteAvx2;
+  if (kernel == ExtractKernel::kAuto && CpuHasAvx2()) max_vote = &MaxVoteAvx2;
 #endif
   cv::Mat height(grid.ny(), grid.nx(), CV_32F);
   const float nan = std::numeric_limits<float>::quiet_NaN();
@@ -282,7 +275,7 @@ CompletenessTracker::CompletenessTracker(const VotingGrid& grid)
 
 double CompletenessTracker::Update(const cv::Rect& changed_columns) {
   ROMUNECT_CHECK((changed_columns & cv::Rect(0, 0, grid_.nx(), grid_.ny())) == changed_columns);
-  const bool avx2 = HasAvx2();
+  const bool avx2 = CpuHasAvx2();
   for (int iy = changed_columns.y; iy < changed_columns.y + changed_columns.height; ++iy) {
     for (int ix = changed_columns.x; ix < changed_columns.x + changed_columns.width; ++ix) {
       const size_t c = grid_.ColumnIndex(ix, iy);

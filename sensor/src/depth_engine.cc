@@ -14,6 +14,7 @@
 #include "depth_engine_kernel.h"
 #include "parallel_rows.h"
 #include "romunect/sensor/check.h"
+#include "romunect/sensor/cpu_features.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/ir_synthesis.h"
 
@@ -59,10 +60,10 @@ const char* MatchKernelName(MatchKernel kernel) {
 bool MatchKernelAvailable(MatchKernel kernel) {
   if (KernelFunction(kernel) == nullptr) return false;
 #if ROMUNECT_DEPTH_KERNEL_AVX2
-  if (kernel == MatchKernel::kAvx2) return __builtin_cpu_supports("avx2");
+  if (kernel == MatchKernel::kAvx2) return CpuHasAvx2();
 #endif
 #if ROMUNECT_DEPTH_KERNEL_AVX512
-  if (kernel == MatchKernel::kAvx512) return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw");
+  if (kernel == MatchKernel::kAvx512) return CpuHasAvx512();
 #endif
   return true;
 }

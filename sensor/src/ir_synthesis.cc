@@ -11,6 +11,7 @@
 #include "ir_synthesis_rows.h"
 #include "parallel_rows.h"
 #include "romunect/sensor/check.h"
+#include "romunect/sensor/cpu_features.h"
 #include "romunect/sensor/pattern.h"
 
 namespace romunect {
@@ -87,8 +88,8 @@ const char* IrKernelName(IrKernel kernel) {
 bool IrKernelAvailable(IrKernel kernel) {
   if (KernelRows(kernel).shade == nullptr) return false;
 #if ROMUNECT_IR_KERNEL_X86
-  if (kernel == IrKernel::kAvx2) return __builtin_cpu_supports("avx2");
-  if (kernel == IrKernel::kAvx512) return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq");
+  if (kernel == IrKernel::kAvx2) return CpuHasAvx2();
+  if (kernel == IrKernel::kAvx512) return CpuHasAvx512();
 #endif
   return true;
 }

@@ -15,6 +15,7 @@
 
 #include "ray_scene_impl.h"
 #include "romunect/sensor/check.h"
+#include "romunect/sensor/cpu_features.h"
 
 namespace romunect::embree {
 namespace {
@@ -116,10 +117,6 @@ inline F Sqrt(F x) { return _mm512_sqrt_ps(x); }
 }  // namespace avx512
 #pragma GCC diagnostic pop
 #pragma GCC pop_options
-
-bool CpuHasAvx2() { return __builtin_cpu_supports("avx2"); }
-
-bool CpuHasAvx512() { return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq"); }
 
 using RenderPacketFn = void (*)(const FrameSetup&, const Lanes&, GeometryBuffer*, Counters*);
 
