@@ -180,6 +180,33 @@ struct SegmentBounds {
 // The start voxel on one axis: clamp(floor(x)) into [0, n).
 inline int StartIndex(double x, int n) { return static_cast<int>(std::clamp(std::floor(x), 0.0, n - 1.0)); }
 
+// The start of a ray's column walk, the same expressions for every kernel: the segment's
+// direction (dz) and inverse per axis, the start voxel, the step signs, and per axis in (x, y)
+// the first crossing plane (voxel index + 1 going up) and its time (inf without motion).
+struct WalkStart {
+  double dz, inv_x, inv_y, inv_z, tx, ty;
+  int ix0, iy0, iz0, sx, sy, plane_x, plane_y;
+};
+inline WalkStart StartWalk(const RaySetup& ray, double ox, double oy, double oz, int nx, int ny, int nz) {
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  WalkStart w;
+  const double dx = ray.p_g[0] - ox, dy = ray.p_g[1] - oy;
+  w.dz = ray.p_g[2] - oz;
+  w.inv_x = 1.0 / dx;
+  w.inv_y = 1.0 / dy;
+  w.inv_z = 1.0 / w.dz;
+  w.ix0 = StartIndex(ox + ray.t_enter * dx, nx);
+  w.iy0 = StartIndex(oy + ray.t_enter * dy, ny);
+  w.iz0 = StartIndex(oz + ray.t_enter * w.dz, nz);
+  w.sx = dx > 0.0 ? 1 : (dx < 0.0 ? -1 : 0);
+  w.sy = dy > 0.0 ? 1 : (dy < 0.0 ? -1 : 0);
+  w.plane_x = w.ix0 + (dx > 0.0);
+  w.plane_y = w.iy0 + (dy > 0.0);
+  w.tx = w.sx != 0 ? (static_cast<double>(w.plane_x) - ox) * w.inv_x : kInf;
+  w.ty = w.sy != 0 ? (static_cast<double>(w.plane_y) - oy) * w.inv_y : kInf;
+  return w;
+}
+
 // Lane masks for runs of misses: loading a block at mask + kLanes - a gives -1 in lanes >= a, at
 // mask + 2 kLanes - b gives -1 in lanes < b; their AND selects the lanes [a, b) of a block, the
 // second alone the first b lanes, and a load at b the last b lanes.
