@@ -218,7 +218,6 @@ struct LaneMaskTable {
   }
 };
 
-
 // The frame's hits, after its misses: +1 each, saturating, and the columns' hit bounds.
 void ApplyHits(const HitRecord* hits, size_t count, VotingGrid* grid) {
   const size_t nz = grid->nz();
@@ -294,7 +293,6 @@ constexpr bool CompiledForX86() {
   return false;
 #endif
 }
-
 
 using WalkRaysFn = void (*)(const RaySetup*, size_t, WalkContext*);
 
