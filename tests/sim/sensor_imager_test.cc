@@ -14,7 +14,7 @@ namespace {
 
 // Full resolution (the depth engine's chip geometry is the rig's), but a short approach: the
 // last 2 cm of descent straight down over a 3-object pile, a handful of frames.
-TEST(SensorImagerTest, ScanFramesCarryIrRawAndMetricDepthCloseToGroundTruth) {
+ScanOptions ShortDescent() {
   ScanOptions options;
   options.pile.num_objects = 3;
   options.pile.seed = 5;
@@ -22,6 +22,11 @@ TEST(SensorImagerTest, ScanFramesCarryIrRawAndMetricDepthCloseToGroundTruth) {
   options.approach.end_distance_m = 0.205;
   options.approach.region_size_m = Eigen::Vector2d(0.02, 0.02);  // one pass
   options.levels_from_rig = false;  // this descent, not the stand-off levels
+  return options;
+}
+
+TEST(SensorImagerTest, ScanFramesCarryIrRawAndMetricDepthCloseToGroundTruth) {
+  const ScanOptions options = ShortDescent();
   Scanner scanner(options);
   SensorImagerOptions imager_options;
   imager_options.threads = 2;
@@ -64,13 +69,7 @@ TEST(SensorImagerTest, ScanFramesCarryIrRawAndMetricDepthCloseToGroundTruth) {
 // Imaging frame k on its own thread while k + 1 renders changes nothing: the same frames, in
 // order, bit for bit, as imaging in line.
 TEST(SensorImagerTest, ImagingOnItsOwnThreadGivesTheSameFrames) {
-  ScanOptions options;
-  options.pile.num_objects = 3;
-  options.pile.seed = 5;
-  options.approach.start_distance_m = 0.215;
-  options.approach.end_distance_m = 0.205;
-  options.approach.region_size_m = Eigen::Vector2d(0.02, 0.02);
-  options.levels_from_rig = false;
+  ScanOptions options = ShortDescent();
   std::vector<Frame> frames[2];
   for (int pipelined = 0; pipelined < 2; ++pipelined) {
     options.imaging_thread = pipelined == 1;
