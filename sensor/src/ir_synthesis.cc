@@ -107,7 +107,7 @@ IrSynthesizer::LevelTable::LevelTable(std::vector<float> level_sigmas) : sigmas(
   start.resize(static_cast<size_t>(sigmas.back() * kLutPerPx) + 2);
   int i = 0;
   for (size_t b = 0; b < start.size(); ++b) {
-    // The last level whose sigma is at most the bin's lower edge: Find() only walks upwards.
+    // The last level whose sigma is at most the bin's lower edge: FindLevel only walks upwards.
     while (i < n - 2 && sigmas[i + 1] <= b / kLutPerPx) ++i;
     start[b] = i;
   }
@@ -283,9 +283,10 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
   // Only the levels between those of the smallest and the largest sigma are blended.
   int k_first = 0, k_last = 0;
   if (levels.size() > 1) {
+    const internal::LevelStack table = StackOf(camera_table_, nullptr, size.area(), size.width);
     float w;
-    camera_table_.Find(min_sigma, &k_first, &w);
-    camera_table_.Find(max_sigma, &k_last, &w);
+    internal::FindLevel<internal::ScalarLanes>(table, min_sigma, &k_first, &w);
+    internal::FindLevel<internal::ScalarLanes>(table, max_sigma, &k_last, &w);
     k_last += 1;
   }
   // The levels in one stack (one level: blurred_ itself, read in place by the last pass).

@@ -131,8 +131,9 @@ void FastCosSin2Pi(typename L::F u, typename L::F* c, typename L::F* s) {
   *s = L::Select(q0, sin_a, L::Select(q1, cos_a, L::Select(q2, -sin_a, -cos_a)));
 }
 
-// IrSynthesizer::LevelTable::Find in lanes (count >= 2): level k and weight w of
-// (1 - w) level[k] + w level[k + 1].
+// The pair of levels of a sigma (count >= 2), in lanes: level k and weight w of
+// (1 - w) level[k] + w level[k + 1]; sigmas below the first level or above the last take it
+// whole. Also used one value at a time (ScalarLanes) for the range of levels a frame blends.
 template <class L>
 void FindLevel(const LevelStack& table, typename L::F sigma, typename L::I* k, typename L::F* w) {
   using F = typename L::F;

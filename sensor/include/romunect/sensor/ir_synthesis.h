@@ -8,7 +8,6 @@
 // noise (seeded, counter based: the same bytes at any thread count), full well, quantization.
 #pragma once
 
-#include <algorithm>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -63,28 +62,11 @@ class IrSynthesizer {
   void set_kernel(IrKernel kernel);
 
  private:
-  // Blur levels (sigmas increasing) and where to start looking for a sigma's pair of levels:
-  // Find gives the level k and weight w of value = (1 - w) level[k] + w level[k + 1].
+  // Blur levels (sigmas increasing) and where to start looking for a sigma's pair of levels
+  // (the kernels' FindLevel gives the level k and weight w of (1 - w) level[k] + w level[k + 1]).
   struct LevelTable {
     LevelTable() = default;
     explicit LevelTable(std::vector<float> level_sigmas);
-    void Find(float sigma, int* k, float* w) const {
-      const int n = static_cast<int>(sigmas.size());
-      if (sigma <= sigmas[0] || n == 1) {
-        *k = 0;
-        *w = 0.f;
-        return;
-      }
-      if (sigma >= sigmas[n - 1]) {
-        *k = n - 2;
-        *w = 1.f;
-        return;
-      }
-      int i = start[std::min(static_cast<size_t>(sigma * kLutPerPx), start.size() - 1)];
-      while (i < n - 2 && sigma > sigmas[i + 1]) ++i;
-      *k = i;
-      *w = (sigma - sigmas[i]) / (sigmas[i + 1] - sigmas[i]);
-    }
     static constexpr float kLutPerPx = 16.f;  // start indices per pixel of sigma
     std::vector<float> sigmas;
     std::vector<int> start;  // by sigma bin
