@@ -176,9 +176,10 @@ void RunScan(const ScanArguments& args) {
                grid.voxel_m() * 1e3);
   const bool interactive = isatty(fileno(stderr));
   const auto t_loop = std::chrono::steady_clock::now();
-  // A two-stage pipeline on the cores: the simulator (physics, rendering, imaging) produces
-  // the next frames on its own thread while this one fuses, and the frame directory is written
-  // on a third. Frames keep their order and content, so a seed gives the same bytes.
+  // A pipeline on the cores: the simulator renders the next frame on its own thread while its
+  // imaging thread images the one before (ScanOptions::imaging_thread), this one fuses, and the
+  // frame directory is written on a fourth. Frames keep their order and content, so a seed
+  // gives the same bytes.
   sim::PrefetchingSource source(&scanner);
   // The writer may lag up to 16 frames (~60 MB of images) at a lower priority: it runs on what
   // rendering, imaging and fusion leave (steadier loop times on 2 cores).
