@@ -141,11 +141,6 @@ struct WalkContext {
   HitRecord* hits;    // this thread's hits (in its rows): room for one per pixel
   size_t hit_count;
   size_t misses;
-  // Lane walks (AVX-512): each step's block per lane, room for block_capacity; one group of
-  // eight rays needs at most group_blocks (8 blocks per step, at most nx + ny + 1 steps).
-  Vote** block_at;
-  uint32_t* block_bits;
-  size_t block_capacity, group_blocks;
 };
 
 // A frame's constants of the setup below (the lane setup of ray_walk_lanes512.inc evaluates the
@@ -375,8 +370,6 @@ struct FrameInserter::Workspace {
 #if defined(__x86_64__)
   std::unique_ptr<avx512::TileRays> tile_rays;  // one thread's tile (AVX-512 setup)
 #endif
-  std::vector<std::vector<Vote*>> block_at;  // per thread: WalkContext::block_at
-  std::vector<std::vector<uint32_t>> block_bits;
   std::vector<size_t> chunk_begin;     // chunk c's first ray slot (its first pixel)
   std::vector<std::vector<size_t>> tile_end;  // per chunk: each tile's end in its rays
   std::vector<InsertStats> chunk_stats;
@@ -400,8 +393,6 @@ FrameInserter::FrameInserter(VotingGrid* grid, const InserterOptions& options)
   ws_ = std::make_unique<Workspace>(options.threads);
   ws_->chunk_begin.assign(options.threads, 0);
   ws_->hits.resize(options.threads);
-  ws_->block_at.resize(options.threads);
-  ws_->block_bits.resize(options.threads);
   ws_->tile_end.resize(options.threads);
   ws_->chunk_stats.assign(options.threads, InsertStats{});
   ws_->chunk_bounds.assign(options.threads, SegmentBounds{});
@@ -451,15 +442,8 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
   const WalkRaysFn walk_rays = KernelWalk(kernel_, n[2]);
   auto make_context = [&](int thread, int ya, int yb) {
     if (ws.hits[thread].size() < pixels) ws.hits[thread].resize(pixels);  // at most one hit per pixel
-    const size_t group_blocks = 8 * (static_cast<size_t>(n[0]) + n[1] + 2);
-    const size_t capacity = group_blocks + (size_t{1} << 16);
-    if (ws.block_at[thread].size() < capacity) {
-      ws.block_at[thread].resize(capacity);
-      ws.block_bits[thread].resize(capacity);
-    }
     return WalkContext{o_g[0], o_g[1], o_g[2], n[0], n[1], n[2], ya, yb, mutable_grid->mutable_column(0),
-                       ws.hits[thread].data(), 0, 0, ws.block_at[thread].data(), ws.block_bits[thread].data(),
-                       capacity, group_blocks};
+                       ws.hits[thread].data(), 0, 0};
   };
   size_t thread_hits[256] = {}, thread_misses[256] = {};
 
