@@ -302,6 +302,32 @@ WalkRaysFn KernelWalk(InsertKernel kernel, int nz) {
   return &scalar::WalkRays;
 }
 
+// Slabs of rows [slab[t], slab[t + 1]) with about equal numbers of rays (the rays are where the
+// camera looks), from rays counted per row (threads x ny counters, summed over threads).
+void BalanceSlabs(const std::vector<uint32_t>& row_weight, int threads, int ny, std::vector<int>* slab) {
+  uint64_t total = 0;
+  for (uint32_t w : row_weight) total += w;
+  (*slab)[0] = 0;
+  (*slab)[threads] = ny;
+  uint64_t cumulative = 0;
+  int t = 1;
+  for (int iy = 0; iy < ny && t < threads; ++iy) {
+    for (int c = 0; c < threads; ++c) cumulative += row_weight[static_cast<size_t>(c) * ny + iy];
+    while (t < threads && cumulative * threads >= total * t) (*slab)[t++] = iy + 1;
+  }
+  while (t < threads) (*slab)[t++] = ny;
+}
+
+// Whether the walk sets its rays up in lanes too (the AVX-512 walk: InsertTile).
+bool LaneSetup(WalkRaysFn walk) {
+#if defined(__x86_64__)
+  return walk == &avx512::WalkRaysInGroups;
+#else
+  (void)walk;
+  return false;
+#endif
+}
+
 }  // namespace
 
 void InsertStats::Add(const InsertStats& o) {
@@ -360,15 +386,16 @@ struct FrameInserter::Workspace {
   bool has_camera = false;
   CameraModel camera;
   std::vector<double> ray_C;      // 2 per pixel: camera.Ray(u, v) x, y (its z is exactly 1)
-  // One slot per pixel; chunk c's rays start at its first pixel. malloc'd, not zero-filled:
-  // only the slots valid pixels use ever become resident (17 MB at 640 x 480 otherwise).
+  // Ray setups of the kernels without a lane setup: one tile's at one thread; else one slot per
+  // pixel, chunk c's rays from its first pixel. malloc'd, not zero-filled: only the slots valid
+  // pixels use ever become resident (17 MB at 640 x 480 otherwise).
   struct Free {
     void operator()(void* p) const { std::free(p); }
   };
   std::unique_ptr<RaySetup[], Free> rays;
   std::vector<std::vector<HitRecord>> hits;  // per thread: room for the frame's hits in its rows
 #if defined(__x86_64__)
-  std::unique_ptr<avx512::TileRays> tile_rays;  // one thread's tile (AVX-512 setup)
+  std::vector<std::unique_ptr<avx512::TileRays>> tile_rays;  // per thread: its tile (AVX-512 setup)
 #endif
   std::vector<size_t> chunk_begin;     // chunk c's first ray slot (its first pixel)
   std::vector<std::vector<size_t>> tile_end;  // per chunk: each tile's end in its rays
@@ -376,6 +403,7 @@ struct FrameInserter::Workspace {
   std::vector<SegmentBounds> chunk_bounds;
   std::vector<uint32_t> row_weight;    // threads x ny: rays per row, for balancing slabs
   std::vector<int> slab;               // threads + 1 row boundaries
+  bool slab_balanced = false;          // slab holds a frame's balance (lane setups: the last frame's)
 };
 
 FrameInserter::FrameInserter(VotingGrid* grid, const InserterOptions& options)
@@ -414,9 +442,11 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     ws.has_camera = true;
     ws.ray_C.resize(2 * pixels);
     // One thread walks each tile's rays as it sets them up; threads share a frame's setups.
-    const size_t slots = options_.threads == 1 ? static_cast<size_t>(kInsertionTilePx) * kInsertionTilePx : pixels;
-    ws.rays.reset(static_cast<RaySetup*>(std::malloc(slots * sizeof(RaySetup))));
-    if (ws.rays == nullptr) throw std::bad_alloc();
+    if (!LaneSetup(KernelWalk(kernel_, grid_->nz()))) {
+      const size_t slots = options_.threads == 1 ? static_cast<size_t>(kInsertionTilePx) * kInsertionTilePx : pixels;
+      ws.rays.reset(static_cast<RaySetup*>(std::malloc(slots * sizeof(RaySetup))));
+      if (ws.rays == nullptr) throw std::bad_alloc();
+    }
     for (int v = 0; v < height; ++v) {
       for (int u = 0; u < width; ++u) {
         const Eigen::Vector3d r = camera.Ray(Eigen::Vector2d(u, v));
@@ -447,20 +477,15 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
   };
   size_t thread_hits[256] = {}, thread_misses[256] = {};
 
-  // Phase 1: per band of tile rows, tile by tile, classify each pixel and set its ray up (clip
-  // to the box). One thread walks each tile's rays right away (no frame-sized buffer, and the
-  // rays are still in cache). A tile's rays cross neighbouring columns, which stay in cache.
-  double thread_cpu_ms[256] = {};  // per thread, both phases: the frame's critical path
+  double thread_cpu_ms[256] = {};  // per thread, all phases: the frame's critical path
   constexpr int kTile = kInsertionTilePx;
-  const int tile_rows = (height + kTile - 1) / kTile;
-  // One thread with the AVX-512 walk sets its rays up in lanes as well.
+  if (LaneSetup(walk_rays)) {
 #if defined(__x86_64__)
-  const bool lane_setup = threads == 1 && walk_rays == &avx512::WalkRaysInGroups;
-#else
-  const bool lane_setup = false;
-#endif
-  SetupFrame setup_frame{};
-  if (lane_setup) {
+    // Every thread sets all of the frame's tiles up in lanes and walks, tile by tile while the
+    // rays are in cache, those that may touch its slab of rows, balanced on the last frame's
+    // rays (the votes do not depend on the slabs); thread 0 counts. Setting a frame up costs a
+    // tenth of walking it, and no frame of setups is kept or shared.
+    SetupFrame setup_frame{};
     for (int a = 0; a < 3; ++a) {
       for (int b = 0; b < 3; ++b) setup_frame.R[a][b] = R(a, b);
       setup_frame.o_W[a] = o_W[a];
@@ -471,147 +496,173 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     setup_frame.voxel = voxel;
     setup_frame.ray_C = ws.ray_C.data();
     setup_frame.width = width;
-#if defined(__x86_64__)
-    if (ws.tile_rays == nullptr) ws.tile_rays = std::make_unique<avx512::TileRays>();
-#endif
-  }
-  auto setup = [&](int chunk) {
-    const double cpu0 = ThreadCpuMs();
-    const int v0 = std::min(height, kTile * static_cast<int>(static_cast<int64_t>(tile_rows) * chunk / threads));
-    const int v1 = std::min(height, kTile * static_cast<int>(static_cast<int64_t>(tile_rows) * (chunk + 1) / threads));
-    InsertStats& s = ws.chunk_stats[chunk];
-    s = InsertStats{};
-    SegmentBounds& bounds = ws.chunk_bounds[chunk];
-    bounds = SegmentBounds{};
-    const bool walk_now = threads == 1;
-    uint32_t* weight = &ws.row_weight[static_cast<size_t>(chunk) * n[1]];
-    if (!walk_now) std::fill(weight, weight + n[1], 0u);
-    WalkContext context{};
-    if (walk_now) context = make_context(0, 0, n[1]);
-    ws.chunk_begin[chunk] = walk_now ? 0 : static_cast<size_t>(v0) * width;
-    RaySetup* out = &ws.rays[ws.chunk_begin[chunk]];
-    std::vector<size_t>& tile_end = ws.tile_end[chunk];
-    tile_end.clear();
-    size_t count = 0;
-    for (int tv = v0; tv < v1; tv += kTile) {
-     for (int tu = 0; tu < width; tu += kTile) {
-#if defined(__x86_64__)
-      if (lane_setup) {  // the tile set up in lanes too, and walked
-        avx512::InsertTile(setup_frame, depth_m, tu, std::min(tu + kTile, width), tv, std::min(tv + kTile, v1),
-                           ws.tile_rays.get(), &context, &s, &bounds);
-        continue;
-      }
-#endif
-      for (int v = tv; v < std::min(tv + kTile, v1); ++v) {
-      const float* row = depth_m.ptr<float>(v);
-      for (int u = tu; u < std::min(tu + kTile, width); ++u) {
-        const float depth = row[u];
-        if (depth == 0.0f) {
-          ++s.no_measurement;
-          continue;
-        }
-        if (!(depth > 0.0f) || !std::isfinite(depth)) {
-          ++s.invalid_depth;
-          continue;
-        }
-        ++s.rays;
-        const double d = depth;
-        const double* r = &ws.ray_C[2 * (static_cast<size_t>(v) * width + u)];
-        RaySetup& ray = out[count];
-        double dg[3];
-        bool inside = true;
-        for (int a = 0; a < 3; ++a) {
-          // R(a, 2) * ray z with z = 1 is R(a, 2) exactly: the reference's double expression.
-          const double dir = R(a, 0) * r[0] + R(a, 1) * r[1] + R(a, 2);
-          const double p_W = o_W[a] + d * dir;
-          ray.p_g[a] = (p_W - min_W[a]) / voxel;
-          dg[a] = ray.p_g[a] - o_g[a];
-          inside = inside && ray.p_g[a] >= 0.0 && ray.p_g[a] < n[a];
-        }
-        double t0 = 0.0, t1 = 1.0;
-        for (int a = 0; a < 3; ++a) {
-          if (dg[a] != 0.0) {
-            const double inv = 1.0 / dg[a];
-            double ta = (0.0 - o_g[a]) * inv, tb = (static_cast<double>(n[a]) - o_g[a]) * inv;
-            if (ta > tb) std::swap(ta, tb);
-            t0 = std::max(t0, ta);
-            t1 = std::min(t1, tb);
-          } else if (!(o_g[a] >= 0.0 && o_g[a] < n[a])) {
-            t0 = 1.0;
-            t1 = 0.0;
+    ws.tile_rays.resize(threads);
+    for (auto& t : ws.tile_rays) {
+      if (t == nullptr) t = std::make_unique<avx512::TileRays>();
+    }
+    if (!ws.slab_balanced) {  // one thread, or the first frame: rows split evenly
+      for (int t = 0; t <= threads; ++t) ws.slab[t] = static_cast<int>(static_cast<int64_t>(n[1]) * t / threads);
+    }
+    std::fill(ws.row_weight.begin(), ws.row_weight.end(), 0u);
+    auto insert = [&](int thread) {
+      const double cpu0 = ThreadCpuMs();
+      InsertStats& s = ws.chunk_stats[thread];
+      SegmentBounds& bounds = ws.chunk_bounds[thread];
+      s = InsertStats{};
+      bounds = SegmentBounds{};
+      InsertStats uncounted;
+      SegmentBounds unbounded;
+      InsertStats* counts = thread == 0 ? &s : &uncounted;
+      SegmentBounds* widened = thread == 0 ? &bounds : &unbounded;
+      uint32_t* weight = thread == 0 && threads > 1 ? ws.row_weight.data() : nullptr;
+      WalkContext context = make_context(thread, ws.slab[thread], ws.slab[thread + 1]);
+      const bool all_rows = context.ya == 0 && context.yb == n[1];
+      for (int tv = 0; tv < height; tv += kTile) {
+        for (int tu = 0; tu < width; tu += kTile) {
+          const int u1 = std::min(tu + kTile, width), v1 = std::min(tv + kTile, height);
+          if (all_rows) {
+            avx512::InsertTile<true>(setup_frame, depth_m, tu, u1, tv, v1, ws.tile_rays[thread].get(), &context, counts,
+                                     widened, weight);
+          } else {
+            avx512::InsertTile<false>(setup_frame, depth_m, tu, u1, tv, v1, ws.tile_rays[thread].get(), &context, counts,
+                                      widened, weight);
           }
         }
-        if (!inside) ++s.points_outside_box;
-        if (!(t0 < t1)) {
-          ++s.rays_missing_box;
-          continue;
-        }
-        ray.t_enter = t0;
-        ray.t_exit = t1;
-        ray.ends_inside = inside;
-        const double y0 = o_g[1] + t0 * dg[1], y1 = o_g[1] + t1 * dg[1];
-        bounds.Add(o_g[0] + t0 * dg[0], o_g[0] + t1 * dg[0], y0, y1);
-        if (!walk_now) {  // row bounds and slab balancing matter only when threads own slabs
-          ray.iy_lo = static_cast<int32_t>(std::clamp(std::floor(std::min(y0, y1)) - 1.0, 0.0, n[1] - 1.0));
-          ray.iy_hi = static_cast<int32_t>(std::clamp(std::floor(std::max(y0, y1)) + 1.0, 0.0, n[1] - 1.0));
-          ++weight[(ray.iy_lo + ray.iy_hi) / 2];
-        }
-        ++count;
       }
+      ApplyHits(context.hits, context.hit_count, mutable_grid);  // after the frame's misses in its rows
+      if (thread == 0) s.pixels = pixels;
+      thread_hits[thread] = context.hit_count;
+      thread_misses[thread] = context.misses;
+      thread_cpu_ms[thread] += ThreadCpuMs() - cpu0;
+    };
+    ws.pool.Run(insert);
+    if (threads > 1) {
+      BalanceSlabs(ws.row_weight, threads, n[1], &ws.slab);  // for the next frame
+      ws.slab_balanced = true;
+    }
+#endif
+  } else {
+    // Phase 1: per band of tile rows, tile by tile, classify each pixel and set its ray up (clip
+    // to the box). One thread walks each tile's rays right away (no frame-sized buffer, and the
+    // rays are still in cache). A tile's rays cross neighbouring columns, which stay in cache.
+    const int tile_rows = (height + kTile - 1) / kTile;
+    auto setup = [&](int chunk) {
+      const double cpu0 = ThreadCpuMs();
+      const int v0 = std::min(height, kTile * static_cast<int>(static_cast<int64_t>(tile_rows) * chunk / threads));
+      const int v1 = std::min(height, kTile * static_cast<int>(static_cast<int64_t>(tile_rows) * (chunk + 1) / threads));
+      InsertStats& s = ws.chunk_stats[chunk];
+      s = InsertStats{};
+      SegmentBounds& bounds = ws.chunk_bounds[chunk];
+      bounds = SegmentBounds{};
+      const bool walk_now = threads == 1;
+      uint32_t* weight = &ws.row_weight[static_cast<size_t>(chunk) * n[1]];
+      if (!walk_now) std::fill(weight, weight + n[1], 0u);
+      WalkContext context{};
+      if (walk_now) context = make_context(0, 0, n[1]);
+      ws.chunk_begin[chunk] = walk_now ? 0 : static_cast<size_t>(v0) * width;
+      RaySetup* out = &ws.rays[ws.chunk_begin[chunk]];
+      std::vector<size_t>& tile_end = ws.tile_end[chunk];
+      tile_end.clear();
+      size_t count = 0;
+      for (int tv = v0; tv < v1; tv += kTile) {
+        for (int tu = 0; tu < width; tu += kTile) {
+          for (int v = tv; v < std::min(tv + kTile, v1); ++v) {
+            const float* row = depth_m.ptr<float>(v);
+            for (int u = tu; u < std::min(tu + kTile, width); ++u) {
+              const float depth = row[u];
+              if (depth == 0.0f) {
+                ++s.no_measurement;
+                continue;
+              }
+              if (!(depth > 0.0f) || !std::isfinite(depth)) {
+                ++s.invalid_depth;
+                continue;
+              }
+              ++s.rays;
+              const double d = depth;
+              const double* r = &ws.ray_C[2 * (static_cast<size_t>(v) * width + u)];
+              RaySetup& ray = out[count];
+              double dg[3];
+              bool inside = true;
+              for (int a = 0; a < 3; ++a) {
+                // R(a, 2) * ray z with z = 1 is R(a, 2) exactly: the reference's double expression.
+                const double dir = R(a, 0) * r[0] + R(a, 1) * r[1] + R(a, 2);
+                const double p_W = o_W[a] + d * dir;
+                ray.p_g[a] = (p_W - min_W[a]) / voxel;
+                dg[a] = ray.p_g[a] - o_g[a];
+                inside = inside && ray.p_g[a] >= 0.0 && ray.p_g[a] < n[a];
+              }
+              double t0 = 0.0, t1 = 1.0;
+              for (int a = 0; a < 3; ++a) {
+                if (dg[a] != 0.0) {
+                  const double inv = 1.0 / dg[a];
+                  double ta = (0.0 - o_g[a]) * inv, tb = (static_cast<double>(n[a]) - o_g[a]) * inv;
+                  if (ta > tb) std::swap(ta, tb);
+                  t0 = std::max(t0, ta);
+                  t1 = std::min(t1, tb);
+                } else if (!(o_g[a] >= 0.0 && o_g[a] < n[a])) {
+                  t0 = 1.0;
+                  t1 = 0.0;
+                }
+              }
+              if (!inside) ++s.points_outside_box;
+              if (!(t0 < t1)) {
+                ++s.rays_missing_box;
+                continue;
+              }
+              ray.t_enter = t0;
+              ray.t_exit = t1;
+              ray.ends_inside = inside;
+              const double y0 = o_g[1] + t0 * dg[1], y1 = o_g[1] + t1 * dg[1];
+              bounds.Add(o_g[0] + t0 * dg[0], o_g[0] + t1 * dg[0], y0, y1);
+              if (!walk_now) {  // row bounds and slab balancing matter only when threads own slabs
+                ray.iy_lo = static_cast<int32_t>(std::clamp(std::floor(std::min(y0, y1)) - 1.0, 0.0, n[1] - 1.0));
+                ray.iy_hi = static_cast<int32_t>(std::clamp(std::floor(std::max(y0, y1)) + 1.0, 0.0, n[1] - 1.0));
+                ++weight[(ray.iy_lo + ray.iy_hi) / 2];
+              }
+              ++count;
+            }
+          }
+          if (walk_now) {
+            walk_rays(out, count, &context);
+            count = 0;
+          } else {
+            tile_end.push_back(count);
+          }
+        }
       }
       if (walk_now) {
-        walk_rays(out, count, &context);
-        count = 0;
-      } else {
-        tile_end.push_back(count);
+        ApplyHits(context.hits, context.hit_count, mutable_grid);  // after the frame's misses (voting_grid.h)
+        thread_hits[0] = context.hit_count;
+        thread_misses[0] = context.misses;
       }
-     }
-    }
-    if (walk_now) {
-      ApplyHits(context.hits, context.hit_count, mutable_grid);  // after the frame's misses (voting_grid.h)
-      thread_hits[0] = context.hit_count;
-      thread_misses[0] = context.misses;
-    }
-    s.pixels = static_cast<size_t>(v1 - v0) * width;
-    thread_cpu_ms[chunk] += ThreadCpuMs() - cpu0;
-  };
-  ws.pool.Run(setup);
+      s.pixels = static_cast<size_t>(v1 - v0) * width;
+      thread_cpu_ms[chunk] += ThreadCpuMs() - cpu0;
+    };
+    ws.pool.Run(setup);
+    BalanceSlabs(ws.row_weight, threads, n[1], &ws.slab);
 
-  // Slabs of rows with about equal numbers of rays (the rays are where the camera looks).
-  uint64_t total = 0;
-  for (uint32_t w : ws.row_weight) total += w;
-  ws.slab[0] = 0;
-  ws.slab[threads] = n[1];
-  {
-    uint64_t cumulative = 0;
-    int t = 1;
-    for (int iy = 0; iy < n[1] && t < threads; ++iy) {
-      for (int c = 0; c < threads; ++c) cumulative += ws.row_weight[static_cast<size_t>(c) * n[1] + iy];
-      while (t < threads && cumulative * threads >= total * t) ws.slab[t++] = iy + 1;
-    }
-    while (t < threads) ws.slab[t++] = n[1];
+    // Phase 2 (threads > 1): each thread walks every ray that may touch its own rows, votes only
+    // in them, and then applies its hits (all in its rows, so after all of the frame's misses there).
+    auto walk = [&](int thread) {
+      const int ya = ws.slab[thread], yb = ws.slab[thread + 1];
+      if (ya >= yb) return;
+      const double cpu0 = ThreadCpuMs();
+      WalkContext context = make_context(thread, ya, yb);
+      for (int chunk = 0; chunk < threads; ++chunk) {
+        size_t begin = 0;
+        for (const size_t end : ws.tile_end[chunk]) {
+          walk_rays(&ws.rays[ws.chunk_begin[chunk] + begin], end - begin, &context);
+          begin = end;
+        }
+      }
+      ApplyHits(context.hits, context.hit_count, mutable_grid);
+      thread_hits[thread] = context.hit_count;
+      thread_misses[thread] = context.misses;
+      thread_cpu_ms[thread] += ThreadCpuMs() - cpu0;
+    };
+    if (threads > 1) ws.pool.Run(walk);
   }
-
-  // Phase 2 (threads > 1): each thread walks every ray that may touch its own rows, votes only
-  // in them, and then applies its hits (all in its rows, so after all of the frame's misses there).
-  auto walk = [&](int thread) {
-    const int ya = ws.slab[thread], yb = ws.slab[thread + 1];
-    if (ya >= yb) return;
-    const double cpu0 = ThreadCpuMs();
-    WalkContext context = make_context(thread, ya, yb);
-    for (int chunk = 0; chunk < threads; ++chunk) {
-      size_t begin = 0;
-      for (const size_t end : ws.tile_end[chunk]) {
-        walk_rays(&ws.rays[ws.chunk_begin[chunk] + begin], end - begin, &context);
-        begin = end;
-      }
-    }
-    ApplyHits(context.hits, context.hit_count, mutable_grid);
-    thread_hits[thread] = context.hit_count;
-    thread_misses[thread] = context.misses;
-    thread_cpu_ms[thread] += ThreadCpuMs() - cpu0;
-  };
-  if (threads > 1) ws.pool.Run(walk);
 
   // The columns the frame may have changed: its segments' (x, y) range, widened by a column for
   // the rounding of the walk's crossings.

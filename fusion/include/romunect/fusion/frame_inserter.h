@@ -11,9 +11,10 @@
 // for every kernel). One ray's walk is a chain of dependent steps, so AVX-512 walks eight rays at
 // once in lanes (AVX2 four); a frame's misses commute (voting_grid.h), so rays may interleave.
 // A frame's rays are cast in 32 px tiles: a tile's rays cross neighbouring columns, which stay
-// in cache. Threads own disjoint slabs of rows (y), re-balanced per frame on the rays' positions,
-// and each applies the hits in its rows after its misses: the votes do not depend on the thread
-// count or the kernel.
+// in cache. Threads own disjoint slabs of rows (y), balanced on the rays' positions, and each
+// applies the hits in its rows after its misses: the votes do not depend on the thread count or
+// the kernel. With AVX-512 every thread sets the whole frame up (a tenth of the work) and walks
+// what touches its slab; the other kernels share one set-up frame.
 #pragma once
 
 #include <cstddef>
