@@ -13,6 +13,7 @@
 #include <span>
 #include <sstream>
 #include <thread>
+#include <type_traits>
 #include <vector>
 
 #if defined(__x86_64__)
@@ -111,7 +112,8 @@ class WorkerPool {
   void* context_ = nullptr;
 };
 
-// One cast ray, set up once per frame (phase 1) and walked by every slab owner (phase 2).
+// One cast ray of the kernels without a lane setup: set up once per frame (phase 1) and walked
+// by every slab owner (phase 2); also the scalar fallbacks' form of a lane's ray.
 struct RaySetup {
   double p_g[3];           // measured point, grid units
   double t_enter, t_exit;  // the segment's part inside the box
@@ -291,11 +293,22 @@ constexpr bool CompiledForX86() {
 
 using WalkRaysFn = void (*)(const RaySetup*, size_t, WalkContext*);
 
-// The kernel's walk for columns of nz votes: a narrower one where a column is shorter than a
-// block (the votes do not depend on the kernel).
+// Whether the kernel sets its rays up in lanes too and walks them tile by tile (AVX-512:
+// avx512::InsertTile) for columns of nz votes.
+bool LaneSetup(InsertKernel kernel, int nz) {
+#if defined(__x86_64__)
+  return kernel == InsertKernel::kAvx512 && nz >= avx512::kLanes;
+#else
+  (void)kernel;
+  (void)nz;
+  return false;
+#endif
+}
+
+// The walk of the kernels without LaneSetup for columns of nz votes: a narrower one where a
+// column is shorter than a block (the votes do not depend on the kernel).
 WalkRaysFn KernelWalk(InsertKernel kernel, int nz) {
 #if defined(__x86_64__)
-  if (kernel == InsertKernel::kAvx512 && nz >= avx512::kLanes) return &avx512::WalkRaysInGroups;
   if ((kernel == InsertKernel::kAvx512 || kernel == InsertKernel::kAvx2) && nz >= avx2::kLanes) return &avx2::WalkRaysInLanes;
   if (kernel != InsertKernel::kScalar && nz >= sse2::kLanes) return &sse2::WalkRays;
 #endif
@@ -303,10 +316,12 @@ WalkRaysFn KernelWalk(InsertKernel kernel, int nz) {
 }
 
 // Slabs of rows [slab[t], slab[t + 1]) with about equal numbers of rays (the rays are where the
-// camera looks), from rays counted per row (threads x ny counters, summed over threads).
+// camera looks), from rays counted per row (threads x ny counters, summed over threads). Without
+// a ray the slabs stay as they are.
 void BalanceSlabs(const std::vector<uint32_t>& row_weight, int threads, int ny, std::vector<int>* slab) {
   uint64_t total = 0;
   for (uint32_t w : row_weight) total += w;
+  if (total == 0) return;
   (*slab)[0] = 0;
   (*slab)[threads] = ny;
   uint64_t cumulative = 0;
@@ -316,16 +331,6 @@ void BalanceSlabs(const std::vector<uint32_t>& row_weight, int threads, int ny, 
     while (t < threads && cumulative * threads >= total * t) (*slab)[t++] = iy + 1;
   }
   while (t < threads) (*slab)[t++] = ny;
-}
-
-// Whether the walk sets its rays up in lanes too (the AVX-512 walk: InsertTile).
-bool LaneSetup(WalkRaysFn walk) {
-#if defined(__x86_64__)
-  return walk == &avx512::WalkRaysInGroups;
-#else
-  (void)walk;
-  return false;
-#endif
 }
 
 }  // namespace
@@ -401,7 +406,7 @@ struct FrameInserter::Workspace {
   std::vector<std::vector<size_t>> tile_end;  // per chunk: each tile's end in its rays
   std::vector<InsertStats> chunk_stats;
   std::vector<SegmentBounds> chunk_bounds;
-  std::vector<uint32_t> row_weight;    // threads x ny: rays per row, for balancing slabs
+  std::vector<uint32_t> row_weight;    // threads x ny: rays per row, for balancing slabs (lane setups: thread 0's)
   std::vector<int> slab;               // threads + 1 row boundaries
   bool slab_balanced = false;          // slab holds a frame's balance (lane setups: the last frame's)
 };
@@ -426,6 +431,11 @@ FrameInserter::FrameInserter(VotingGrid* grid, const InserterOptions& options)
   ws_->chunk_bounds.assign(options.threads, SegmentBounds{});
   ws_->row_weight.assign(static_cast<size_t>(options.threads) * grid->ny(), 0);
   ws_->slab.assign(options.threads + 1, 0);
+#if defined(__x86_64__)
+  if (LaneSetup(kernel_, grid->nz())) {
+    for (int t = 0; t < options.threads; ++t) ws_->tile_rays.push_back(std::make_unique<avx512::TileRays>());
+  }
+#endif
 }
 
 FrameInserter::~FrameInserter() = default;
@@ -441,8 +451,9 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     ws.camera = camera;
     ws.has_camera = true;
     ws.ray_C.resize(2 * pixels);
-    // One thread walks each tile's rays as it sets them up; threads share a frame's setups.
-    if (!LaneSetup(KernelWalk(kernel_, grid_->nz()))) {
+    // Without a lane setup, one thread walks each tile's rays as it sets them up; threads share
+    // a frame's setups.
+    if (!LaneSetup(kernel_, grid_->nz())) {
       const size_t slots = options_.threads == 1 ? static_cast<size_t>(kInsertionTilePx) * kInsertionTilePx : pixels;
       ws.rays.reset(static_cast<RaySetup*>(std::malloc(slots * sizeof(RaySetup))));
       if (ws.rays == nullptr) throw std::bad_alloc();
@@ -469,7 +480,6 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
   for (int a = 0; a < 3; ++a) o_g[a] = (o_W[a] - min_W[a]) / voxel;
 
   VotingGrid* mutable_grid = grid_;
-  const WalkRaysFn walk_rays = KernelWalk(kernel_, n[2]);
   auto make_context = [&](int thread, int ya, int yb) {
     if (ws.hits[thread].size() < pixels) ws.hits[thread].resize(pixels);  // at most one hit per pixel
     return WalkContext{o_g[0], o_g[1], o_g[2], n[0], n[1], n[2], ya, yb, mutable_grid->mutable_column(0),
@@ -479,7 +489,7 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
 
   double thread_cpu_ms[256] = {};  // per thread, all phases: the frame's critical path
   constexpr int kTile = kInsertionTilePx;
-  if (LaneSetup(walk_rays)) {
+  if (LaneSetup(kernel_, n[2])) {
 #if defined(__x86_64__)
     // Every thread sets all of the frame's tiles up in lanes and walks, tile by tile while the
     // rays are in cache, those that may touch its slab of rows, balanced on the last frame's
@@ -496,10 +506,6 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     setup_frame.voxel = voxel;
     setup_frame.ray_C = ws.ray_C.data();
     setup_frame.width = width;
-    ws.tile_rays.resize(threads);
-    for (auto& t : ws.tile_rays) {
-      if (t == nullptr) t = std::make_unique<avx512::TileRays>();
-    }
     if (!ws.slab_balanced) {  // one thread, or the first frame: rows split evenly
       for (int t = 0; t <= threads; ++t) ws.slab[t] = static_cast<int>(static_cast<int64_t>(n[1]) * t / threads);
     }
@@ -510,24 +516,26 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
       SegmentBounds& bounds = ws.chunk_bounds[thread];
       s = InsertStats{};
       bounds = SegmentBounds{};
+      if (thread != 0 && ws.slab[thread] >= ws.slab[thread + 1]) return;  // no rows: nothing to walk or count
       InsertStats uncounted;
       SegmentBounds unbounded;
       InsertStats* counts = thread == 0 ? &s : &uncounted;
       SegmentBounds* widened = thread == 0 ? &bounds : &unbounded;
       uint32_t* weight = thread == 0 && threads > 1 ? ws.row_weight.data() : nullptr;
       WalkContext context = make_context(thread, ws.slab[thread], ws.slab[thread + 1]);
-      const bool all_rows = context.ya == 0 && context.yb == n[1];
-      for (int tv = 0; tv < height; tv += kTile) {
-        for (int tu = 0; tu < width; tu += kTile) {
-          const int u1 = std::min(tu + kTile, width), v1 = std::min(tv + kTile, height);
-          if (all_rows) {
-            avx512::InsertTile<true>(setup_frame, depth_m, tu, u1, tv, v1, ws.tile_rays[thread].get(), &context, counts,
-                                     widened, weight);
-          } else {
-            avx512::InsertTile<false>(setup_frame, depth_m, tu, u1, tv, v1, ws.tile_rays[thread].get(), &context, counts,
-                                      widened, weight);
+      auto tiles = [&](auto all_rows) {
+        for (int tv = 0; tv < height; tv += kTile) {
+          for (int tu = 0; tu < width; tu += kTile) {
+            avx512::InsertTile<all_rows()>(setup_frame, depth_m, tu, std::min(tu + kTile, width), tv,
+                                           std::min(tv + kTile, height), ws.tile_rays[thread].get(), &context, counts,
+                                           widened, weight);
           }
         }
+      };
+      if (context.ya == 0 && context.yb == n[1]) {
+        tiles(std::true_type{});
+      } else {
+        tiles(std::false_type{});
       }
       ApplyHits(context.hits, context.hit_count, mutable_grid);  // after the frame's misses in its rows
       if (thread == 0) s.pixels = pixels;
@@ -542,6 +550,7 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     }
 #endif
   } else {
+    const WalkRaysFn walk_rays = KernelWalk(kernel_, n[2]);
     // Phase 1: per band of tile rows, tile by tile, classify each pixel and set its ray up (clip
     // to the box). One thread walks each tile's rays right away (no frame-sized buffer, and the
     // rays are still in cache). A tile's rays cross neighbouring columns, which stay in cache.

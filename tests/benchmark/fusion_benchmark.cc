@@ -364,7 +364,7 @@ int main(int argc, char** argv) {
   std::string json_path = FUSION_BENCHMARK_JSON;
   bool gbench = true, reference = true, peers = true;
   double octomap_budget_s = 60.0;
-  int only_threads = 0;  // --threads N: only our row with N threads
+  int only_threads = 0;  // --threads N: only our rows with N threads
   std::vector<char*> rest{argv[0]};
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -380,6 +380,10 @@ int main(int argc, char** argv) {
       romunect::fusion::g_frames = std::stoi(argv[++i]);
     } else if (a == "--threads" && i + 1 < argc) {
       only_threads = std::stoi(argv[++i]);
+      if (only_threads != 1 && only_threads != 2) {
+        std::fprintf(stderr, "fusion_benchmark: --threads %d: our rows run 1 or 2 threads\n", only_threads);
+        return 2;
+      }
     } else if (a == "--octomap_budget_s" && i + 1 < argc) {
       octomap_budget_s = std::stod(argv[++i]);
     } else {
