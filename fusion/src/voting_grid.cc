@@ -9,6 +9,8 @@
 #include <cstring>
 #include <limits>
 #include <sstream>
+#include <thread>
+#include <vector>
 
 #if defined(__x86_64__)
 #include <immintrin.h>
@@ -238,7 +240,8 @@ void VotingGrid::Clear() {
   std::fill(hit_hi_, hit_hi_ + columns, uint16_t{0});
 }
 
-cv::Mat ExtractHeightMap(const VotingGrid& grid, ExtractKernel kernel) {
+cv::Mat ExtractHeightMap(const VotingGrid& grid, ExtractKernel kernel, int threads) {
+  ROMUNECT_CHECK(threads >= 1);
   constexpr int kPrefetchColumns = 16;
   void (*max_vote)(const Vote*, int, int, int*, int*) = &MaxVoteSse2;
 #if defined(__x86_64__)
@@ -247,26 +250,35 @@ cv::Mat ExtractHeightMap(const VotingGrid& grid, ExtractKernel kernel) {
   cv::Mat height(grid.ny(), grid.nx(), CV_32F);
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const double z0 = grid.options().min_W.z(), voxel = grid.voxel_m();
-  for (int iy = 0; iy < grid.ny(); ++iy) {
-    float* row = height.ptr<float>(iy);
-    for (int ix = 0; ix < grid.nx(); ++ix) {
-      const size_t c = grid.ColumnIndex(ix, iy);
-      // Columns are read where they were hit, 512 B apart: fetch a few ahead (the latency of
-      // the grid's memory, not the maximum, bounds extraction).
-      if (ix + kPrefetchColumns < grid.nx()) {
-        const size_t ahead = c + kPrefetchColumns;
-        if (grid.hit_lo(ahead) <= grid.hit_hi(ahead)) __builtin_prefetch(grid.column(ix + kPrefetchColumns, iy) + grid.hit_lo(ahead));
+  auto extract_rows = [&](int iy0, int iy1) {
+    for (int iy = iy0; iy < iy1; ++iy) {
+      float* row = height.ptr<float>(iy);
+      for (int ix = 0; ix < grid.nx(); ++ix) {
+        const size_t c = grid.ColumnIndex(ix, iy);
+        // Columns are read where they were hit, 512 B apart: fetch a few ahead (the latency of
+        // the grid's memory, not the maximum, bounds extraction).
+        if (ix + kPrefetchColumns < grid.nx()) {
+          const size_t ahead = c + kPrefetchColumns;
+          if (grid.hit_lo(ahead) <= grid.hit_hi(ahead)) __builtin_prefetch(grid.column(ix + kPrefetchColumns, iy) + grid.hit_lo(ahead));
+        }
+        const int lo = grid.hit_lo(c), hi = grid.hit_hi(c);
+        row[ix] = nan;
+        if (lo > hi) continue;
+        // The highest vote, then the highest z holding it (ties go to the higher z).
+        int best, best_k;
+        max_vote(grid.column(ix, iy), lo, hi, &best, &best_k);
+        if (best <= 0) continue;  // only positive votes win
+        row[ix] = static_cast<float>(z0 + (best_k + 0.5) * voxel);
       }
-      const int lo = grid.hit_lo(c), hi = grid.hit_hi(c);
-      row[ix] = nan;
-      if (lo > hi) continue;
-      // The highest vote, then the highest z holding it (ties go to the higher z).
-      int best, best_k;
-      max_vote(grid.column(ix, iy), lo, hi, &best, &best_k);
-      if (best <= 0) continue;  // only positive votes win
-      row[ix] = static_cast<float>(z0 + (best_k + 0.5) * voxel);
     }
-  }
+  };
+  // Rows are independent: bands of rows on threads, the first on the caller.
+  const int bands = std::max(1, std::min(threads, grid.ny()));
+  auto band_begin = [&](int b) { return static_cast<int>(static_cast<int64_t>(grid.ny()) * b / bands); };
+  std::vector<std::thread> workers;
+  for (int b = 1; b < bands; ++b) workers.emplace_back(extract_rows, band_begin(b), band_begin(b + 1));
+  extract_rows(0, band_begin(1));
+  for (std::thread& w : workers) w.join();
   return height;
 }
 

@@ -2,9 +2,10 @@
 // 0.25 mm over 150 x 80 x 64 mm with our grid (1 and 2 threads; pages on first touch, as fuse
 // runs it, and paged in before the loop, as scan runs it), the plain reference of
 // tests/fusion, and, when built with ROMUNECT_BENCH_PEERS, Open3D's ScalableTSDFVolume and
-// OctoMap. Prints one table and writes JSON (--json PATH, default in the build folder), then runs
-// the Google Benchmark cases (insert one frame, extract) unless --no_gbench. --no_reference and
-// --no_peers leave those rows out; --octomap_budget_s caps OctoMap's time (it runs >= 1 frame);
+// OctoMap. Prints one table (our rows extract on their thread count) and writes JSON (--json
+// PATH, default in the build folder), then runs the Google Benchmark cases (insert one frame;
+// extract on 1 and 2 threads) unless --no_gbench. --no_reference and --no_peers leave those rows
+// out; --octomap_budget_s caps OctoMap's time (it runs >= 1 frame);
 // --frames N renders a shorter approach and --threads N keeps only those rows of ours (callgrind).
 //
 // Times: wall and process CPU time per frame, medians. The machine is shared: say its load when
@@ -145,7 +146,7 @@ Row RunOurs(int threads, bool paged_in) {
   cv::Mat height;
   for (int r = 0; r < 15; ++r) {
     const double t0 = WallMs();
-    height = ExtractHeightMap(grid);
+    height = ExtractHeightMap(grid, ExtractKernel::kAuto, threads);
     extract.push_back(WallMs() - t0);
   }
   row.frames = static_cast<int>(w.frames.size());
@@ -353,9 +354,10 @@ void BM_ExtractAfterAllFrames(benchmark::State& state) {
   VotingGrid grid(w.grid);
   FrameInserter inserter(&grid, InserterOptions{2});
   for (const Frame& f : w.frames) inserter.Insert(w.bin.camera(), f.depth_m, *f.T_W_C, nullptr);
-  for (auto _ : state) benchmark::DoNotOptimize(ExtractHeightMap(grid));
+  const int threads = static_cast<int>(state.range(0));
+  for (auto _ : state) benchmark::DoNotOptimize(ExtractHeightMap(grid, ExtractKernel::kAuto, threads));
 }
-BENCHMARK(BM_ExtractAfterAllFrames)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_ExtractAfterAllFrames)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 }  // namespace
 }  // namespace romunect::fusion

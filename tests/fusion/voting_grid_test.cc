@@ -122,6 +122,10 @@ TEST(VotingGridTest, ExtractionMatchesReferenceOnRandomVotes) {
     const cv::Mat expected = reference::ReferenceExtract(ref);
     EXPECT_TRUE(testing::ImagesBitEqual(ExtractHeightMap(grid), expected)) << "nz " << nz;
     EXPECT_TRUE(testing::ImagesBitEqual(ExtractHeightMap(grid, ExtractKernel::kSse2), expected)) << "nz " << nz;
+    for (const int threads : {2, 3, 64}) {  // bands of rows; 64 > ny: one row per thread at most
+      EXPECT_TRUE(testing::ImagesBitEqual(ExtractHeightMap(grid, ExtractKernel::kAuto, threads), expected))
+          << "nz " << nz << ", " << threads << " threads";
+    }
   }
 }
 

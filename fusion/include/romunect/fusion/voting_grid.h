@@ -115,8 +115,10 @@ enum class ExtractKernel { kAuto, kSse2 };
 
 // The fused height map: CV_32F, ny rows x nx columns, world z (m) of the winning voxel centre,
 // NaN where no voxel of the column has a positive vote. Winner: highest vote, ties the higher z.
-// Callable at any time between insertions.
-cv::Mat ExtractHeightMap(const VotingGrid& grid, ExtractKernel kernel = ExtractKernel::kAuto);
+// Callable at any time between insertions. `threads` (>= 1) extract bands of rows at once: the
+// same map at any count (each column is read one after the other, so the memory's latency bounds
+// one thread).
+cv::Mat ExtractHeightMap(const VotingGrid& grid, ExtractKernel kernel = ExtractKernel::kAuto, int threads = 1);
 
 // The completeness of the height map (the share of its cells with a value) frame after frame,
 // without extracting it: after each insertion, Update(FrameInserter::changed_columns()) looks
