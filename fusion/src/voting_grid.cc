@@ -9,8 +9,6 @@
 #include <cstring>
 #include <limits>
 #include <sstream>
-#include <thread>
-#include <vector>
 
 #if defined(__x86_64__)
 #include <immintrin.h>
@@ -19,6 +17,7 @@
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/cpu_features.h"
 #include "romunect/sensor/errors.h"
+#include "romunect/sensor/parallel_rows.h"
 
 namespace romunect::fusion {
 namespace {
@@ -272,13 +271,7 @@ cv::Mat ExtractHeightMap(const VotingGrid& grid, ExtractKernel kernel, int threa
       }
     }
   };
-  // Rows are independent: bands of rows on threads, the first on the caller.
-  const int bands = std::max(1, std::min(threads, grid.ny()));
-  auto band_begin = [&](int b) { return static_cast<int>(static_cast<int64_t>(grid.ny()) * b / bands); };
-  std::vector<std::thread> workers;
-  for (int b = 1; b < bands; ++b) workers.emplace_back(extract_rows, band_begin(b), band_begin(b + 1));
-  extract_rows(0, band_begin(1));
-  for (std::thread& w : workers) w.join();
+  ParallelRows(threads, grid.ny(), extract_rows);  // rows are independent
   return height;
 }
 

@@ -12,11 +12,11 @@
 #include <opencv2/imgproc.hpp>
 
 #include "depth_engine_kernel.h"
-#include "parallel_rows.h"
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/cpu_features.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/ir_synthesis.h"
+#include "romunect/sensor/parallel_rows.h"
 
 namespace romunect {
 namespace {

@@ -9,9 +9,9 @@
 
 #include "ir_synthesis_kernel.h"
 #include "ir_synthesis_rows.h"
-#include "parallel_rows.h"
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/cpu_features.h"
+#include "romunect/sensor/parallel_rows.h"
 #include "romunect/sensor/pattern.h"
 
 namespace romunect {
