@@ -509,7 +509,7 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
     if (!ws.slab_balanced) {  // one thread, or the first frame: rows split evenly
       for (int t = 0; t <= threads; ++t) ws.slab[t] = static_cast<int>(static_cast<int64_t>(n[1]) * t / threads);
     }
-    std::fill(ws.row_weight.begin(), ws.row_weight.end(), 0u);
+    if (threads > 1) std::fill(ws.row_weight.begin(), ws.row_weight.end(), 0u);  // thread 0 counts into it
     auto insert = [&](int thread) {
       const double cpu0 = ThreadCpuMs();
       InsertStats& s = ws.chunk_stats[thread];
