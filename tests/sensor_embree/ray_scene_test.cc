@@ -9,6 +9,7 @@
 #include <gtest/gtest.h>
 
 #include "brute_force.h"
+#include "romunect/testing/test_support.h"
 #include "romunect/sensor/embree/renderer.h"
 
 namespace romunect::embree {
@@ -216,6 +217,60 @@ TEST(RaySceneTest, MovingPartWithTheCameraGivesTheSameImage) {
     }
   }
   EXPECT_GT(hits, camera.width * camera.height / 4);
+}
+
+// Moving parts that no ray can reach are skipped (RenderStats counts them) and change nothing:
+// a part behind the camera (as an arm's links behind a hand-held sensor) leaves every byte as
+// without it; a part beside the view but between the scene and the projector is out of the
+// camera rays' reach yet still casts its shadow, checked against the brute-force reference.
+TEST(RaySceneTest, MovingPartsOutOfReachAreSkippedAndChangeNothing) {
+  const CameraModel camera = WideCamera();
+  const Pose T_C_P = MakePose(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.05, 0.0, 0.0));
+  std::mt19937 rng(11);
+  const Pose T_W_C = RandomPose(rng, 0.3);
+  const TriangleMesh plane = MakePlaneTarget(0.2, 1.0);  // in C: z = 0.2
+  // Behind the lens plane (z in C from -0.05 to -0.01 m): no camera or shadow ray gets there.
+  const TriangleMesh behind = MakeIcosphere(Eigen::Vector3d(0.0, 0.0, -0.03), 0.02, 2);
+  // Beside the view (slopes up to ~0.42 reach x = 0.015 m at z = 0.035 m) and 3 cm in front of
+  // the projector: it shadows a disc of ~3 cm radius around x = 0.05 m on the plane.
+  const TriangleMesh caster = MakeIcosphere(Eigen::Vector3d(0.05, 0.0, 0.03), 0.005, 2);
+  auto render = [&](const std::vector<const TriangleMesh*>& moving, GeometryBuffer* buffer) {
+    RayScene scene;
+    scene.AddStatic(plane, T_W_C, IrMaterial{}, 1);
+    for (size_t k = 0; k < moving.size(); ++k) {
+      scene.AddMoving(*moving[k], T_W_C, IrMaterial{}, 2 + static_cast<int>(k));
+    }
+    scene.Commit();
+    GeometryRenderer renderer;
+    return renderer.Render(scene, camera, T_W_C, T_C_P, RenderOptions{}, buffer);
+  };
+  GeometryBuffer alone, with_behind, with_caster;
+  const RenderStats alone_stats = render({}, &alone);
+  EXPECT_EQ(alone_stats.moving_out_of_view, 0);
+  const RenderStats behind_stats = render({&behind}, &with_behind);
+  EXPECT_EQ(behind_stats.moving_out_of_view, 1);
+  EXPECT_EQ(behind_stats.moving_out_of_shadows, 1);
+  const GeometryLayer& a = alone.layers[0];
+  const GeometryLayer& b = with_behind.layers[0];
+  EXPECT_TRUE(testing::ImagesBitEqual(a.p_C, b.p_C));
+  EXPECT_TRUE(testing::ImagesBitEqual(a.normal_C, b.normal_C));
+  EXPECT_TRUE(testing::ImagesBitEqual(a.material, b.material));
+  EXPECT_TRUE(testing::ImagesBitEqual(a.object_id, b.object_id));
+  EXPECT_TRUE(testing::ImagesBitEqual(a.lit, b.lit));
+
+  const RenderStats caster_stats = render({&behind, &caster}, &with_caster);
+  EXPECT_EQ(caster_stats.moving_out_of_view, 2);
+  EXPECT_EQ(caster_stats.moving_out_of_shadows, 1);  // the caster is within the shadow rays' reach
+  EXPECT_TRUE(testing::ImagesBitEqual(a.p_C, with_caster.layers[0].p_C));
+  const int unlit = camera.width * camera.height - cv::countNonZero(with_caster.layers[0].lit);
+  EXPECT_GT(unlit, camera.width * camera.height / 20);
+  std::vector<WorldTriangle> soup;
+  AppendWorldTriangles(plane, T_W_C, 1, &soup);
+  AppendWorldTriangles(behind, T_W_C, 2, &soup);
+  AppendWorldTriangles(caster, T_W_C, 3, &soup);
+  const Comparison c = CompareWithReference(with_caster, soup, camera, T_W_C, T_C_P);
+  EXPECT_GE(c.compared, (1.0 - kMaxAmbiguousFraction) * c.rays);
+  EXPECT_GT(c.shadowed, c.rays / 20);
 }
 
 // Float instance transform of a translation: exact to float rounding at 0.25 m (~1.5e-8 m).

@@ -145,6 +145,7 @@ int RayScene::AddMoving(const TriangleMesh& mesh_O, const Pose& T_W_O, const IrM
   rtcCommitScene(part.scene.get());  // built once; only its pose changes later
   CheckDevice(device, "rtcCommitScene(moving part)");
   part.T_W_O = T_W_O;
+  for (const Eigen::Vector3f& v : mesh_O.vertices_O) part.bounds_O.extend(v.cast<double>());
   part.instance_id = AttachInstance(device, s.top.get(), part.scene.get(), T_W_O);
   const int index = static_cast<int>(s.moving.size());
   // The top level holds only moving parts, attached in order and never detached: the renderer

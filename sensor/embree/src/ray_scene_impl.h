@@ -6,6 +6,7 @@
 #include <memory>
 #include <vector>
 
+#include <Eigen/Geometry>
 #include <embree3/rtcore.h>
 
 #include "romunect/sensor/embree/ray_scene.h"
@@ -33,6 +34,7 @@ struct Part {
   Pose T_W_O = Pose::Identity();
   std::vector<GeometryInfo> geometries;    // by geometry id within `scene`
   unsigned instance_id = RTC_INVALID_GEOMETRY_ID;  // moving parts: geometry id of the instance in top
+  Eigen::AlignedBox3d bounds_O;            // moving parts: the box of the mesh's vertices in O
 };
 
 struct RayScene::Impl {

@@ -1,6 +1,7 @@
 #include "romunect/sensor/embree/renderer.h"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -22,6 +23,7 @@ namespace {
 
 constexpr int kPacket = 4;  // packets are 4 x 4 pixels: one RTCRayHit16
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+constexpr double kInf = std::numeric_limits<double>::infinity();
 
 // A part rays can hit: the rotation taking its normals into C (row-major) and its geometries.
 struct PartSetup {
@@ -32,7 +34,10 @@ struct PartSetup {
 // Per-frame constants shared by all threads (read only while tracing). Rotations are row-major.
 struct FrameSetup {
   RTCScene static_scene = nullptr;  // the static part, in W, traced directly
-  RTCScene moving = nullptr;        // instances of the moving parts; null when there are none
+  // Instances of the moving parts for camera rays and for shadow rays; null where there are
+  // none or no such ray of the frame can meet any of them (MovingPartsOutOfReach).
+  RTCScene moving_camera = nullptr;
+  RTCScene moving_shadow = nullptr;
   int width = 0, height = 0;
   float R_W_C[9];
   float t_W_C[3];
@@ -186,6 +191,83 @@ cv::Mat OffsetRayTable(const CameraModel& camera, const Eigen::Vector2f& offset_
   return table;
 }
 
+// The bounds of a ray table's finite entries (x = ray_x, y = ray_y): min x, max x, min y, max y.
+Eigen::Vector4d RayTableBounds(const cv::Mat& table) {
+  Eigen::Vector4d b(kInf, -kInf, kInf, -kInf);
+  for (int v = 0; v < table.rows; ++v) {
+    const auto* row = table.ptr<cv::Vec2f>(v);
+    for (int u = 0; u < table.cols; ++u) {
+      if (!std::isfinite(row[u][0]) || !std::isfinite(row[u][1])) continue;  // such rays hit nothing
+      b = Eigen::Vector4d(std::min<double>(b[0], row[u][0]), std::max<double>(b[1], row[u][0]),
+                          std::min<double>(b[2], row[u][1]), std::max<double>(b[3], row[u][1]));
+    }
+  }
+  return b;
+}
+
+// A half-space n . q >= c of C.
+struct HalfSpace {
+  Eigen::Vector3d n;
+  double c;
+};
+
+// Far above the float rounding of rays, hits and instance transforms at metres (~1e-7 m).
+constexpr double kReachMarginM = 1e-4;
+
+// Which moving parts no camera ray and no shadow ray of the frame can meet (per part: out of
+// reach of camera rays, out of reach of shadow rays). A camera ray leaves its lens point
+// o = (o_x, o_y, 0) along (s_x, s_y, 1) with slopes inside the bounds of its layer's table (less
+// the lens offset over the focus distance), so its points q = o + t d, t >= 0, keep q_z >= 0 and
+// s_lo q_z - a <= q_x <= s_hi q_z + a (a = the largest |o_x|; y alike): five half-spaces. A
+// shadow ray runs from within the bias of a camera ray's hit to the projector centre, so it
+// stays in each of those half-spaces (widened by the bias) that holds the centre too: they are
+// convex. A part whose bounding box (its eight corners in C) lies beyond one of them cannot be
+// met. The test only skips work: a part in reach is traced as before.
+std::vector<std::array<bool, 2>> MovingPartsOutOfReach(const std::vector<Part>& moving, const Pose& T_W_C,
+                                                        const Eigen::Vector3d& p_P_C,
+                                                        const std::vector<LensSample>& samples,
+                                                        const std::vector<Eigen::Vector4d>& table_bounds,
+                                                        double inv_focus_m, double bias_m) {
+  Eigen::Vector4d slopes(kInf, -kInf, kInf, -kInf);
+  Eigen::Vector2d lens(0.0, 0.0);
+  for (size_t l = 0; l < samples.size(); ++l) {
+    const Eigen::Vector2d o = samples[l].lens_offset_m.cast<double>();
+    const Eigen::Vector4d& b = table_bounds[l];
+    slopes = Eigen::Vector4d(std::min(slopes[0], b[0] - o.x() * inv_focus_m), std::max(slopes[1], b[1] - o.x() * inv_focus_m),
+                             std::min(slopes[2], b[2] - o.y() * inv_focus_m), std::max(slopes[3], b[3] - o.y() * inv_focus_m));
+    lens = lens.cwiseMax(o.cwiseAbs());
+  }
+  const HalfSpace view[] = {{Eigen::Vector3d(0, 0, 1), 0.0},
+                            {Eigen::Vector3d(1, 0, -slopes[0]), -lens.x()},
+                            {Eigen::Vector3d(-1, 0, slopes[1]), -lens.x()},
+                            {Eigen::Vector3d(0, 1, -slopes[2]), -lens.y()},
+                            {Eigen::Vector3d(0, -1, slopes[3]), -lens.y()}};
+  const Pose T_C_W = T_W_C.inverse();
+  std::vector<std::array<bool, 2>> out(moving.size(), {false, false});
+  for (size_t i = 0; i < moving.size(); ++i) {
+    const Part& part = moving[i];
+    const Pose T_C_O = T_C_W * part.T_W_O;
+    Eigen::Vector3d corners[8];
+    for (int k = 0; k < 8; ++k) {
+      corners[k] = T_C_O * part.bounds_O.corner(static_cast<Eigen::AlignedBox3d::CornerType>(k));
+    }
+    // Whether every corner lies beyond h, widened by `widen` (m) and the margin.
+    auto beyond = [&](const HalfSpace& h, double widen) {
+      const double limit = h.c - (widen + kReachMarginM) * h.n.norm();
+      for (const Eigen::Vector3d& q : corners) {
+        if (!(h.n.dot(q) < limit)) return false;
+      }
+      return true;
+    };
+    for (const HalfSpace& h : view) {
+      out[i][0] = out[i][0] || beyond(h, 0.0);
+      const bool holds_projector = h.n.dot(p_P_C) >= h.c - bias_m * h.n.norm();
+      out[i][1] = out[i][1] || (holds_projector && beyond(h, bias_m));
+    }
+  }
+  return out;
+}
+
 }  // namespace
 
 const char* RenderKernelName(RenderKernel kernel) {
@@ -258,6 +340,7 @@ struct GeometryRenderer::Cache {
   CameraModel camera;
   std::vector<Eigen::Vector2f> offsets;  // the pixel offset each table was made for
   std::vector<cv::Mat> tables;
+  std::vector<Eigen::Vector4d> table_bounds;  // RayTableBounds of each table
   cv::Mat refine;  // adaptive sampling: pixels that get the extra samples
 };
 
@@ -278,7 +361,6 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
 
   FrameSetup f;
   f.static_scene = s.static_part.scene.get();
-  f.moving = s.moving.empty() ? nullptr : s.top.get();
   f.width = camera.width;
   f.height = camera.height;
   // Adaptive: sub-pixel samples through the pinhole; the lens' defocus is left to synthesis.
@@ -296,6 +378,7 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
   for (int l = static_cast<int>(cache.tables.size()); l < layers; ++l) {
     cache.offsets.push_back(f.samples[l].pixel_offset_px);
     cache.tables.push_back(OffsetRayTable(camera, f.samples[l].pixel_offset_px));
+    cache.table_bounds.push_back(RayTableBounds(cache.tables.back()));
   }
   for (int l = 0; l < layers; ++l) ROMUNECT_CHECK(cache.offsets[l] == f.samples[l].pixel_offset_px);
   f.ray_tables = &cache.tables;
@@ -321,6 +404,18 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
     to_floats(R_C_O, f.parts[1 + id].R_C_part);
     f.parts[1 + id].info = &part.geometries;
   }
+  // The moving parts are traced when at least one is within reach of the rays.
+  const std::vector<std::array<bool, 2>> out_of_reach =
+      MovingPartsOutOfReach(s.moving, T_W_C, T_C_P.translation(), f.samples, cache.table_bounds, f.inv_focus_m,
+                            options.shadow_bias_m);
+  int64_t out_of_view = 0, out_of_shadows = 0;
+  for (const auto& part : out_of_reach) {
+    out_of_view += part[0];
+    out_of_shadows += part[1];
+  }
+  const int64_t moving = static_cast<int64_t>(s.moving.size());
+  f.moving_camera = out_of_view < moving ? s.top.get() : nullptr;
+  f.moving_shadow = out_of_shadows < moving ? s.top.get() : nullptr;
   out->materials = s.materials;
   out->layers.resize(layers);
   for (int l = 0; l < layers; ++l) {
@@ -414,6 +509,8 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
     stats.lit += c.lit;
   }
   stats.refined_pixels = refined;
+  stats.moving_out_of_view = out_of_view;
+  stats.moving_out_of_shadows = out_of_shadows;
   stats.seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return stats;

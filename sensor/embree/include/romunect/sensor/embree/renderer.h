@@ -57,6 +57,11 @@ struct RenderStats {
   int64_t shadow_rays = 0;   // traced shadow rays (hits facing the projector)
   int64_t lit = 0;           // hits the projector centre sees
   int64_t refined_pixels = 0;  // adaptive: pixels that got the extra samples
+  // Moving parts that no camera ray (no shadow ray) of the frame can reach, from their bounding
+  // boxes against the view's bounds. When that is all of them, those rays skip the moving parts
+  // (on a hand-held sensor the arm's links sit behind the camera); the image is the same.
+  int64_t moving_out_of_view = 0;
+  int64_t moving_out_of_shadows = 0;
   double seconds = 0.0;      // wall time of Render()
   std::string BriefReport() const;
 };
