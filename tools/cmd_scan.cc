@@ -46,6 +46,13 @@ struct ScanArguments {
   std::string sweep = "columns";
 };
 
+// CPU time of all of the process's threads.
+double ProcessCpuSeconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+}
+
 double Seconds(std::chrono::steady_clock::time_point since) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count();
 }
@@ -176,6 +183,7 @@ void RunScan(const ScanArguments& args) {
                grid.voxel_m() * 1e3);
   const bool interactive = isatty(fileno(stderr));
   const auto t_loop = std::chrono::steady_clock::now();
+  const double cpu_loop = ProcessCpuSeconds();
   // A pipeline on the cores: the simulator renders the next frame on its own thread while its
   // imaging thread images the one before (ScanOptions::imaging_thread), this one fuses, and the
   // frame directory is written on a fourth. Frames keep their order and content, so a seed
@@ -218,6 +226,7 @@ void RunScan(const ScanArguments& args) {
   }
   frame_writer.Finish();
   report.loop_wall_s = Seconds(t_loop);
+  report.loop_cpu_s = ProcessCpuSeconds() - cpu_loop;
   if (interactive) std::fprintf(stderr, "\n");
   report.write_s = frame_writer.busy_s();
   report.wait_s = source.wait_s();

@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <limits>
 #include <sstream>
+#include <thread>
 
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -161,7 +162,9 @@ std::string Html(const ScanReport& r, const fs::path& dir) {
   }
   h << "</table><p>Simulated approach " << Format("%.2f s", j["realtime"]["simulated_s"].get<double>())
     << ", scan loop " << Format("%.2f s", j["realtime"]["loop_wall_s"].get<double>()) << " of wall time: "
-    << Format("%.2fx real time", j["realtime"]["factor"].get<double>()) << ".</p>";
+    << Format("%.2fx real time", j["realtime"]["factor"].get<double>()) << ", "
+    << Format("%.2f s", j["realtime"]["loop_cpu_s"].get<double>()) << " of CPU on "
+    << j["realtime"]["cores"].get<unsigned>() << " cores.</p>";
   h << "<h2>report.json</h2><pre>" << j.dump(1) << "</pre></body></html>\n";
   return h.str();
 }
@@ -217,6 +220,8 @@ std::string ScanReportJson(const ScanReport& r) {
                     {"total", r.total_wall_s}};
   j["realtime"] = {{"simulated_s", s.simulated_s},
                    {"loop_wall_s", r.loop_wall_s},
+                   {"loop_cpu_s", r.loop_cpu_s},
+                   {"cores", std::thread::hardware_concurrency()},
                    {"factor", r.loop_wall_s > 0 ? s.simulated_s / r.loop_wall_s : 0.0}};
   j["fusion"] = json::parse(fusion::FusionReportJson(r.fusion));
   j["settle"] = s.settle.BriefReport();
@@ -258,7 +263,8 @@ std::string ScanSummary(const ScanReport& r, const fs::path& run_dir) {
   const double simulated = r.scan_stats.simulated_s;
   s << "time: scan loop " << Format("%.2f s", r.loop_wall_s) << " for " << Format("%.2f s", simulated)
     << " simulated (" << Format("%.2fx real time", r.loop_wall_s > 0 ? simulated / r.loop_wall_s : 0.0)
-    << "), total " << Format("%.1f s", r.total_wall_s) << "\n";
+    << ", " << Format("%.1f", r.loop_wall_s > 0 ? r.loop_cpu_s / r.loop_wall_s : 0.0) << " cores busy), total "
+    << Format("%.1f s", r.total_wall_s) << "\n";
   s << "wrote " << run_dir.string() << "/ (report.html, report.json, figure2.png, fused_depth.*, frames/)\n";
   return s.str();
 }

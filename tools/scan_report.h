@@ -51,8 +51,10 @@ struct ScanReport {
   fusion::FusionReport fusion;
   std::vector<double> completeness_each_ms, valid_fraction_per_frame;
   SampleDepths sample_depths;
-  // write_s: the frame directory's writer thread; wait_s: fusion waiting for the simulator.
-  double write_s = 0.0, wait_s = 0.0, loop_wall_s = 0.0, total_wall_s = 0.0;
+  // write_s: the frame directory's writer thread; wait_s: fusion waiting for the simulator;
+  // loop_cpu_s: the process's CPU time (all threads) during the loop: with loop_wall_s it says
+  // how busy the cores were.
+  double write_s = 0.0, wait_s = 0.0, loop_wall_s = 0.0, loop_cpu_s = 0.0, total_wall_s = 0.0;
 
   cv::Mat height_m, gt_height_m, overview;
   sim::ScanStats scan_stats;
