@@ -122,8 +122,9 @@ DepthRange MeasurableDepthRange(const Rig& rig, double usable_fraction) {
   return range;
 }
 
-// The imaging of one frame at a time on its own thread (Scanner::Next): frame k is imaged from
-// its own geometry buffer while frame k + 1 is rendered into the other.
+// One imaging stage on its own thread, a frame at a time (Scanner::Next): frame k's IR is
+// synthesized from its own geometry buffer while frame k + 1 is rendered into the other, and
+// frame k - 1's depth is computed meanwhile on a second such thread.
 class ImagingThread {
  public:
   ImagingThread() : thread_([this] { Run(); }) {}
@@ -192,25 +193,41 @@ struct Scanner::Impl {
   embree::RenderOptions render_options;
   GeometryBuffer geometry[2];  // frame k renders into geometry[k % 2]
   std::unique_ptr<FrameImager> imager;
-  // With an imager and options.imaging_thread: the frame being imaged, delivered by the next
-  // Next() (frames come out one call late, the last one after rendering has ended), and the
-  // thread imaging it (declared last: it is joined before what its job uses goes away).
-  std::optional<Frame> in_imaging;
-  double in_imaging_s = 0.0;  // the job's imaging time, added to stats once waited for
-
-  void WaitForImaging() {
-    try {
-      imaging->Wait();
-    } catch (...) {
-      in_imaging.reset();  // never delivered half-imaged
-      throw;
-    }
-    stats.imaging_s += in_imaging_s;
-  }
   ScanStats stats;
   int next = 0;
   int count = 0;
-  std::unique_ptr<ImagingThread> imaging;  // see in_imaging
+  // With an imager and options.imaging_thread: the frame in IR synthesis (rendered by the last
+  // Next()) and the one in the depth engine (rendered by the one before), each on its thread
+  // (declared last: joined before what their jobs use goes away). Frames come out of Next() two
+  // calls late, the last two after rendering has ended.
+  struct Stage {
+    std::optional<Frame> frame;
+    double seconds = 0.0;  // the job's time, added to stats once waited for
+    std::unique_ptr<ImagingThread> thread;
+  };
+  Stage ir_stage, depth_stage;
+
+  // Waits for a stage's job; a failed frame is dropped, never delivered half-imaged.
+  void Wait(Stage* stage) {
+    try {
+      stage->thread->Wait();
+    } catch (...) {
+      stage->frame.reset();
+      throw;
+    }
+    stats.imaging_s += stage->seconds;
+  }
+  // Starts the depth engine on the frame leaving IR synthesis (waited for).
+  void StartDepth() {
+    depth_stage.frame = std::move(ir_stage.frame);
+    ir_stage.frame.reset();
+    Frame* f = &*depth_stage.frame;
+    depth_stage.thread->Start([this, f] {
+      const auto start = Clock::now();
+      imager->ComputeDepth(options.rig, f);
+      depth_stage.seconds = Seconds(start);
+    });
+  }
 };
 
 Scanner::Scanner(const ScanOptions& options) : impl_(std::make_unique<Impl>()) {
@@ -263,7 +280,8 @@ Scanner::Scanner(const ScanOptions& options) : impl_(std::make_unique<Impl>()) {
 Scanner::~Scanner() = default;
 
 void Scanner::SetImager(std::unique_ptr<FrameImager> imager) {
-  ROMUNECT_CHECK_MSG(!impl_->in_imaging, "Scanner::SetImager while a frame is being imaged");
+  ROMUNECT_CHECK_MSG(!impl_->ir_stage.frame && !impl_->depth_stage.frame,
+                     "Scanner::SetImager while a frame is being imaged");
   impl_->imager = std::move(imager);
 }
 const CameraModel& Scanner::camera() const { return impl_->options.rig.camera; }
@@ -288,10 +306,20 @@ FrameStatus Scanner::Next(Frame* frame, std::string* error) {
   Impl& s = *impl_;
   const bool pipelined = s.imager != nullptr && s.options.imaging_thread;
   if (s.next >= s.count) {
-    if (!pipelined || !s.in_imaging) return FrameStatus::kEndOfStream;
-    s.WaitForImaging();
-    *frame = std::move(*s.in_imaging);
-    s.in_imaging.reset();
+    if (!pipelined || (!s.ir_stage.frame && !s.depth_stage.frame)) return FrameStatus::kEndOfStream;
+    // Rendering has ended: the stages drain in order.
+    std::optional<Frame> ready;
+    if (s.depth_stage.frame) {
+      s.Wait(&s.depth_stage);
+      ready = std::move(s.depth_stage.frame);
+      s.depth_stage.frame.reset();
+    }
+    if (s.ir_stage.frame) {
+      s.Wait(&s.ir_stage);
+      s.StartDepth();
+    }
+    if (!ready) return Next(frame, error);  // a one-frame scan: its depth is under way
+    *frame = std::move(*ready);
     return FrameStatus::kOk;
   }
   const int k = s.next;
@@ -321,34 +349,42 @@ FrameStatus Scanner::Next(Frame* frame, std::string* error) {
   ++s.next;
 
   const uint64_t seed = s.options.seed * 1000003ULL + k;
-  // Images *f, the time into *seconds (the imaging thread must not touch stats).
-  auto image = [&s, &geometry, seed](Frame* f, double* seconds) {
-    const auto imaging_start = Clock::now();
-    s.imager->Image(s.options.rig, geometry, seed, f);
-    *seconds = Seconds(imaging_start);
-  };
   if (!s.imager) {
     rendered.depth_m = rendered.gt_depth_m.clone();  // an ideal sensor
     *frame = std::move(rendered);
     return FrameStatus::kOk;
   }
   if (!pipelined) {
-    double seconds = 0.0;
-    image(&rendered, &seconds);
-    s.stats.imaging_s += seconds;
+    const auto imaging_start = Clock::now();
+    s.imager->Image(s.options.rig, geometry, seed, &rendered);
+    s.stats.imaging_s += Seconds(imaging_start);
     *frame = std::move(rendered);
     return FrameStatus::kOk;
   }
-  // Frame k - 1 (imaged meanwhile from the other buffer) goes out; frame k starts imaging.
-  if (!s.imaging) s.imaging = std::make_unique<ImagingThread>();
-  std::optional<Frame> ready;
-  if (s.in_imaging) {
-    s.WaitForImaging();
-    ready = std::move(s.in_imaging);
+  // Frame k - 2 goes out, k - 1 moves from IR synthesis to the depth engine, k starts IR
+  // synthesis from its geometry buffer (k - 1's IR, which read the other one, has ended).
+  if (!s.ir_stage.thread) {
+    s.ir_stage.thread = std::make_unique<ImagingThread>();
+    s.depth_stage.thread = std::make_unique<ImagingThread>();
   }
-  s.in_imaging = std::move(rendered);
-  s.imaging->Start([image, imaged = &*s.in_imaging, seconds = &s.in_imaging_s] { image(imaged, seconds); });
-  if (!ready) return Next(frame, error);  // the first frame: render the second meanwhile
+  std::optional<Frame> ready;
+  if (s.depth_stage.frame) {
+    s.Wait(&s.depth_stage);
+    ready = std::move(s.depth_stage.frame);
+    s.depth_stage.frame.reset();
+  }
+  if (s.ir_stage.frame) {
+    s.Wait(&s.ir_stage);
+    s.StartDepth();
+  }
+  s.ir_stage.frame = std::move(rendered);
+  Frame* f = &*s.ir_stage.frame;
+  s.ir_stage.thread->Start([&s, &geometry, seed, f] {
+    const auto start = Clock::now();
+    s.imager->SynthesizeIr(s.options.rig, geometry, seed, f);
+    s.ir_stage.seconds = Seconds(start);
+  });
+  if (!ready) return Next(frame, error);  // the first two frames: render the next meanwhile
   *frame = std::move(*ready);
   return FrameStatus::kOk;
 }

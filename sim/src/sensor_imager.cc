@@ -91,8 +91,11 @@ SensorImager::SensorImager(const Rig& rig, const SensorImagerOptions& options)
   }
 }
 
-void SensorImager::Image(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, Frame* frame) {
+void SensorImager::SynthesizeIr(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, Frame* frame) {
   synthesizer_.Synthesize(rig, geometry, seed, &frame->ir, nullptr);
+}
+
+void SensorImager::ComputeDepth(const Rig& /*rig*/, Frame* frame) {
   engine_.Compute(frame->ir, &output_);
   output_.raw.copyTo(frame->raw);
   frame->depth_m = ApplyDepthCorrection(correction_, output_);

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -66,8 +67,9 @@ TEST(SensorImagerTest, ScanFramesCarryIrRawAndMetricDepthCloseToGroundTruth) {
   EXPECT_LT(median, 0.2e-3);
 }
 
-// Imaging frame k on its own thread while k + 1 renders changes nothing: the same frames, in
-// order, bit for bit, as imaging in line.
+// Imaging on threads of their own (IR synthesis of frame k - 1 and the depth engine of frame
+// k - 2 while k renders) changes nothing: the same frames, in order, bit for bit, as imaging in
+// line.
 TEST(SensorImagerTest, ImagingOnItsOwnThreadGivesTheSameFrames) {
   ScanOptions options = ShortDescent();
   std::vector<Frame> frames[2];
@@ -94,6 +96,45 @@ TEST(SensorImagerTest, ImagingOnItsOwnThreadGivesTheSameFrames) {
     EXPECT_TRUE(testing::ImagesBitEqual(a.depth_m, b.depth_m));
     EXPECT_TRUE(testing::ImagesBitEqual(a.gt_depth_m, b.gt_depth_m));
     EXPECT_GT(cv::countNonZero(a.depth_m), 0);
+  }
+}
+
+// An imager whose depth stage fails on frame 2: the frames before it come out in order, then
+// Next() rethrows, in line and pipelined; the failed frame is never delivered.
+class DepthFailsOnFrame2 : public FrameImager {
+ public:
+  void SynthesizeIr(const Rig& rig, const GeometryBuffer&, uint64_t, Frame* frame) override {
+    frame->ir = cv::Mat(rig.camera.height, rig.camera.width, CV_16U, cv::Scalar(frame->index));
+  }
+  void ComputeDepth(const Rig&, Frame* frame) override {
+    if (frame->index == 2) throw std::runtime_error("depth stage failed on frame 2");
+    frame->raw = frame->ir.clone();
+    frame->depth_m = frame->gt_depth_m.clone();
+  }
+};
+
+TEST(SensorImagerTest, AFailingStageStopsTheStreamAfterTheFramesBeforeIt) {
+  ScanOptions options = ShortDescent();
+  for (const bool pipelined : {false, true}) {
+    SCOPED_TRACE(pipelined ? "pipelined" : "in line");
+    options.imaging_thread = pipelined;
+    Scanner scanner(options);
+    ASSERT_GE(scanner.frame_count(), 4);
+    scanner.SetImager(std::make_unique<DepthFailsOnFrame2>());
+    std::vector<int> delivered;
+    Frame frame;
+    std::string error;
+    try {
+      while (scanner.Next(&frame, &error) == FrameStatus::kOk) {
+        EXPECT_EQ(frame.ir.at<uint16_t>(0, 0), frame.index);
+        ASSERT_FALSE(frame.depth_m.empty());
+        delivered.push_back(frame.index);
+      }
+      ADD_FAILURE() << "the stream ended without the depth stage's failure";
+    } catch (const std::runtime_error& e) {
+      EXPECT_STREQ(e.what(), "depth stage failed on frame 2");
+    }
+    EXPECT_EQ(delivered, (std::vector<int>{0, 1}));
   }
 }
 

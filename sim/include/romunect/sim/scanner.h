@@ -27,12 +27,20 @@
 
 namespace romunect::sim {
 
-// Turns a rendered frame's geometry into the sensor's images: ir, raw and depth_m of *frame
-// (gt_depth_m, poses, index and time are already set). `seed` differs per frame.
+// Turns a rendered frame's geometry into the sensor's images in two stages: SynthesizeIr sets
+// frame->ir from the geometry, then ComputeDepth sets raw and depth_m from the ir (gt_depth_m,
+// poses, index and time are already set). `seed` differs per frame. The scanner may run the two
+// stages at once on consecutive frames (ScanOptions::imaging_thread), so an imager keeps the
+// stages' state apart. Image runs both.
 class FrameImager {
  public:
   virtual ~FrameImager() = default;
-  virtual void Image(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, Frame* frame) = 0;
+  virtual void SynthesizeIr(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, Frame* frame) = 0;
+  virtual void ComputeDepth(const Rig& rig, Frame* frame) = 0;
+  void Image(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, Frame* frame) {
+    SynthesizeIr(rig, geometry, seed, frame);
+    ComputeDepth(rig, frame);
+  }
 };
 
 // The depths (along the camera axis, m) where the rig measures: the depth engine searches
@@ -59,8 +67,9 @@ struct ScanOptions {
   IkOptions ik;
   int samples_per_pixel = 1;          // renderer: 1 (pinhole) or 4 (thin lens, defocus)
   int threads = 2;                    // renderer threads
-  // With an imager: image frame k on a thread of its own while frame k + 1 renders (the same
-  // frames, each delivered once the next is rendered). The imager's own threads add to it.
+  // With an imager: while frame k renders, frame k - 1's IR synthesis and frame k - 2's depth
+  // engine run on a thread each (the same frames, each delivered two renders later). The
+  // imager's own threads add to them.
   bool imaging_thread = true;
   uint64_t seed = 1;                  // per-frame imaging seeds derive from it
 

@@ -42,17 +42,18 @@ class SensorImager : public FrameImager {
   // a correction of the wrong size.
   SensorImager(const Rig& rig, const SensorImagerOptions& options);
 
-  void Image(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, Frame* frame) override;
+  void SynthesizeIr(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, Frame* frame) override;
+  void ComputeDepth(const Rig& rig, Frame* frame) override;
 
   const DepthCorrection& correction() const { return correction_; }
   // Where the correction came from ("ground truth of the rig: ..." or the calibration file).
   const std::string& correction_source() const { return correction_source_; }
-  const DepthEngineStats& last_stats() const { return output_.stats; }
+  const DepthEngineStats& last_stats() const { return output_.stats; }  // of the last ComputeDepth
 
  private:
   SensorImagerOptions options_;
-  IrSynthesizer synthesizer_;
-  DepthEngine engine_;
+  IrSynthesizer synthesizer_;  // SynthesizeIr's state
+  DepthEngine engine_;         // ComputeDepth's (with output_)
   DepthCorrection correction_;
   std::string correction_source_;
   DepthRange keep_;           // depths kept (m)
