@@ -217,16 +217,27 @@ struct Scanner::Impl {
     }
     stats.imaging_s += stage->seconds;
   }
-  // Starts the depth engine on the frame leaving IR synthesis (waited for).
-  void StartDepth() {
-    depth_stage.frame = std::move(ir_stage.frame);
-    ir_stage.frame.reset();
-    Frame* f = &*depth_stage.frame;
-    depth_stage.thread->Start([this, f] {
-      const auto start = Clock::now();
-      imager->ComputeDepth(options.rig, f);
-      depth_stage.seconds = Seconds(start);
-    });
+  // Moves the pipeline on by a frame: the frame in the depth engine is done and returned (if
+  // any), the one in IR synthesis moves on to the depth engine.
+  std::optional<Frame> Advance() {
+    std::optional<Frame> ready;
+    if (depth_stage.frame) {
+      Wait(&depth_stage);
+      ready = std::move(depth_stage.frame);
+      depth_stage.frame.reset();
+    }
+    if (ir_stage.frame) {
+      Wait(&ir_stage);
+      depth_stage.frame = std::move(ir_stage.frame);
+      ir_stage.frame.reset();
+      Frame* f = &*depth_stage.frame;
+      depth_stage.thread->Start([this, f] {
+        const auto start = Clock::now();
+        imager->ComputeDepth(options.rig, f);
+        depth_stage.seconds = Seconds(start);
+      });
+    }
+    return ready;
   }
 };
 
@@ -308,16 +319,7 @@ FrameStatus Scanner::Next(Frame* frame, std::string* error) {
   if (s.next >= s.count) {
     if (!pipelined || (!s.ir_stage.frame && !s.depth_stage.frame)) return FrameStatus::kEndOfStream;
     // Rendering has ended: the stages drain in order.
-    std::optional<Frame> ready;
-    if (s.depth_stage.frame) {
-      s.Wait(&s.depth_stage);
-      ready = std::move(s.depth_stage.frame);
-      s.depth_stage.frame.reset();
-    }
-    if (s.ir_stage.frame) {
-      s.Wait(&s.ir_stage);
-      s.StartDepth();
-    }
+    std::optional<Frame> ready = s.Advance();
     if (!ready) return Next(frame, error);  // a one-frame scan: its depth is under way
     *frame = std::move(*ready);
     return FrameStatus::kOk;
@@ -367,16 +369,7 @@ FrameStatus Scanner::Next(Frame* frame, std::string* error) {
     s.ir_stage.thread = std::make_unique<ImagingThread>();
     s.depth_stage.thread = std::make_unique<ImagingThread>();
   }
-  std::optional<Frame> ready;
-  if (s.depth_stage.frame) {
-    s.Wait(&s.depth_stage);
-    ready = std::move(s.depth_stage.frame);
-    s.depth_stage.frame.reset();
-  }
-  if (s.ir_stage.frame) {
-    s.Wait(&s.ir_stage);
-    s.StartDepth();
-  }
+  std::optional<Frame> ready = s.Advance();
   s.ir_stage.frame = std::move(rendered);
   Frame* f = &*s.ir_stage.frame;
   s.ir_stage.thread->Start([&s, &geometry, seed, f] {
