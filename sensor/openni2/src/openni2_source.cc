@@ -26,6 +26,10 @@ namespace {
 // reports when it has started, so the streams start only after this pause (docs/openni2.md).
 constexpr std::chrono::milliseconds kRecorderStartPause{300};
 
+// How long a recording's player thread is given to settle before its device closes, counted
+// from the open and from the last wait for a frame (OpenNI2Source::Impl::~Impl says why).
+constexpr std::chrono::milliseconds kPlayerSettlePause{50};
+
 void EnsureOpenNI() {
   static std::mutex mutex;
   static bool initialized = false;
@@ -35,6 +39,15 @@ void EnsureOpenNI() {
     throw InputError("OpenNI2", "initialize", std::string("cannot start: ") + openni::OpenNI::getExtendedError());
   }
   initialized = true;  // never shut down: drivers and their threads live as long as the process
+}
+
+// The streams of closed recordings (OpenNI2Source::Impl::~Impl): never destroyed, and reachable
+// from here so that leak checkers do not count them.
+void KeepForever(std::unique_ptr<openni::VideoStream> stream) {
+  static std::mutex mutex;
+  static auto* const kept = new std::vector<std::unique_ptr<openni::VideoStream>>();
+  std::lock_guard<std::mutex> lock(mutex);
+  kept->push_back(std::move(stream));
 }
 
 std::string ExtendedError() {
@@ -162,7 +175,11 @@ struct OpenNI2Source::Impl {
   OpenNI2SourceOptions options;
   std::string name;  // the URI as shown in messages
   openni::Device device;
-  openni::VideoStream depth, ir;
+  // On the heap: a recording's streams outlive the source (~Impl says why).
+  std::unique_ptr<openni::VideoStream> depth_stream = std::make_unique<openni::VideoStream>();
+  std::unique_ptr<openni::VideoStream> ir_stream = std::make_unique<openni::VideoStream>();
+  openni::VideoStream& depth = *depth_stream;
+  openni::VideoStream& ir = *ir_stream;
   openni::Recorder recorder;
   bool file = false, step = false;
   CameraModel camera;
@@ -175,6 +192,52 @@ struct OpenNI2Source::Impl {
   uint64_t first_timestamp_us = 0;
   openni::VideoFrameRef pending_ir;
   OpenNI2SourceStats stats;
+  std::chrono::steady_clock::time_point player_settled;  // recordings: no close before this
+
+  // Also runs when the constructor throws, so every opened device is taken down in this order.
+  ~Impl() {
+    if (recorder.isValid()) {
+      recorder.stop();
+      recorder.destroy();  // waits for the recorder thread to write what it queued
+    }
+    pending_ir.release();
+    openni::VideoStream* const streams[] = {&depth, &ir};
+    if (file && device.isValid()) {
+      // A recording's device closes before its streams, after a pause, and the streams are never
+      // destroyed. Why, in OpenNI2 2.2.0.33 as Debian ships it:
+      // - The file driver's player thread (libOniFile, PlayerDevice::MainLoop) walks the device's
+      //   list of streams without a lock: nonstop at the end of the file, every 10 ms while no
+      //   stream runs. Destroying a stream frees its entry under that thread, which then crashed
+      //   in about 1 run in 50 on a loaded machine. Device::close joins the thread first.
+      // - Device::close also deletes libOpenNI2's per-sensor objects, and destroying a stream
+      //   after that still unregisters it from its sensor's object (upstream later guarded
+      //   this): a use after free. So the closed device's streams are kept, stopped, for the life
+      //   of the process (KeepForever): about 20 kB and one idle libOpenNI2 thread per stream.
+      // - Device::close deletes those objects before it joins the thread, which still uses them
+      //   for a moment after it has handed a frame over (it wakes our wait first); and a thread
+      //   that has not started yet when its device closes runs on until the driver gives up on it
+      //   after 3 s. Neither offers anything to wait on, hence kPlayerSettlePause after the open
+      //   and after the last wait for a frame. The streams stop first: the thread then takes no
+      //   new frame for them.
+      for (openni::VideoStream* stream : streams) {
+        if (stream->isValid()) stream->stop();
+      }
+      std::this_thread::sleep_until(player_settled);
+      device.close();
+      if (depth.isValid()) KeepForever(std::move(depth_stream));
+      if (ir.isValid()) KeepForever(std::move(ir_stream));
+      return;
+    }
+    // Live and virtual devices keep OpenNI2's usual order, streams first (our virtual device's
+    // driver guards its streams with its device mutex).
+    for (openni::VideoStream* stream : streams) {
+      if (stream->isValid()) {
+        stream->stop();
+        stream->destroy();
+      }
+    }
+    if (device.isValid()) device.close();
+  }
 
   openni::VideoStream& primary() { return options.depth ? depth : ir; }
 
@@ -182,7 +245,9 @@ struct OpenNI2Source::Impl {
     openni::VideoStream* streams[] = {&stream};
     int ready = -1;
     const int timeout_ms = static_cast<int>(std::ceil(options.timeout_s * 1000.0));
-    if (openni::OpenNI::waitForAnyStream(streams, 1, &ready, timeout_ms) != openni::STATUS_OK) {
+    const openni::Status waited = openni::OpenNI::waitForAnyStream(streams, 1, &ready, timeout_ms);
+    player_settled = std::chrono::steady_clock::now() + kPlayerSettlePause;
+    if (waited != openni::STATUS_OK) {
       std::ostringstream s;
       s << "no frame for " << options.timeout_s << " s (device unplugged or stalled); "
         << stats.frames << " frames were delivered before"
@@ -290,6 +355,7 @@ OpenNI2Source::OpenNI2Source(const OpenNI2SourceOptions& options) : impl_(std::m
   }
   s.file = s.device.isFile();
   if (s.file) {
+    s.player_settled = std::chrono::steady_clock::now() + kPlayerSettlePause;
     // Speed -1: the file driver sends each frame on demand, so none is skipped; no repeat.
     s.device.getPlaybackControl()->setSpeed(-1.0f);
     s.device.getPlaybackControl()->setRepeatEnabled(false);
@@ -421,17 +487,7 @@ OpenNI2Source::OpenNI2Source(const OpenNI2SourceOptions& options) : impl_(std::m
   }
 }
 
-OpenNI2Source::~OpenNI2Source() {
-  FinishRecording();
-  impl_->pending_ir.release();
-  for (openni::VideoStream* stream : {&impl_->depth, &impl_->ir}) {
-    if (stream->isValid()) {
-      stream->stop();
-      stream->destroy();
-    }
-  }
-  if (impl_->device.isValid()) impl_->device.close();
-}
+OpenNI2Source::~OpenNI2Source() = default;  // Impl's destructor takes the device down
 
 void OpenNI2Source::FinishRecording() {
   if (impl_->recorder.isValid()) {
