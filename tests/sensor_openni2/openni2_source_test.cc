@@ -205,19 +205,24 @@ TEST(VirtualDevice, RealtimePaceDeliversMatchingFramesAndCountsDrops) {
   EXPECT_EQ(frames.back().index, 3);  // the last frame is never lost: nothing replaces it
 }
 
+// Records the virtual device playing the frame directory `dir` into `oni`; returns the frames
+// it delivered meanwhile.
+std::vector<Frame> RecordVirtualDevice(const std::filesystem::path& dir, const std::filesystem::path& oni) {
+  OpenNI2SourceOptions options;
+  options.uri = VirtualDeviceUri(dir, Step());
+  options.record_oni = oni;
+  OpenNI2Source live(options);
+  std::vector<Frame> frames = ReadAll(live);
+  live.FinishRecording();
+  return frames;
+}
+
 TEST(OniRecording, RecordsTheVirtualDeviceAndPlaysBackThroughTheFileDriver) {
   ScratchDir dir("frames");
   ScratchDir out("out");
   testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), kFrames, 14);
   const std::filesystem::path oni = out / "scan.oni";
-  {
-    OpenNI2SourceOptions options;
-    options.uri = VirtualDeviceUri(dir.path(), Step());
-    options.record_oni = oni;
-    OpenNI2Source live(options);
-    ExpectMatchesDirectory(ReadAll(live), dir.path(), DepthUnit::k100um, kFrames);
-    live.FinishRecording();
-  }
+  ExpectMatchesDirectory(RecordVirtualDevice(dir.path(), oni), dir.path(), DepthUnit::k100um, kFrames);
   ASSERT_TRUE(std::filesystem::is_regular_file(oni));
 
   OpenNI2SourceOptions options;
@@ -258,14 +263,7 @@ TEST(OniRecording, ManyShortPlaybacksOpenAndCloseCleanly) {
   constexpr int kCycles = 200;
   testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), kShortFrames, 16);
   const std::filesystem::path oni = out / "short.oni";
-  {
-    OpenNI2SourceOptions options;
-    options.uri = VirtualDeviceUri(dir.path(), Step());
-    options.record_oni = oni;
-    OpenNI2Source live(options);
-    ASSERT_EQ(ReadAll(live).size(), static_cast<size_t>(kShortFrames));
-    live.FinishRecording();
-  }
+  ASSERT_EQ(RecordVirtualDevice(dir.path(), oni).size(), static_cast<size_t>(kShortFrames));
   for (int i = 0; i < kCycles; ++i) {
     SCOPED_TRACE("playback " + std::to_string(i));
     OpenNI2SourceOptions options;
@@ -392,13 +390,7 @@ TEST(OpenNI2SourceErrors, TruncatedRecordingIsRejected) {
   ScratchDir out("out");
   testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), kFrames, 17);
   const std::filesystem::path oni = out / "scan.oni";
-  {
-    OpenNI2SourceOptions options;
-    options.uri = VirtualDeviceUri(dir.path(), Step());
-    options.record_oni = oni;
-    OpenNI2Source live(options);
-    ReadAll(live);
-  }
+  RecordVirtualDevice(dir.path(), oni);
   // A recording cut to a quarter (a copy interrupted early) has lost its stream descriptions.
   const std::string bytes = testing::ReadText(oni);
   testing::WriteText(out / "cut.oni", bytes.substr(0, bytes.size() / 4));
