@@ -3,9 +3,12 @@
 // quantization, IR and microsecond timestamps exactly).
 #include "romunect/openni2/openni2_source.h"
 
+#include <time.h>
+
 #include <chrono>
 #include <cmath>
 #include <fstream>
+#include <thread>
 
 #include <gtest/gtest.h>
 
@@ -240,6 +243,40 @@ TEST(OniRecording, RecordsTheVirtualDeviceAndPlaysBackThroughTheFileDriver) {
   ExpectMatchesDirectory(frames, dir.path(), DepthUnit::k100um, kFrames);
   for (int i = 0; i < kFrames; ++i) EXPECT_EQ(frames[i].index, i);
   EXPECT_EQ(playback.stats().dropped_frames, 0);
+}
+
+// CPU seconds of the whole process (every thread, libOpenNI2's included).
+double ProcessCpuSeconds() {
+  timespec t{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+  return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
+}
+
+// Once a recording has been played to its end, OpenNI2's player thread (PlayerDevice::MainLoop)
+// reads on at the end of the file without pausing while a stream runs, which kept a core busy
+// for as long as the source lived (through a fusion's extraction or a calibration's solve). The
+// source stops its streams at the end of the stream, and the thread then sleeps 10 ms a turn.
+TEST(OniRecording, AFinishedPlaybackLeavesNoThreadSpinning) {
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  constexpr int kShortFrames = 3;
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), kShortFrames, 17);
+  const std::filesystem::path oni = out / "done.oni";
+  ASSERT_EQ(RecordVirtualDevice(dir.path(), oni).size(), static_cast<size_t>(kShortFrames));
+  OpenNI2SourceOptions options;
+  options.uri = oni.string();
+  OpenNI2Source playback(options);
+  ASSERT_EQ(ReadAll(playback).size(), static_cast<size_t>(kShortFrames));
+  Frame f;
+  std::string error;
+  ASSERT_EQ(playback.Next(&f, &error), FrameStatus::kEndOfStream);  // asking again changes nothing
+  const double cpu0 = ProcessCpuSeconds();
+  const auto wall0 = std::chrono::steady_clock::now();
+  std::this_thread::sleep_for(std::chrono::milliseconds(400));
+  const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+  // A spinning thread takes about a core (1 s of CPU per s); a sleeping one almost nothing. On a
+  // loaded machine the spinner gets less than a core, so the bound is generous.
+  EXPECT_LT(ProcessCpuSeconds() - cpu0, 0.25 * wall_s);
 }
 
 std::string OpenError(const OpenNI2SourceOptions& options) {

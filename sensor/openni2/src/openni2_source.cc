@@ -241,6 +241,16 @@ struct OpenNI2Source::Impl {
 
   openni::VideoStream& primary() { return options.depth ? depth : ir; }
 
+  // At a recording's end: the player thread (PlayerDevice::MainLoop) reads on at the end of the
+  // file without a pause while any stream runs, a core kept busy until the source goes; with
+  // every stream stopped it sleeps 10 ms a turn. Stopping is the first step of ~Impl anyway.
+  void StopPlayback() {
+    if (!file) return;
+    for (openni::VideoStream* stream : {&depth, &ir}) {
+      if (stream->isValid()) stream->stop();
+    }
+  }
+
   void Read(openni::VideoStream& stream, const char* what, openni::VideoFrameRef* ref) {
     openni::VideoStream* streams[] = {&stream};
     int ready = -1;
@@ -519,9 +529,10 @@ std::string OpenNI2Source::Describe() const {
 FrameStatus OpenNI2Source::Next(Frame* frame, std::string* error) {
   ROMUNECT_CHECK(frame != nullptr && error != nullptr);
   Impl& s = *impl_;
-  if (s.options.max_frames > 0 && s.stats.frames >= s.options.max_frames) return FrameStatus::kEndOfStream;
   // Sources that announce a length (recordings, finite virtual devices) number frames 1..N.
-  if (s.total_frames > 0 && (s.primary_read >= s.total_frames || s.last_index >= s.total_frames)) {
+  if ((s.options.max_frames > 0 && s.stats.frames >= s.options.max_frames) ||
+      (s.total_frames > 0 && (s.primary_read >= s.total_frames || s.last_index >= s.total_frames))) {
+    s.StopPlayback();
     return FrameStatus::kEndOfStream;
   }
   if (s.step) s.device.invoke(kVirtualDeviceStepCommand, nullptr, 0);
