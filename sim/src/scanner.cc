@@ -232,9 +232,9 @@ struct Scanner::Impl {
       ir_stage.frame.reset();
       Frame* f = &*depth_stage.frame;
       depth_stage.thread->Start([this, f] {
-        const auto start = Clock::now();
+        const auto depth_start = Clock::now();
         imager->ComputeDepth(options.rig, f);
-        depth_stage.seconds = Seconds(start);
+        depth_stage.seconds = Seconds(depth_start);
       });
     }
     return ready;
@@ -373,9 +373,9 @@ FrameStatus Scanner::Next(Frame* frame, std::string* error) {
   s.ir_stage.frame = std::move(rendered);
   Frame* f = &*s.ir_stage.frame;
   s.ir_stage.thread->Start([&s, &geometry, seed, f] {
-    const auto start = Clock::now();
+    const auto ir_start = Clock::now();
     s.imager->SynthesizeIr(s.options.rig, geometry, seed, f);
-    s.ir_stage.seconds = Seconds(start);
+    s.ir_stage.seconds = Seconds(ir_start);
   });
   if (!ready) return Next(frame, error);  // the first two frames: render the next meanwhile
   *frame = std::move(*ready);

@@ -105,19 +105,6 @@ struct Row {
   std::string note;
 };
 
-cv::Mat HeightMapFromPoints(const std::vector<Eigen::Vector3d>& points, const GridOptions& grid) {
-  const Eigen::Vector3i n = grid.Dims();
-  cv::Mat height(n.y(), n.x(), CV_32F, cv::Scalar(std::numeric_limits<float>::quiet_NaN()));
-  for (const Eigen::Vector3d& p : points) {
-    const int i = static_cast<int>(std::floor((p.x() - grid.min_W.x()) / grid.voxel_m));
-    const int j = static_cast<int>(std::floor((p.y() - grid.min_W.y()) / grid.voxel_m));
-    if (i < 0 || j < 0 || i >= n.x() || j >= n.y()) continue;
-    float& cell = height.at<float>(j, i);
-    if (!(cell >= static_cast<float>(p.z()))) cell = static_cast<float>(p.z());
-  }
-  return height;
-}
-
 // `paged_in`: the grid's pages are in before the first frame (GridOptions::prefault, as scan
 // runs it), so no frame waits for first touches; they cost the most where threads fault at once.
 Row RunOurs(int threads, bool paged_in) {
@@ -191,6 +178,19 @@ Row RunReference() {
 }
 
 #ifdef ROMUNECT_BENCH_PEERS
+cv::Mat HeightMapFromPoints(const std::vector<Eigen::Vector3d>& points, const GridOptions& grid) {
+  const Eigen::Vector3i n = grid.Dims();
+  cv::Mat height(n.y(), n.x(), CV_32F, cv::Scalar(std::numeric_limits<float>::quiet_NaN()));
+  for (const Eigen::Vector3d& p : points) {
+    const int i = static_cast<int>(std::floor((p.x() - grid.min_W.x()) / grid.voxel_m));
+    const int j = static_cast<int>(std::floor((p.y() - grid.min_W.y()) / grid.voxel_m));
+    if (i < 0 || j < 0 || i >= n.x() || j >= n.y()) continue;
+    float& cell = height.at<float>(j, i);
+    if (!(cell >= static_cast<float>(p.z()))) cell = static_cast<float>(p.z());
+  }
+  return height;
+}
+
 Row RunOpen3d() {
   namespace o3d = open3d;
   const Workload& w = GetWorkload();

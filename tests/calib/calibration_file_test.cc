@@ -2,7 +2,11 @@
 
 #include <cmath>
 #include <fstream>
+// GCC 12 reports a false -Wmaybe-uninitialized inside <regex>'s std::function members.
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
 #include <regex>
+#pragma GCC diagnostic pop
 
 #include <gtest/gtest.h>
 #include <opencv2/core/persistence.hpp>
