@@ -4,7 +4,8 @@
 // tests/fusion, and, when built with ROMUNECT_BENCH_PEERS, Open3D's ScalableTSDFVolume and
 // OctoMap. Prints one table (our rows extract on their thread count) and writes JSON (--json
 // PATH, default in the build folder), then runs the Google Benchmark cases (insert one frame;
-// extract on 1 and 2 threads) unless --no_gbench. --no_reference and --no_peers leave those rows
+// extract on 1 and 2 threads; the machine's cost of one masked vote block, BM_MaskedVoteBlock)
+// unless --no_gbench. --no_reference and --no_peers leave those rows
 // out; --octomap_budget_s caps OctoMap's time (it runs >= 1 frame);
 // --frames N renders a shorter approach and --threads N keeps only those rows of ours (callgrind).
 //
@@ -21,8 +22,11 @@
 #include <fstream>
 #include <functional>
 #include <limits>
+#include <random>
 #include <string>
 #include <vector>
+
+#include <immintrin.h>
 
 #include <benchmark/benchmark.h>
 #include <nlohmann/json.hpp>
@@ -31,6 +35,7 @@
 #include "romunect/fusion/frame_inserter.h"
 #include "romunect/fusion/metrics.h"
 #include "romunect/fusion/voting_grid.h"
+#include "romunect/sensor/cpu_features.h"
 #include "romunect/testing/analytic_bin.h"
 
 #ifdef ROMUNECT_BENCH_PEERS
@@ -358,6 +363,48 @@ void BM_ExtractAfterAllFrames(benchmark::State& state) {
   for (auto _ : state) benchmark::DoNotOptimize(ExtractHeightMap(grid, ExtractKernel::kAuto, threads));
 }
 BENCHMARK(BM_ExtractAfterAllFrames)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// The machine's floor for the insertion's votes: the AVX-512 walk applies each (ray, column) run
+// as one masked read-modify-write of a 32-vote block (saturating -1). Here the same operation
+// runs on a seeded stream of blocks like the walk's (1-12 votes, anywhere in a 64-byte line), at
+// random lines of a window of range(0) KiB: from the core's L1 to the whole 98 MB grid. The
+// walk's own stream is mostly cache-local (in the workload, ~70 % of blocks touch a line used
+// within the last 512 blocks), so its cost per block lies between the small and large windows;
+// times the ~3.4 M blocks of a workload frame, this bounds what any order of the same blocks
+// can cost on this machine.
+__attribute__((target("avx512f,avx512bw"))) void ApplyBlocks(Vote* votes, const uint32_t* offset,
+                                                               const uint32_t* bits, size_t count) {
+  const __m512i one = _mm512_set1_epi16(1), vote_min = _mm512_set1_epi16(-std::numeric_limits<Vote>::max());
+  for (size_t i = 0; i < count; ++i) {
+    const __mmask32 k = bits[i];
+    const __m512i v = _mm512_maskz_loadu_epi16(k, votes + offset[i]);
+    _mm512_mask_storeu_epi16(votes + offset[i], k, _mm512_max_epi16(_mm512_sub_epi16(v, one), vote_min));
+  }
+}
+
+void BM_MaskedVoteBlock(benchmark::State& state) {
+  if (!CpuHasAvx512()) {
+    state.SkipWithError("needs AVX-512 (the kernel it measures)");
+    return;
+  }
+  const size_t lines = static_cast<size_t>(state.range(0)) * 1024 / 64;
+  constexpr size_t kBlocks = 1 << 22;
+  std::vector<uint32_t> offset(kBlocks), bits(kBlocks);
+  std::mt19937 rng(7);
+  for (size_t i = 0; i < kBlocks; ++i) {
+    const uint32_t run = 1 + rng() % 12, lo = rng() % (33 - run);
+    offset[i] = static_cast<uint32_t>((rng() % lines) * 32 + lo);
+    bits[i] = (1u << run) - 1;
+  }
+  std::vector<Vote> votes(lines * 32 + 32);  // the last block may reach into the next line
+  for (auto _ : state) {
+    ApplyBlocks(votes.data(), offset.data(), bits.data(), kBlocks);
+    benchmark::ClobberMemory();
+  }
+  state.counters["per_block"] = benchmark::Counter(static_cast<double>(kBlocks) * state.iterations(),
+                                                   benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
+}
+BENCHMARK(BM_MaskedVoteBlock)->Arg(32)->Arg(1024)->Arg(16 * 1024)->Arg(96 * 1024)->Unit(benchmark::kMillisecond);
 
 }  // namespace
 }  // namespace romunect::fusion
