@@ -5,9 +5,9 @@
 // OctoMap. Prints one table (our rows extract on their thread count) and writes JSON (--json
 // PATH, default in the build folder), then runs the Google Benchmark cases (insert one frame;
 // extract on 1 and 2 threads; the machine's cost of one masked vote block, BM_MaskedVoteBlock)
-// unless --no_gbench. --no_reference and --no_peers leave those rows
-// out; --octomap_budget_s caps OctoMap's time (it runs >= 1 frame);
-// --frames N renders a shorter approach and --threads N keeps only those rows of ours (callgrind).
+// unless --no_gbench. --no_reference and --no_peers leave those rows out; --octomap_budget_s
+// caps OctoMap's time (it runs >= 1 frame); --frames N renders a shorter approach and --threads N
+// keeps only those rows of ours (callgrind).
 //
 // Times: wall and process CPU time per frame, medians. The machine is shared: say its load when
 // quoting numbers. Memory: growth of resident memory while the method's state is alive (the
@@ -26,7 +26,9 @@
 #include <string>
 #include <vector>
 
+#if defined(__x86_64__)
 #include <immintrin.h>
+#endif
 
 #include <benchmark/benchmark.h>
 #include <nlohmann/json.hpp>
@@ -367,11 +369,12 @@ BENCHMARK(BM_ExtractAfterAllFrames)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecon
 // The machine's floor for the insertion's votes: the AVX-512 walk applies each (ray, column) run
 // as one masked read-modify-write of a 32-vote block (saturating -1). Here the same operation
 // runs on a seeded stream of blocks like the walk's (1-12 votes, anywhere in a 64-byte line), at
-// random lines of a window of range(0) KiB: from the core's L1 to the whole 98 MB grid. The
+// random lines of a window of range(0) KiB: from the core's L1 to about the grid's 94 MiB. The
 // walk's own stream is mostly cache-local (in the workload, ~70 % of blocks touch a line used
 // within the last 512 blocks), so its cost per block lies between the small and large windows;
 // times the ~3.4 M blocks of a workload frame, this bounds what any order of the same blocks
 // can cost on this machine.
+#if defined(__x86_64__)
 __attribute__((target("avx512f,avx512bw"))) void ApplyBlocks(Vote* votes, const uint32_t* offset,
                                                                const uint32_t* bits, size_t count) {
   const __m512i one = _mm512_set1_epi16(1), vote_min = _mm512_set1_epi16(-std::numeric_limits<Vote>::max());
@@ -405,6 +408,7 @@ void BM_MaskedVoteBlock(benchmark::State& state) {
                                                    benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
 }
 BENCHMARK(BM_MaskedVoteBlock)->Arg(32)->Arg(1024)->Arg(16 * 1024)->Arg(96 * 1024)->Unit(benchmark::kMillisecond);
+#endif  // __x86_64__
 
 }  // namespace
 }  // namespace romunect::fusion
