@@ -194,12 +194,16 @@ struct OpenNI2Source::Impl {
   OpenNI2SourceStats stats;
   std::chrono::steady_clock::time_point player_settled;  // recordings: no close before this
 
-  // Also runs when the constructor throws, so every opened device is taken down in this order.
-  ~Impl() {
+  void FinishRecording() {
     if (recorder.isValid()) {
       recorder.stop();
       recorder.destroy();  // waits for the recorder thread to write what it queued
     }
+  }
+
+  // Also runs when the constructor throws, so every opened device is taken down in this order.
+  ~Impl() {
+    FinishRecording();
     pending_ir.release();
     openni::VideoStream* const streams[] = {&depth, &ir};
     if (file && device.isValid()) {
@@ -499,12 +503,7 @@ OpenNI2Source::OpenNI2Source(const OpenNI2SourceOptions& options) : impl_(std::m
 
 OpenNI2Source::~OpenNI2Source() = default;  // Impl's destructor takes the device down
 
-void OpenNI2Source::FinishRecording() {
-  if (impl_->recorder.isValid()) {
-    impl_->recorder.stop();
-    impl_->recorder.destroy();  // waits for the recorder thread to write what it queued
-  }
-}
+void OpenNI2Source::FinishRecording() { impl_->FinishRecording(); }
 
 const CameraModel& OpenNI2Source::camera() const { return impl_->camera; }
 const PS1080Properties& OpenNI2Source::chip() const { return impl_->chip; }
