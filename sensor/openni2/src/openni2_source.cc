@@ -205,7 +205,6 @@ struct OpenNI2Source::Impl {
   ~Impl() {
     FinishRecording();
     pending_ir.release();
-    openni::VideoStream* const streams[] = {&depth, &ir};
     if (file && device.isValid()) {
       // A recording's device closes before its streams, after a pause, and the streams are never
       // destroyed. Why, in OpenNI2 2.2.0.33 as Debian ships it:
@@ -223,9 +222,7 @@ struct OpenNI2Source::Impl {
       //   after 3 s. Neither offers anything to wait on, hence kPlayerSettlePause after the open
       //   and after the last wait for a frame. The streams stop first: the thread then takes no
       //   new frame for them.
-      for (openni::VideoStream* stream : streams) {
-        if (stream->isValid()) stream->stop();
-      }
+      StopPlayback();
       std::this_thread::sleep_until(player_settled);
       device.close();
       if (depth.isValid()) KeepForever(std::move(depth_stream));
@@ -234,7 +231,7 @@ struct OpenNI2Source::Impl {
     }
     // Live and virtual devices keep OpenNI2's usual order, streams first (our virtual device's
     // driver guards its streams with its device mutex).
-    for (openni::VideoStream* stream : streams) {
+    for (openni::VideoStream* stream : {&depth, &ir}) {
       if (stream->isValid()) {
         stream->stop();
         stream->destroy();
@@ -247,7 +244,7 @@ struct OpenNI2Source::Impl {
 
   // At a recording's end: the player thread (PlayerDevice::MainLoop) reads on at the end of the
   // file without a pause while any stream runs, a core kept busy until the source goes; with
-  // every stream stopped it sleeps 10 ms a turn. Stopping is the first step of ~Impl anyway.
+  // every stream stopped it sleeps 10 ms a turn. A recording's teardown (~Impl) starts with it.
   void StopPlayback() {
     if (!file) return;
     for (openni::VideoStream* stream : {&depth, &ir}) {
