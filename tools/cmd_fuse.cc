@@ -15,6 +15,7 @@
 #include <utility>
 #include <vector>
 
+#include <Eigen/Geometry>
 #include <nlohmann/json.hpp>
 
 #include "commands.h"
@@ -145,6 +146,15 @@ fs::path DefaultOutput(const FuseArguments& args) {
   throw InputError("--out", "", "missing: fusing a live device (" + args.source + ") needs an output folder");
 }
 
+// "[xmin, xmax] x [ymin, ymax] x [zmin, zmax] m".
+std::string BoxText(const fusion::GridOptions& box) {
+  std::ostringstream s;
+  s.precision(4);
+  for (int a = 0; a < 3; ++a) s << (a > 0 ? " x [" : "[") << box.min_W[a] << ", " << box.max_W[a] << "]";
+  s << " m";
+  return s.str();
+}
+
 void RunFuse(const FuseArguments& args) {
   // Options first: a bad option fails before any file is read.
   fusion::GridOptions grid_options;
@@ -163,10 +173,24 @@ void RunFuse(const FuseArguments& args) {
   inserter_options.threads = args.threads;
   if (const std::string p = inserter_options.Problem(); !p.empty()) throw InputError("--threads", "", p);
   const fs::path out = args.out.empty() ? DefaultOutput(args) : fs::path(args.out);
+  if (fs::exists(out / "report.json")) {
+    throw InputError(out.string(), "", "holds a finished fusion (report.json); refusing to overwrite it: give "
+                                       "another --out or remove the folder");
+  }
 
   const FuseSource opened = OpenFuseSource(args);  // validates frames.json
   const std::unique_ptr<FrameSource>& source = opened.source;
   const FrameDirectorySource* directory = openni2::FindFrameDirectorySource(source.get());
+  // The box: --box, else the region the frame directory records, else the default.
+  std::string box_from = args.box.empty() ? "the default box" : "--box";
+  if (args.box.empty() && directory != nullptr && directory->manifest().region_W) {
+    grid_options.min_W = directory->manifest().region_W->min_W;
+    grid_options.max_W = directory->manifest().region_W->max_W;
+    box_from = "frames.json's region_W";
+    if (const std::string problem = grid_options.Problem(); !problem.empty()) {
+      throw InputError((fs::path(args.source) / "frames.json").string(), "region_W", problem);
+    }
+  }
   const CameraModel camera = source->camera();
   const size_t frame_count = directory != nullptr ? directory->manifest().frames.size() : 0;
   cv::Mat gt;
@@ -189,9 +213,11 @@ void RunFuse(const FuseArguments& args) {
   report.max_y_m = grid_options.max_W.y();
   report.max_z_m = grid_options.max_W.z();
   report.grid_mb = grid.memory_bytes() / 1e6;
-  std::fprintf(stderr, "fuse: %s, grid %d x %d x %d at %.3g mm (%.1f MB), %d thread(s)\n",
-               source->Describe().c_str(), grid.nx(), grid.ny(), grid.nz(), grid.voxel_m() * 1e3,
+  const std::string box_text = BoxText(grid_options) + " (" + box_from + ")";
+  std::fprintf(stderr, "fuse: %s, box %s, grid %d x %d x %d at %.3g mm (%.1f MB), %d thread(s)\n",
+               source->Describe().c_str(), box_text.c_str(), grid.nx(), grid.ny(), grid.nz(), grid.voxel_m() * 1e3,
                report.grid_mb, args.threads);
+  Eigen::AlignedBox3d cameras_W;  // where the cameras were, for a box no ray enters
 
   // A frame directory's frames are named by their frames.json entry; a stream's by its index.
   const std::string where = directory != nullptr ? (fs::path(args.source) / "frames.json").string() : args.source;
@@ -225,6 +251,7 @@ void RunFuse(const FuseArguments& args) {
                        "is " + std::to_string(frame.depth_m.cols) + " x " + std::to_string(frame.depth_m.rows) +
                            ", the camera is " + std::to_string(camera.width) + " x " + std::to_string(camera.height));
     }
+    cameras_W.extend(frame.T_W_C->translation());
     const double t0 = NowMs();
     inserter.Insert(camera, frame.depth_m, *frame.T_W_C, &report.stats);
     report.insert_ms.push_back(NowMs() - t0);
@@ -240,6 +267,19 @@ void RunFuse(const FuseArguments& args) {
     }
   }
   std::fprintf(stderr, "\n");
+  // Depth that never reaches the box is a box that misses the scene, not an empty scene: the
+  // outputs would be empty maps, so none are written.
+  if (report.stats.rays > 0 && report.stats.rays == report.stats.rays_missing_box) {
+    std::ostringstream where_cameras;
+    where_cameras.precision(3);
+    where_cameras << "x " << cameras_W.min().x() << ".." << cameras_W.max().x() << ", y " << cameras_W.min().y()
+                  << ".." << cameras_W.max().y() << ", z " << cameras_W.min().z() << ".." << cameras_W.max().z();
+    throw InputError(args.box.empty() ? args.source : "--box", "",
+                     "none of the " + std::to_string(report.stats.rays) + " depth rays of the " +
+                         std::to_string(report.frames) + " frames enters the box " + box_text +
+                         "; the cameras were at " + where_cameras.str() +
+                         " m (world). Give the scene's region as --box xmin,ymin,zmin,xmax,ymax,zmax (metres)");
+  }
 
   const double t0 = NowMs();
   const cv::Mat height = fusion::ExtractHeightMap(grid, fusion::ExtractKernel::kAuto, args.threads);
@@ -257,13 +297,16 @@ void RunFuse(const FuseArguments& args) {
   // The fusion's report, plus whether the source ended or stopped early (and why).
   nlohmann::ordered_json json = nlohmann::ordered_json::parse(fusion::FusionReportJson(report));
   json["depth_from"] = opened.depth_from;
+  json["box_from"] = box_from;
   json["stopped_early"] = stopped.has_value();
   if (stopped) json["stop_reason"] = *stopped;
   WriteTextAtomically(out / "report.json", json.dump(2) + "\n");
 
   std::printf("fused %zu frames into %s: completeness %.1f %%", report.frames, out.string().c_str(),
               100.0 * report.completeness);
-  if (report.metrics) {
+  if (report.metrics && report.metrics->compared_cells == 0) {
+    std::printf(", no fused cell where the ground truth has a value (no error to report)");
+  } else if (report.metrics) {
     std::printf(", RMSE %.3f mm, MAE %.3f mm, within 1 mm %.1f %%", report.metrics->rmse_mm,
                 report.metrics->mae_mm, 100.0 * report.metrics->within_1mm);
   }
@@ -293,8 +336,8 @@ void AddFuseCommand(CLI::App& app) {
   cmd->add_option("--out", args->out, "Output folder (default: SOURCE_fused beside a directory or .oni file)");
   cmd->add_option("--gt", args->gt, "Ground-truth height map (EXR, same box and voxel) for RMSE/MAE");
   cmd->add_option("--box", args->box,
-                  "Fusion box in world metres: xmin,ymin,zmin,xmax,ymax,zmax (default "
-                  "-0.075,-0.04,-0.004,0.075,0.04,0.06)");
+                  "Fusion box in world metres: xmin,ymin,zmin,xmax,ymax,zmax (default: the frame directory's "
+                  "region_W, as romunect scan records it, else -0.075,-0.04,-0.004,0.075,0.04,0.06)");
   cmd->add_option("--voxel", args->voxel_m, "Voxel size in metres (default 0.00025)");
   cmd->add_option("--threads", args->threads, "Insertion threads (default 1)");
   cmd->add_option("--max-memory-mb", args->max_memory_mb, "Refuse grids larger than this (default 16384)");

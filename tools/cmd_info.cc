@@ -71,6 +71,10 @@ void RunInfo(const std::filesystem::path& dir) {
     std::printf("camera positions (world, m): x %.4f .. %.4f, y %.4f .. %.4f, z %.4f .. %.4f; path %.4f m\n",
                 lo.x(), hi.x(), lo.y(), hi.y(), lo.z(), hi.z(), path_m);
   }
+  if (const std::optional<WorldBox>& r = manifest.region_W) {
+    std::printf("region (world, m; fuse's default box): x %.4f .. %.4f, y %.4f .. %.4f, z %.4f .. %.4f\n",
+                r->min_W.x(), r->max_W.x(), r->min_W.y(), r->max_W.y(), r->min_W.z(), r->max_W.z());
+  }
   std::printf("valid: all %zu frames read and checked\n", n);
 }
 

@@ -134,6 +134,11 @@ void RunRecord(const RecordArgs& args) {
   // A live device delivers 30 frames a second: uncompressed files keep up (image_io.h).
   FrameDirectoryWriter writer(args.out_dir, source->camera(),
                               args.compress_frames ? ImageCompression::kCompact : ImageCompression::kFast);
+  // A frame directory's region carries over while its poses do (no pose log gives others).
+  if (const FrameDirectorySource* d = openni2::FindFrameDirectorySource(source.get());
+      d != nullptr && d->manifest().region_W && args.pose_log.empty()) {
+    writer.SetRegion(*d->manifest().region_W);
+  }
   std::printf("recording from %s\n", source->Describe().c_str());
 
   g_interrupted = 0;

@@ -171,6 +171,7 @@ void RunScan(const ScanArguments& args) {
                               args.compress_frames ? ImageCompression::kCompact : ImageCompression::kFast);
   const fusion::GridOptions box = FusionBox(scanner.world(), scanner.options().approach, args.voxel_m);
   fusion::VotingGrid grid(box);
+  writer.SetRegion({box.min_W, box.max_W});  // `romunect fuse` re-runs the scan over the same box
   // Fusion runs beside the simulator, which keeps every core busy: one thread fewer (at least
   // one) costs the least CPU per frame (threads owning slabs walk the rays that cross them
   // twice: on 2 cores 16 ms CPU per frame at 1 thread, 17-20 ms at 2, scan_benchmark).

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <limits>
 #include <string>
 
 #include "romunect/sensor/check.h"
@@ -59,6 +60,8 @@ HeightMapMetrics CompareHeightMaps(const cv::Mat& fused_m, const cv::Mat& ground
     m.rmse_mm = std::sqrt(sum_sq / m.compared_cells);
     m.mae_mm = sum_abs / m.compared_cells;
     m.within_1mm = static_cast<double>(within) / m.compared_cells;
+  } else {
+    m.rmse_mm = m.mae_mm = m.within_1mm = std::numeric_limits<double>::quiet_NaN();
   }
   return m;
 }

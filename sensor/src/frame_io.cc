@@ -1,5 +1,6 @@
 #include "romunect/sensor/frame_io.h"
 
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <set>
@@ -29,6 +30,28 @@ std::optional<Pose> ReadPose(const Field& entry, const std::string& key) {
     field.Fail("not a rigid transform (row-major 4x4 expected): " + problem);
   }
   return PoseFromRowMajor(numbers);
+}
+
+// Why a box is unusable ("" when min < max, finite, on every axis).
+std::string BoxProblem(const WorldBox& box) {
+  for (int a = 0; a < 3; ++a) {
+    if (!std::isfinite(box.min_W[a]) || !std::isfinite(box.max_W[a]) || !(box.min_W[a] < box.max_W[a])) {
+      std::ostringstream s;
+      s << "xyz"[a] << " range [" << box.min_W[a] << ", " << box.max_W[a] << "] is empty or inverted (expected "
+        << "[xmin, ymin, zmin, xmax, ymax, zmax] in metres, min < max)";
+      return s.str();
+    }
+  }
+  return "";
+}
+
+std::optional<WorldBox> ReadRegion(const Field& root, const std::string& key) {
+  if (!root.Has(key)) return std::nullopt;
+  const Field field = root[key];
+  const std::array<double, 6> v = field.Numbers<6>();
+  const WorldBox box{{v[0], v[1], v[2]}, {v[3], v[4], v[5]}};
+  if (const std::string problem = BoxProblem(box); !problem.empty()) field.Fail(problem);
+  return box;
 }
 
 std::string ReadImagePath(const Field& entry, const std::string& key) {
@@ -135,7 +158,8 @@ FrameDirectoryManifest ReadFrameDirectoryManifest(const fs::path& dir) {
   manifest.camera.cy = cam["cy"].Number();
   manifest.camera.distortion = cam["distortion"].Numbers<5>();
   if (const std::string problem = manifest.camera.Problem(); !problem.empty()) cam.Fail(problem);
-  manifest.extra_json = ExtraKeys(document, {"format", "version", "camera", "frames"});
+  manifest.region_W = ReadRegion(root, "region_W");
+  manifest.extra_json = ExtraKeys(document, {"format", "version", "camera", "frames", "region_W"});
 
   const Field frames = root["frames"];
   std::set<int> indices;
@@ -205,6 +229,9 @@ void WriteFrameDirectoryManifest(const fs::path& dir, const FrameDirectoryManife
   const CameraModel& c = manifest.camera;
   document["camera"] = {{"width", c.width}, {"height", c.height}, {"fx", c.fx}, {"fy", c.fy},
                         {"cx", c.cx},       {"cy", c.cy},         {"distortion", c.distortion}};
+  if (const std::optional<WorldBox>& r = manifest.region_W) {
+    document["region_W"] = {r->min_W.x(), r->min_W.y(), r->min_W.z(), r->max_W.x(), r->max_W.y(), r->max_W.z()};
+  }
   json frames = json::array();
   for (const FrameRecord& r : manifest.frames) {
     json entry = json::parse(r.extra_json);
@@ -238,6 +265,11 @@ FrameDirectoryWriter::FrameDirectoryWriter(const fs::path& dir, const CameraMode
 
 void FrameDirectoryWriter::SetExtraJson(const std::string& extra_json) {
   manifest_.extra_json = extra_json;
+}
+
+void FrameDirectoryWriter::SetRegion(const WorldBox& region_W) {
+  ROMUNECT_CHECK_MSG(BoxProblem(region_W).empty(), BoxProblem(region_W).c_str());
+  manifest_.region_W = region_W;
 }
 
 void FrameDirectoryWriter::Add(const Frame& frame) {

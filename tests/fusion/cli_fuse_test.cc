@@ -178,5 +178,72 @@ TEST(FuseCliTest, RejectsGroundTruthOfAnotherGrid) {
   EXPECT_THAT(result.output, HasSubstr("expected the grid's 150 x 80"));
 }
 
+// A capture of a scene away from the world origin (as `romunect scan`'s, around its bin) is fused
+// over the region its frames.json records; the default box, which no ray enters, is refused.
+TEST(FuseCliTest, FusesOverTheRegionItsFrameDirectoryRecords) {
+  ScratchDir scratch("fuse_cli_region");
+  WriteBinDirectory(scratch / "capture", 8);
+  constexpr double kShiftX = 0.3;  // the scene and its cameras, 30 cm along world x
+  nlohmann::json manifest = ReadManifestJson(scratch / "capture");
+  for (auto& frame : manifest["frames"]) frame["T_W_C"][3] = frame["T_W_C"][3].get<double>() + kShiftX;
+  const GridOptions box;  // the default box, around the origin
+  manifest["region_W"] = {box.min_W.x() + kShiftX, box.min_W.y(), box.min_W.z(),
+                          box.max_W.x() + kShiftX, box.max_W.y(), box.max_W.z()};
+  WriteText(scratch / "capture" / "frames.json", manifest.dump());
+
+  const auto fused = RunRomunect("fuse " + (scratch / "capture").string() + " " + kVoxelArg);
+  ASSERT_EQ(fused.exit_code, 0) << fused.output;
+  EXPECT_THAT(fused.output, HasSubstr("(frames.json's region_W)"));
+  const nlohmann::json report = nlohmann::json::parse(ReadText(scratch / "capture_fused" / "report.json"));
+  EXPECT_EQ(report["box_from"], "frames.json's region_W");
+  EXPECT_DOUBLE_EQ(report["box_m"][0].get<double>(), box.min_W.x() + kShiftX);
+  EXPECT_EQ(report["grid"]["nx"], 150);
+  // The same scene as FusesAnAnalyticBinAndReportsAgainstGroundTruth's, shifted: as complete.
+  constexpr double kMinCompleteness = 0.5;  // measured 0.62 unshifted
+  EXPECT_GT(report["completeness"].get<double>(), kMinCompleteness);
+
+  // --box wins over the region; a box that no ray enters is an error, not an empty map.
+  const std::string default_box = "--box -0.075,-0.04,-0.004,0.075,0.04,0.06";
+  const auto missed = RunRomunect("fuse " + (scratch / "capture").string() + " " + kVoxelArg + " " + default_box +
+                                  " --out " + (scratch / "missed").string());
+  EXPECT_EQ(missed.exit_code, 2) << missed.output;
+  EXPECT_THAT(missed.output, HasSubstr("--box: none of the"));
+  EXPECT_THAT(missed.output, HasSubstr("rays of the 8 frames enters the box [-0.075, 0.075] x [-0.04, 0.04]"));
+  EXPECT_THAT(missed.output, HasSubstr("the cameras were at x 0.265..0.335"));
+  EXPECT_FALSE(std::filesystem::exists(scratch / "missed" / "report.json"));
+}
+
+TEST(FuseCliTest, RefusesToOverwriteAFinishedFusion) {
+  ScratchDir scratch("fuse_cli_overwrite");
+  WriteBinDirectory(scratch / "capture", 1);
+  const std::string command = "fuse " + (scratch / "capture").string() + " " + kVoxelArg + " --out " +
+                              (scratch / "out").string();
+  ASSERT_EQ(RunRomunect(command).exit_code, 0);
+  const std::string before = ReadText(scratch / "out" / "report.json");
+  const auto again = RunRomunect(command + " --threads 2");
+  EXPECT_EQ(again.exit_code, 2) << again.output;
+  EXPECT_THAT(again.output, HasSubstr("holds a finished fusion (report.json); refusing to overwrite it"));
+  EXPECT_EQ(ReadText(scratch / "out" / "report.json"), before);
+}
+
+// Ground truth without a value under any fused cell has no error to report: null, not 0 mm.
+TEST(FuseCliTest, ReportsNoErrorWhereNothingCanBeCompared) {
+  ScratchDir scratch("fuse_cli_gt_empty");
+  WriteBinDirectory(scratch / "capture", 2);
+  GridOptions grid;
+  grid.voxel_m = kVoxelM;
+  const Eigen::Vector3i n = grid.Dims();
+  WriteDepthExr(scratch / "gt.exr", cv::Mat(n.y(), n.x(), CV_32F, cv::Scalar(std::numeric_limits<float>::quiet_NaN())));
+  const auto result = RunRomunect("fuse " + (scratch / "capture").string() + " " + kVoxelArg + " --gt " +
+                                  (scratch / "gt.exr").string());
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  EXPECT_THAT(result.output, HasSubstr("no fused cell where the ground truth has a value"));
+  const nlohmann::json report = nlohmann::json::parse(ReadText(scratch / "capture_fused" / "report.json"));
+  EXPECT_EQ(report["compared_cells"], 0);
+  EXPECT_TRUE(report["rmse_mm"].is_null());
+  EXPECT_TRUE(report["mae_mm"].is_null());
+  EXPECT_TRUE(report["within_1mm"].is_null());
+}
+
 }  // namespace
 }  // namespace romunect::fusion

@@ -26,6 +26,18 @@ TEST(MetricsTest, CompletenessAndErrorsOnAHandMadeMap) {
   EXPECT_NEAR(Completeness(fused), 0.75, kExact);
 }
 
+TEST(MetricsTest, NothingToCompareIsNoErrorRatherThanAZeroOne) {
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const cv::Mat fused = (cv::Mat_<float>(1, 3) << 0.01f, 0.02f, nan);
+  const cv::Mat gt = (cv::Mat_<float>(1, 3) << nan, nan, 0.01f);
+  const HeightMapMetrics m = CompareHeightMaps(fused, gt);
+  EXPECT_EQ(m.valued_cells, 2u);
+  EXPECT_EQ(m.compared_cells, 0u);
+  EXPECT_TRUE(std::isnan(m.rmse_mm));
+  EXPECT_TRUE(std::isnan(m.mae_mm));
+  EXPECT_TRUE(std::isnan(m.within_1mm));
+}
+
 TEST(MetricsTest, QuantileIsNearestRank) {
   EXPECT_EQ(Quantile({}, 0.5), 0.0);
   EXPECT_EQ(Quantile({4, 1, 3, 2}, 0.5), 2.0);

@@ -83,6 +83,28 @@ TEST(FrameDirectory, UnknownKeysAreKeptAndIgnored) {
   EXPECT_EQ(back["frames"][1]["exposure_s"], 0.01);
 }
 
+TEST(FrameDirectory, RegionIsWrittenAndReadBackAndOptional) {
+  ScratchDir with("with"), without("without");
+  testing::WriteSampleFrameDirectory(without.path(), testing::SmallCamera(), 1, 3);
+  EXPECT_FALSE(ReadFrameDirectoryManifest(without.path()).region_W.has_value());
+  {
+    FrameDirectoryWriter writer(with.path(), testing::SmallCamera());
+    writer.Add(testing::SampleFrames(testing::SmallCamera(), 1, 3)[0]);
+    writer.SetRegion({{0.375, -0.04, -0.004}, {0.525, 0.04, 0.065}});
+    writer.Finish();
+  }
+  const FrameDirectoryManifest manifest = ReadFrameDirectoryManifest(with.path());
+  ASSERT_TRUE(manifest.region_W.has_value());
+  EXPECT_EQ(manifest.region_W->min_W, Eigen::Vector3d(0.375, -0.04, -0.004));
+  EXPECT_EQ(manifest.region_W->max_W, Eigen::Vector3d(0.525, 0.04, 0.065));
+  // A known key: not carried twice through the unknown ones.
+  EXPECT_EQ(json::parse(manifest.extra_json).count("region_W"), 0u);
+  ScratchDir copy("copy");
+  WriteFrameDirectoryManifest(copy.path(), manifest);
+  EXPECT_EQ(json::parse(testing::ReadText(copy / "frames.json"))["region_W"],
+            json::array({0.375, -0.04, -0.004, 0.525, 0.04, 0.065}));
+}
+
 TEST(FrameDirectory, WriterRefusesToOverwriteAFinishedDirectory) {
   ScratchDir dir("frames");
   testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 1, 3);
@@ -165,6 +187,18 @@ TEST_F(BadFrameDirectory, NonRigidPose) {
   doc_["frames"][1]["T_W_C"][0] = 3.0;  // scales the rotation
   Rewrite();
   ExpectManifestError({"frames.json", "frames[1].T_W_C", "not a rigid transform"});
+}
+
+TEST_F(BadFrameDirectory, RegionOfWrongLengthNonNumericOrInverted) {
+  doc_["region_W"] = json::array({0, 0, 0, 1, 1});
+  Rewrite();
+  ExpectManifestError({"frames.json", "region_W", "6 numbers"});
+  doc_["region_W"] = json::array({0, 0, 0, 1, "a", 1});
+  Rewrite();
+  ExpectManifestError({"frames.json", "region_W"});
+  doc_["region_W"] = json::array({0, 0.05, 0, 1, 0.01, 1});
+  Rewrite();
+  ExpectManifestError({"frames.json", "region_W", "y range [0.05, 0.01] is empty or inverted"});
 }
 
 TEST_F(BadFrameDirectory, PoseOfWrongLength) {

@@ -74,6 +74,20 @@ TEST(CliRecord, RecordsTheVirtualDeviceToAFrameDirectoryAndOniAndPlaysTheOniBack
   EXPECT_NE(modes.output.find("depth 80x60 @30 Hz 100um"), std::string::npos) << modes.output;
 }
 
+// Copying a frame directory keeps the region its frames are of (their world poses are kept).
+TEST(CliRecord, AFrameDirectoryCopyKeepsItsRegion) {
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 2, 31);
+  nlohmann::json manifest = nlohmann::json::parse(testing::ReadText(dir / "frames.json"));
+  const nlohmann::json region = {0.375, -0.04, -0.004, 0.525, 0.04, 0.065};
+  manifest["region_W"] = region;
+  testing::WriteText(dir / "frames.json", manifest.dump());
+  const auto r = RunRomunect("record " + dir.path().string() + " " + (out / "copy").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(nlohmann::json::parse(testing::ReadText(out / "copy" / "frames.json"))["region_W"], region);
+}
+
 TEST(CliRecord, RawShiftsGoToTheFrameDirectorysRawImages) {
   ScratchDir dir("frames");
   ScratchDir out("out");

@@ -2,6 +2,7 @@
 // message and leaves nothing behind; a small scan runs end to end and reports its figures.
 #include <filesystem>
 
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
@@ -76,9 +77,14 @@ TEST(CliScanIntegration, SmallPileEndToEnd) {
   EXPECT_EQ(report["fusion"]["frames"].get<int>(), report["frames"].get<int>());
   EXPECT_TRUE(report["timings_s"].contains("rendering"));
   EXPECT_TRUE(report["pick"].contains("success"));
-  // The frame directory of the scan is valid input for `romunect info` (and so `fuse`).
+  // The frame directory of the scan is valid input for `romunect info`, and `romunect fuse`
+  // re-runs the scan's fusion from it: over the region it records, the same map bit for bit.
   const auto info = RunRomunect("info " + (run / "frames").string());
   EXPECT_EQ(info.exit_code, 0) << info.output;
+  EXPECT_THAT(info.output, ::testing::HasSubstr("region (world, m; fuse's default box)"));
+  const auto fuse = RunRomunect("fuse " + (run / "frames").string() + " --out " + (dir / "refused").string());
+  ASSERT_EQ(fuse.exit_code, 0) << fuse.output;
+  EXPECT_EQ(testing::ReadText(dir / "refused" / "fused_depth.exr"), testing::ReadText(run / "fused_depth.exr"));
 }
 
 }  // namespace

@@ -14,8 +14,9 @@ struct HeightMapMetrics {
   size_t valued_cells = 0;     // cells of the fused map with a value
   size_t compared_cells = 0;   // valued cells where the ground truth has a value too
   double completeness = 0.0;   // valued_cells / cells
-  double rmse_mm = 0.0;        // over compared cells
-  double mae_mm = 0.0;         // over compared cells
+  // Over compared cells; NaN when there are none (JSON null: no error, not a zero one).
+  double rmse_mm = 0.0;
+  double mae_mm = 0.0;
   double within_1mm = 0.0;     // share of compared cells with |error| <= 1 mm
 };
 

@@ -6,7 +6,8 @@
 //                             "distortion": [k1, k2, p1, p2, k3]},
 //                  "frames": [{"index", "time_s", "depth": "depth/000000.exr",
 //                              "T_W_C": [16 numbers, row-major 4x4, camera to world],
-//                              optional "ir", "raw", "gt_depth", "T_B_H"}]}
+//                              optional "ir", "raw", "gt_depth", "T_B_H"}],
+//                  optional "region_W": [xmin, ymin, zmin, xmax, ymax, zmax]}
 //   depth/*.exr   metric depth, float32 EXR channel "Z", metres along the optical axis, 0 = none
 //   ir/*.png      IR image, 16-bit PNG          raw/*.png  device raw depth, 16-bit PNG
 //   gt_depth/*.exr ground-truth depth, like depth/
@@ -19,6 +20,8 @@
 #include <optional>
 #include <string>
 #include <vector>
+
+#include <Eigen/Core>
 
 #include "romunect/sensor/camera_model.h"
 #include "romunect/sensor/frame.h"
@@ -40,9 +43,18 @@ struct FrameRecord {
   std::string extra_json = "{}";  // unknown keys of this entry, kept verbatim
 };
 
+// An axis-aligned box in the world frame W, metres (min < max on every axis).
+struct WorldBox {
+  Eigen::Vector3d min_W = Eigen::Vector3d::Zero();
+  Eigen::Vector3d max_W = Eigen::Vector3d::Zero();
+};
+
 struct FrameDirectoryManifest {
   CameraModel camera;
   std::vector<FrameRecord> frames;
+  // The region the capture was taken of ("region_W"): `romunect fuse` fuses over it unless told
+  // otherwise. `romunect scan` records its fusion box; captures without one leave it out.
+  std::optional<WorldBox> region_W;
   std::string extra_json = "{}";  // unknown top-level keys, kept verbatim
 };
 
@@ -83,6 +95,8 @@ class FrameDirectoryWriter {
 
   // Unknown keys to carry over into frames.json (top level), as a JSON object text.
   void SetExtraJson(const std::string& extra_json);
+  // The region the frames are of (frames.json's "region_W"). min < max on every axis.
+  void SetRegion(const WorldBox& region_W);
 
   const std::filesystem::path& dir() const { return dir_; }
   size_t size() const { return manifest_.frames.size(); }
