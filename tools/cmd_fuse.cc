@@ -197,10 +197,25 @@ void RunFuse(const FuseArguments& args) {
   if (!args.gt.empty()) gt = ReadDepthExr(args.gt);
 
   fusion::VotingGrid grid(grid_options);  // throws with the size needed when it does not fit
+  const std::string box_text = BoxText(grid_options) + " (" + box_from + ")";
   if (!gt.empty() && (gt.rows != grid.ny() || gt.cols != grid.nx())) {
     throw InputError(args.gt, "size",
                      std::to_string(gt.cols) + " x " + std::to_string(gt.rows) + " cells, expected the grid's " +
                          std::to_string(grid.nx()) + " x " + std::to_string(grid.ny()) + " (same box and voxel)");
+  }
+  // A map that records where its cells lie (romunect writes that) must lie on the grid's cells:
+  // one of the same size over another box would be compared cell by cell with the wrong ground.
+  if (const std::optional<HeightMapGeometry> g = gt.empty() ? std::nullopt : ReadHeightMapGeometry(args.gt)) {
+    const HeightMapGeometry mine = grid.geometry();
+    constexpr double kSameM = 1e-9;  // both are doubles from the same numbers: only rounding
+    if (std::abs(g->min_x_m - mine.min_x_m) > kSameM || std::abs(g->min_y_m - mine.min_y_m) > kSameM ||
+        std::abs(g->voxel_m - mine.voxel_m) > kSameM) {
+      std::ostringstream s;
+      s << "its cells start at (" << g->min_x_m << ", " << g->min_y_m << ") m with " << g->voxel_m * 1e3
+        << " mm voxels; the grid's at (" << mine.min_x_m << ", " << mine.min_y_m << ") m with " << mine.voxel_m * 1e3
+        << " mm (box " << box_text << "): give the box and voxel the ground truth was made for";
+      throw InputError(args.gt, "romunect.min_W", s.str());
+    }
   }
   fusion::FrameInserter inserter(&grid, inserter_options);
   fusion::CompletenessTracker tracker(grid);  // the per-frame curve, without extracting every frame
@@ -213,7 +228,6 @@ void RunFuse(const FuseArguments& args) {
   report.max_y_m = grid_options.max_W.y();
   report.max_z_m = grid_options.max_W.z();
   report.grid_mb = grid.memory_bytes() / 1e6;
-  const std::string box_text = BoxText(grid_options) + " (" + box_from + ")";
   std::fprintf(stderr, "fuse: %s, box %s, grid %d x %d x %d at %.3g mm (%.1f MB), %d thread(s)\n",
                source->Describe().c_str(), box_text.c_str(), grid.nx(), grid.ny(), grid.nz(), grid.voxel_m() * 1e3,
                report.grid_mb, args.threads);
@@ -290,7 +304,7 @@ void RunFuse(const FuseArguments& args) {
   report.peak_rss_mb = fusion::PeakRssMb();
 
   fs::create_directories(out);
-  fusion::WriteHeightMapExr(out / "fused_depth.exr", height);
+  WriteHeightMapExr(out / "fused_depth.exr", height, grid.geometry());
   fusion::WriteHeightMapPicture(out / "fused_depth.png", height, grid.geometry());
   fusion::WriteHeightMapPly(out / "fused_points.ply", height, grid.geometry());
   fusion::WriteCompletenessPlot(out / "completeness.png", report.completeness_per_frame);

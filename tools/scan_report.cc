@@ -234,10 +234,10 @@ std::string ScanReportJson(const ScanReport& r) {
 }
 
 void WriteScanOutputs(const fs::path& dir, const ScanReport& r) {
-  fusion::WriteHeightMapExr(dir / "fused_depth.exr", r.height_m);
+  WriteHeightMapExr(dir / "fused_depth.exr", r.height_m, r.fusion.geometry);
   fusion::WriteHeightMapPicture(dir / "fused_depth.png", r.height_m, r.fusion.geometry);
   fusion::WriteHeightMapPly(dir / "fused_points.ply", r.height_m, r.fusion.geometry);
-  fusion::WriteHeightMapExr(dir / "gt_height.exr", r.gt_height_m);
+  WriteHeightMapExr(dir / "gt_height.exr", r.gt_height_m, r.fusion.geometry);
   fusion::WriteCompletenessPlot(dir / "completeness.png", r.fusion.completeness_per_frame);
   WritePicture(dir / "figure2.png", Figure2(r));
   WritePicture(dir / "error.png", ErrorPicture(r.height_m, r.gt_height_m));

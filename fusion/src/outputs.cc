@@ -28,11 +28,6 @@ void Text(cv::Mat& image, const std::string& text, cv::Point at, double scale = 
 
 }  // namespace
 
-void WriteHeightMapExr(const std::filesystem::path& path, const cv::Mat& height_m) {
-  ROMUNECT_CHECK(height_m.type() == CV_32FC1);
-  WriteDepthExr(path, height_m);
-}
-
 namespace {
 
 bool HasValue(float v, bool zero_is_empty) { return std::isfinite(v) && !(zero_is_empty && v == 0.0f); }

@@ -16,10 +16,12 @@
 
 #include <ImfChannelList.h>
 #include <ImfCompression.h>
+#include <ImfDoubleAttribute.h>
 #include <ImfFrameBuffer.h>
 #include <ImfHeader.h>
 #include <ImfInputFile.h>
 #include <ImfOutputFile.h>
+#include <ImfVecAttribute.h>
 #include <opencv2/imgcodecs.hpp>
 #include <zlib.h>
 
@@ -277,19 +279,21 @@ cv::Mat ReadDepthExr(const fs::path& path) {
   }
 }
 
-void WriteDepthExr(const fs::path& path, const cv::Mat& depth, ImageCompression compression) {
-  ROMUNECT_CHECK(depth.type() == CV_32F && !depth.empty());
-  static_assert(std::endian::native == std::endian::little, "EXR floats are written as they lie in memory");
-  if (compression == ImageCompression::kFast) {
-    thread_local std::string exr;
-    EncodeExrUncompressed(depth, &exr);
-    WriteFrameFileAtomically(path, exr);
-    return;
-  }
+namespace {
+
+constexpr const char* kMinAttribute = "romunect.min_W";
+constexpr const char* kVoxelAttribute = "romunect.voxel_m";
+
+// The compact (ZIP) EXR of WriteDepthExr, with a height map's geometry when given.
+void WriteCompactExr(const fs::path& path, const cv::Mat& depth, const HeightMapGeometry* geometry) {
   const cv::Mat continuous = depth.isContinuous() ? depth : depth.clone();
   WriteAtomically(path, [&](const fs::path& tmp) {
     try {
       Imf::Header header(continuous.cols, continuous.rows);
+      if (geometry != nullptr) {
+        header.insert(kMinAttribute, Imf::V3dAttribute(Imath::V3d(geometry->min_x_m, geometry->min_y_m, geometry->min_z_m)));
+        header.insert(kVoxelAttribute, Imf::DoubleAttribute(geometry->voxel_m));
+      }
       // ZIP at level 1: on a scan's frames 15-40 % faster than the default level for a few
       // per cent more bytes; writing frames is a stage of the scan loop.
       header.compression() = Imf::ZIP_COMPRESSION;
@@ -305,6 +309,48 @@ void WriteDepthExr(const fs::path& path, const cv::Mat& depth, ImageCompression 
       throw InputError(path.string(), "", std::string("cannot write OpenEXR file: ") + e.what());
     }
   });
+}
+
+}  // namespace
+
+void WriteDepthExr(const fs::path& path, const cv::Mat& depth, ImageCompression compression) {
+  ROMUNECT_CHECK(depth.type() == CV_32F && !depth.empty());
+  static_assert(std::endian::native == std::endian::little, "EXR floats are written as they lie in memory");
+  if (compression == ImageCompression::kFast) {
+    thread_local std::string exr;
+    EncodeExrUncompressed(depth, &exr);
+    WriteFrameFileAtomically(path, exr);
+    return;
+  }
+  WriteCompactExr(path, depth, nullptr);
+}
+
+void WriteHeightMapExr(const fs::path& path, const cv::Mat& height_m, const HeightMapGeometry& geometry) {
+  ROMUNECT_CHECK(height_m.type() == CV_32F && !height_m.empty());
+  ROMUNECT_CHECK(height_m.cols == geometry.nx && height_m.rows == geometry.ny && geometry.voxel_m > 0.0);
+  WriteCompactExr(path, height_m, &geometry);
+}
+
+std::optional<HeightMapGeometry> ReadHeightMapGeometry(const fs::path& path) {
+  if (!fs::exists(path)) throw InputError(path.string(), "", "file not found");
+  try {
+    Imf::InputFile file(path.c_str());
+    const Imf::Header& header = file.header();
+    const auto* min = header.findTypedAttribute<Imf::V3dAttribute>(kMinAttribute);
+    const auto* voxel = header.findTypedAttribute<Imf::DoubleAttribute>(kVoxelAttribute);
+    if (min == nullptr || voxel == nullptr) return std::nullopt;
+    const Imath::Box2i window = header.dataWindow();
+    HeightMapGeometry g;
+    g.min_x_m = min->value().x;
+    g.min_y_m = min->value().y;
+    g.min_z_m = min->value().z;
+    g.voxel_m = voxel->value();
+    g.nx = window.max.x - window.min.x + 1;
+    g.ny = window.max.y - window.min.y + 1;
+    return g;
+  } catch (const std::exception& e) {
+    throw InputError(path.string(), "", std::string("not a readable OpenEXR file: ") + e.what());
+  }
 }
 
 cv::Mat ReadPng16(const fs::path& path) {

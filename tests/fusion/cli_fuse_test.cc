@@ -51,7 +51,9 @@ TEST(FuseCliTest, FusesAnAnalyticBinAndReportsAgainstGroundTruth) {
   GridOptions grid;
   grid.voxel_m = kVoxelM;
   const Eigen::Vector3i n = grid.Dims();
-  WriteDepthExr(scratch / "gt.exr", bin.GroundTruthHeightMap(grid.min_W, kVoxelM, n.x(), n.y()));
+  // As romunect writes height maps: with their geometry, which fuse checks against its grid's.
+  WriteHeightMapExr(scratch / "gt.exr", bin.GroundTruthHeightMap(grid.min_W, kVoxelM, n.x(), n.y()),
+                    VotingGrid(grid).geometry());
 
   const auto result = RunRomunect("fuse " + (scratch / "capture").string() + " " + kVoxelArg +
                                   " --threads 2 --gt " + (scratch / "gt.exr").string());
@@ -224,6 +226,27 @@ TEST(FuseCliTest, RefusesToOverwriteAFinishedFusion) {
   EXPECT_EQ(again.exit_code, 2) << again.output;
   EXPECT_THAT(again.output, HasSubstr("holds a finished fusion (report.json); refusing to overwrite it"));
   EXPECT_EQ(ReadText(scratch / "out" / "report.json"), before);
+}
+
+// Ground truth of the grid's size made for another box (it records where its cells lie) would be
+// compared with the wrong cells: refused, naming both.
+TEST(FuseCliTest, RejectsGroundTruthOverAnotherBoxOfTheSameSize) {
+  ScratchDir scratch("fuse_cli_gt_box");
+  const AnalyticBin bin = WriteBinDirectory(scratch / "capture", 1);
+  GridOptions grid;
+  grid.voxel_m = kVoxelM;
+  HeightMapGeometry shifted = VotingGrid(grid).geometry();
+  shifted.min_x_m += 0.01;  // 1 cm along x: 10 cells, same count
+  const Eigen::Vector3i n = grid.Dims();
+  WriteHeightMapExr(scratch / "gt.exr",
+                    bin.GroundTruthHeightMap({shifted.min_x_m, shifted.min_y_m, grid.min_W.z()}, kVoxelM, n.x(), n.y()),
+                    shifted);
+  const auto result = RunRomunect("fuse " + (scratch / "capture").string() + " " + kVoxelArg + " --gt " +
+                                  (scratch / "gt.exr").string());
+  EXPECT_EQ(result.exit_code, 2) << result.output;
+  EXPECT_THAT(result.output, HasSubstr("gt.exr: romunect.min_W: its cells start at (-0.065, -0.04) m with 1 mm voxels; "
+                                       "the grid's at (-0.075, -0.04) m"));
+  EXPECT_FALSE(std::filesystem::exists(scratch / "capture_fused" / "report.json"));
 }
 
 // Ground truth without a value under any fused cell has no error to report: null, not 0 mm.

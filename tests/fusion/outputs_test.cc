@@ -33,10 +33,21 @@ cv::Mat SmallMap() {
   return (cv::Mat_<float>(2, 3) << 0.001f, nan, 0.003f, 0.004f, 0.005f, nan);
 }
 
-TEST(OutputsTest, ExrRoundTripsWithNaNForEmptyCells) {
+TEST(OutputsTest, ExrRoundTripsWithNaNForEmptyCellsAndItsGeometry) {
   ScratchDir dir("fusion_outputs_exr");
-  WriteHeightMapExr(dir / "fused_depth.exr", SmallMap());
+  WriteHeightMapExr(dir / "fused_depth.exr", SmallMap(), SmallGeometry());
   EXPECT_TRUE(ImagesBitEqual(ReadDepthExr(dir / "fused_depth.exr"), SmallMap()));
+  const std::optional<HeightMapGeometry> g = ReadHeightMapGeometry(dir / "fused_depth.exr");
+  ASSERT_TRUE(g.has_value());
+  EXPECT_EQ(g->min_x_m, SmallGeometry().min_x_m);
+  EXPECT_EQ(g->min_y_m, SmallGeometry().min_y_m);
+  EXPECT_EQ(g->min_z_m, SmallGeometry().min_z_m);
+  EXPECT_EQ(g->voxel_m, SmallGeometry().voxel_m);
+  EXPECT_EQ(g->nx, 3);
+  EXPECT_EQ(g->ny, 2);
+  // A plain depth EXR (another tool's height map) records none.
+  WriteDepthExr(dir / "plain.exr", SmallMap());
+  EXPECT_FALSE(ReadHeightMapGeometry(dir / "plain.exr").has_value());
 }
 
 TEST(OutputsTest, PlyHoldsOneVertexPerValuedCellAtCellCentres) {

@@ -18,9 +18,6 @@
 
 namespace romunect::fusion {
 
-// fused_depth.exr: single-channel float32 "Z", NaN = empty.
-void WriteHeightMapExr(const std::filesystem::path& path, const cv::Mat& height_m);
-
 // The one colour map of our pictures: values (CV_32F) over [lo, hi] to turbo (low = blue,
 // high = red), CV_8UC3 BGR. Cells without a value (non-finite; also 0 with zero_is_empty, as
 // in depth maps) get `empty_bgr`. flip_rows puts row 0 at the bottom (height maps: +y up).

@@ -12,8 +12,11 @@
 
 #include <filesystem>
 #include <functional>
+#include <optional>
 
 #include <opencv2/core.hpp>
+
+#include "romunect/sensor/height_map.h"
 
 namespace romunect {
 
@@ -24,6 +27,14 @@ cv::Mat ReadDepthExr(const std::filesystem::path& path);
 // Writes a CV_32F Mat as a float32 EXR with one channel "Z" (NaN and 0 are written as is).
 void WriteDepthExr(const std::filesystem::path& path, const cv::Mat& depth,
                    ImageCompression compression = ImageCompression::kCompact);
+
+// Height maps (height_map.h) as EXR: WriteDepthExr's file plus where its cells lie, as header
+// attributes "romunect.min_W" (v3d: the box's minimum corner, m) and "romunect.voxel_m" (double),
+// so that a reader can tell two maps of the same size over different boxes apart.
+void WriteHeightMapExr(const std::filesystem::path& path, const cv::Mat& height_m, const HeightMapGeometry& geometry);
+// The geometry a height map's EXR records (nx, ny: its size; nz: 0), or nullopt for
+// an EXR without it (written by other tools). Throws InputError for an unreadable file.
+std::optional<HeightMapGeometry> ReadHeightMapGeometry(const std::filesystem::path& path);
 
 // Reads a 16-bit single-channel PNG into a CV_16U Mat.
 cv::Mat ReadPng16(const std::filesystem::path& path);
