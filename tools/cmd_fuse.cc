@@ -214,7 +214,8 @@ void RunFuse(const FuseArguments& args) {
       s << "its cells start at (" << g->min_x_m << ", " << g->min_y_m << ") m with " << g->voxel_m * 1e3
         << " mm voxels; the grid's at (" << mine.min_x_m << ", " << mine.min_y_m << ") m with " << mine.voxel_m * 1e3
         << " mm (box " << box_text << "): give the box and voxel the ground truth was made for";
-      throw InputError(args.gt, "romunect.min_W", s.str());
+      const bool voxel = std::abs(g->voxel_m - mine.voxel_m) > kSameM;
+      throw InputError(args.gt, voxel ? "romunect.voxel_m" : "romunect.min_W", s.str());
     }
   }
   fusion::FrameInserter inserter(&grid, inserter_options);
