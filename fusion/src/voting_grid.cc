@@ -18,6 +18,7 @@
 #include "romunect/sensor/cpu_features.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/parallel_rows.h"
+#include "romunect/sensor/world_box.h"
 
 namespace romunect::fusion {
 namespace {
@@ -138,20 +139,9 @@ Vote* MapVotes(size_t bytes, bool prefault) {
 }  // namespace
 
 std::string GridOptions::Problem() const {
+  if (const std::string box = WorldBox{min_W, max_W}.Problem(); !box.empty()) return "box " + box;
   std::ostringstream s;
   s.precision(9);
-  for (int a = 0; a < 3; ++a) {
-    const char axis = "xyz"[a];
-    if (!std::isfinite(min_W[a]) || !std::isfinite(max_W[a])) {
-      s << "box " << axis << " range [" << min_W[a] << ", " << max_W[a] << "] must be finite";
-      return s.str();
-    }
-    if (!(max_W[a] > min_W[a])) {
-      s << "box " << axis << " range [" << min_W[a] << ", " << max_W[a]
-        << "] is empty or inverted: max must be greater than min";
-      return s.str();
-    }
-  }
   if (!std::isfinite(voxel_m) || !(voxel_m > 0.0)) {
     s << "voxel_m = " << voxel_m << ": must be a positive number of metres";
     return s.str();

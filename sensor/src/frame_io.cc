@@ -32,25 +32,14 @@ std::optional<Pose> ReadPose(const Field& entry, const std::string& key) {
   return PoseFromRowMajor(numbers);
 }
 
-// Why a box is unusable ("" when min < max, finite, on every axis).
-std::string BoxProblem(const WorldBox& box) {
-  for (int a = 0; a < 3; ++a) {
-    if (!std::isfinite(box.min_W[a]) || !std::isfinite(box.max_W[a]) || !(box.min_W[a] < box.max_W[a])) {
-      std::ostringstream s;
-      s << "xyz"[a] << " range [" << box.min_W[a] << ", " << box.max_W[a] << "] is empty or inverted (expected "
-        << "[xmin, ymin, zmin, xmax, ymax, zmax] in metres, min < max)";
-      return s.str();
-    }
-  }
-  return "";
-}
-
 std::optional<WorldBox> ReadRegion(const Field& root, const std::string& key) {
   if (!root.Has(key)) return std::nullopt;
   const Field field = root[key];
   const std::array<double, 6> v = field.Numbers<6>();
   const WorldBox box{{v[0], v[1], v[2]}, {v[3], v[4], v[5]}};
-  if (const std::string problem = BoxProblem(box); !problem.empty()) field.Fail(problem);
+  if (const std::string problem = box.Problem(); !problem.empty()) {
+    field.Fail(problem + " (expected [xmin, ymin, zmin, xmax, ymax, zmax] in metres)");
+  }
   return box;
 }
 
@@ -268,7 +257,7 @@ void FrameDirectoryWriter::SetExtraJson(const std::string& extra_json) {
 }
 
 void FrameDirectoryWriter::SetRegion(const WorldBox& region_W) {
-  ROMUNECT_CHECK_MSG(BoxProblem(region_W).empty(), BoxProblem(region_W).c_str());
+  ROMUNECT_CHECK_MSG(region_W.Problem().empty(), region_W.Problem().c_str());
   manifest_.region_W = region_W;
 }
 

@@ -21,12 +21,11 @@
 #include <string>
 #include <vector>
 
-#include <Eigen/Core>
-
 #include "romunect/sensor/camera_model.h"
 #include "romunect/sensor/frame.h"
 #include "romunect/sensor/frame_source.h"
 #include "romunect/sensor/image_io.h"
+#include "romunect/sensor/world_box.h"
 
 namespace romunect {
 
@@ -41,12 +40,6 @@ struct FrameRecord {
   std::optional<Pose> T_W_C;
   std::optional<Pose> T_B_H;
   std::string extra_json = "{}";  // unknown keys of this entry, kept verbatim
-};
-
-// An axis-aligned box in the world frame W, metres (min < max on every axis).
-struct WorldBox {
-  Eigen::Vector3d min_W = Eigen::Vector3d::Zero();
-  Eigen::Vector3d max_W = Eigen::Vector3d::Zero();
 };
 
 struct FrameDirectoryManifest {
