@@ -26,6 +26,7 @@
 #include "romunect/sensor/rig.h"
 #include "romunect/sim/frame_pipeline.h"
 #include "romunect/sim/pick.h"
+#include "romunect/sim/pile.h"
 #include "romunect/sim/scanner.h"
 #include "romunect/sim/sensor_imager.h"
 #include "scan_report.h"
@@ -134,8 +135,12 @@ void RunScan(const ScanArguments& args) {
     throw InputError("romunect scan", "options", problem);
   }
 
-  std::fprintf(stderr, "scan: loading the scene, dropping %d objects (seed %u) and settling the pile...\n",
-               args.objects, args.seed);
+  if (args.saved_scene.empty()) {
+    std::fprintf(stderr, "scan: loading the scene, dropping %d objects (seed %u) and settling the pile...\n",
+                 args.objects, args.seed);
+  } else {
+    std::fprintf(stderr, "scan: loading the scene and the settled pile of %s...\n", args.saved_scene.c_str());
+  }
   sim::Scanner scanner(options);
   std::fprintf(stderr, "scan: %s\n", scanner.stats().settle.BriefReport().c_str());
 
@@ -163,6 +168,8 @@ void RunScan(const ScanArguments& args) {
   }
 
   fs::create_directories(work_dir);
+  // The settled pile, before the pick moves it: `--saved-scene` reloads it without settling.
+  sim::SaveSettledScene(scanner.world(), work_dir / "scene.json");
   // What fusion believes: the calibrated camera and hand-eye pose, or the simulator's truth.
   const CameraModel camera = calibration ? calibration->camera : scanner.camera();
   const Pose T_W_B = scanner.world().T_W_B();
@@ -256,7 +263,7 @@ void RunScan(const ScanArguments& args) {
   report.scan_description = scanner.Describe();
   report.rig_name = options.rig.name;
   report.seed = args.seed;
-  report.objects = args.objects;
+  report.objects = scanner.world().num_objects();  // the saved scene's with --saved-scene
   report.fusion.threads = inserter.threads();
   report.samples = args.samples;
   report.fusion.peak_rss_mb = fusion::PeakRssMb();
@@ -277,10 +284,14 @@ void AddScanCommand(CLI::App& app) {
   auto* cmd = app.add_subcommand(
       "scan", "The main job: a simulated arm scans a bin while approaching, fuses every frame, then picks");
   auto args = std::make_shared<ScanArguments>();
-  cmd->add_option("--scene", args->scene, "MJCF scene with the arm and a bin (default: scenes/default/scene.xml)");
-  cmd->add_option("--saved-scene", args->saved_scene, "A settled scene saved by an earlier run (scene.json): no settling");
+  auto* scene = cmd->add_option("--scene", args->scene, "MJCF scene with the arm and a bin (default: scenes/default/scene.xml)");
+  auto* objects = cmd->add_option("--objects", args->objects, "Objects in the random pile")->capture_default_str();
+  // A saved scene names its MJCF scene and objects itself.
+  cmd->add_option("--saved-scene", args->saved_scene,
+                  "A run folder's scene.json (its scene and settled pile): the same pile without settling")
+      ->excludes(scene)
+      ->excludes(objects);
   cmd->add_option("--seed", args->seed, "Seed of the pile and of the sensor noise")->capture_default_str();
-  cmd->add_option("--objects", args->objects, "Objects in the random pile")->capture_default_str();
   cmd->add_option("--rig", args->rig, "Rig preset (romunect, kinect-v1) or rig JSON file")->capture_default_str();
   cmd->add_option("--calibration", args->calibration,
                   "Calibration file from `romunect calibrate` (default: the rig's ground truth)");

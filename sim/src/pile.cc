@@ -125,6 +125,10 @@ std::vector<ObjectSpec> MakePileObjects(const PileOptions& options) {
 
 std::string SettleSummary::BriefReport() const {
   char s[200];
+  if (!loaded_from.empty()) {
+    std::snprintf(s, sizeof s, "%d objects in the bin", objects_in_bin);
+    return "pile loaded from " + loaded_from + " (settled by an earlier run), " + s;
+  }
   std::snprintf(s, sizeof s, "pile %s after %.2f s simulated (%.2f s wall), kinetic energy %.2g J, %d objects in the bin",
                 converged ? "settled" : "NOT settled", simulated_s, wall_s, kinetic_energy_j, objects_in_bin);
   return s;
@@ -215,7 +219,8 @@ void SaveSettledScene(const World& world, const std::filesystem::path& path) {
   nlohmann::ordered_json j;
   j["format"] = kSceneFormat;
   j["version"] = kSceneVersion;
-  j["scene_file"] = world.options().scene_file.string();
+  // Absolute paths: the file reloads from any working directory.
+  j["scene_file"] = std::filesystem::absolute(world.options().scene_file).lexically_normal().string();
   if (world.options().T_H_C) j["T_H_C"] = PoseJson(*world.options().T_H_C);
   if (world.options().T_C_P) j["T_C_P"] = PoseJson(*world.options().T_C_P);
   nlohmann::ordered_json objects = nlohmann::ordered_json::array();
@@ -223,7 +228,7 @@ void SaveSettledScene(const World& world, const std::filesystem::path& path) {
     nlohmann::ordered_json e;
     e["kind"] = ToString(o.kind);
     if (o.kind == ObjectKind::kUserMesh) {
-      e["file"] = o.mesh_file.string();
+      e["file"] = std::filesystem::absolute(o.mesh_file).lexically_normal().string();
       e["scale"] = o.mesh_scale;
     } else {
       e["seed"] = o.seed;

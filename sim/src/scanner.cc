@@ -250,6 +250,7 @@ Scanner::Scanner(const ScanOptions& options) : impl_(std::make_unique<Impl>()) {
   if (!options.saved_scene.empty()) {
     s.world = std::make_unique<World>(LoadSettledScene(options.saved_scene));
     s.stats.settle.converged = true;
+    s.stats.settle.loaded_from = options.saved_scene.string();
     s.stats.settle.objects_in_bin = 0;
     for (int i = 0; i < s.world->num_objects(); ++i) s.stats.settle.objects_in_bin += ObjectInBin(*s.world, i);
   } else {

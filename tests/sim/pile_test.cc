@@ -1,6 +1,9 @@
 #include "romunect/sim/pile.h"
 
+#include <filesystem>
+
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "romunect/sensor/errors.h"
 #include "romunect/testing/test_support.h"
@@ -54,6 +57,9 @@ TEST(PileTest, SavedSceneReloadsExactly) {
     EXPECT_TRUE(reloaded.T_W_O(i).matrix() == world.T_W_O(i).matrix()) << "object " << i;  // bit for bit
   }
   EXPECT_EQ(reloaded.composed_xml(), world.composed_xml());
+  // It names its scene by an absolute path, so it reloads from any working directory.
+  const auto saved = nlohmann::json::parse(testing::ReadText(dir / "scene.json"));
+  EXPECT_TRUE(std::filesystem::path(saved["scene_file"].get<std::string>()).is_absolute());
 }
 
 TEST(PileTest, SettleThatNeverConvergesIsReported) {

@@ -32,6 +32,8 @@ TEST(CliScan, RejectsBadArgumentsBeforeAnyWork) {
   ExpectFailsWith("--calibration " + (dir / "missing.yaml").string() + out, "missing.yaml: file not found");
   ExpectFailsWith("--rig " + (dir / "missing.json").string() + out, "missing.json");
   ExpectFailsWith("--rig nosuchpreset" + out, "unknown preset; expected romunect or kinect-v1");
+  // A saved scene brings its own scene file and objects.
+  ExpectFailsWith("--saved-scene " + (dir / "scene.json").string() + " --objects 5" + out, "excludes");
   EXPECT_FALSE(fs::exists(dir / "run"));
   EXPECT_FALSE(fs::exists(dir / "run.incomplete"));
 }
@@ -60,7 +62,7 @@ TEST(CliScanIntegration, SmallPileEndToEnd) {
   EXPECT_FALSE(fs::exists(run.string() + ".incomplete"));
   for (const char* file : {"report.json", "report.html", "figure2.png", "overview.png", "fused_depth.exr",
                            "fused_depth.png", "fused_points.ply", "gt_height.exr", "completeness.png",
-                           "error.png", "frames/frames.json"}) {
+                           "error.png", "frames/frames.json", "scene.json"}) {
     EXPECT_TRUE(fs::exists(run / file)) << file;
   }
   const auto report = nlohmann::json::parse(testing::ReadText(run / "report.json"));
@@ -85,6 +87,29 @@ TEST(CliScanIntegration, SmallPileEndToEnd) {
   const auto fuse = RunRomunect("fuse " + (run / "frames").string() + " --out " + (dir / "refused").string());
   ASSERT_EQ(fuse.exit_code, 0) << fuse.output;
   EXPECT_EQ(testing::ReadText(dir / "refused" / "fused_depth.exr"), testing::ReadText(run / "fused_depth.exr"));
+
+  // The run's scene.json reloads its settled pile exactly, and a seed gives the same bytes at
+  // any thread count: the same frames, fused map and pick without settling, on one thread.
+  const fs::path again = dir / "again";
+  const auto reload = RunRomunect("scan --saved-scene " + (run / "scene.json").string() + " --seed 3 --threads 1 --out " +
+                                  again.string());
+  ASSERT_EQ(reload.exit_code, 0) << reload.output;
+  size_t frame_files = 0;
+  for (const auto& entry : fs::recursive_directory_iterator(run / "frames")) {
+    if (!entry.is_regular_file()) continue;
+    const fs::path relative = fs::relative(entry.path(), run);
+    ASSERT_TRUE(fs::exists(again / relative)) << relative;
+    EXPECT_TRUE(testing::ReadText(entry.path()) == testing::ReadText(again / relative)) << relative << " differs";
+    ++frame_files;
+  }
+  EXPECT_GT(frame_files, 4u * 20);  // IR, raw, depth and ground truth of every frame
+  for (const char* file : {"fused_depth.exr", "gt_height.exr", "scene.json"}) {
+    EXPECT_TRUE(testing::ReadText(run / file) == testing::ReadText(again / file)) << file << " differs";
+  }
+  const auto reloaded = nlohmann::json::parse(testing::ReadText(again / "report.json"));
+  EXPECT_EQ(reloaded["objects"].get<int>(), 4);
+  EXPECT_THAT(reloaded["settle"].get<std::string>(), ::testing::HasSubstr("loaded from"));
+  EXPECT_EQ(reloaded["pick"], report["pick"]);
 }
 
 }  // namespace

@@ -42,6 +42,7 @@ struct SettleSummary {
   double kinetic_energy_j = 0.0;
   int objects_in_bin = 0;       // objects whose centre lies inside the bin's inner box
   double wall_s = 0.0;          // wall-clock time spent
+  std::string loaded_from;      // a SaveSettledScene() file the pile came from: nothing settled
 
   std::string BriefReport() const;
 };
