@@ -25,6 +25,7 @@
 #include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/rig.h"
 #include "romunect/sim/frame_pipeline.h"
+#include "romunect/sim/objects.h"
 #include "romunect/sim/pick.h"
 #include "romunect/sim/pile.h"
 #include "romunect/sim/scanner.h"
@@ -45,6 +46,9 @@ struct ScanArguments {
   bool ideal_depth = false;
   bool compress_frames = false;
   std::string sweep = "columns";
+  std::vector<std::string> meshes;  // user meshes added to the pile, one object each
+  double mesh_unit_m = 1e-3;
+  std::string mesh_material = "bright";
 };
 
 // CPU time of all of the process's threads.
@@ -131,13 +135,22 @@ void RunScan(const ScanArguments& args) {
     }
     options.rig.H_P_rec = calibration->H_P_rec;
   }
+  if (args.mesh_material != "bright" && args.mesh_material != "dark" && args.mesh_material != "shiny") {
+    throw InputError("--mesh-material", "", "'" + args.mesh_material + "' is not bright, dark or shiny");
+  }
+  const IrMaterial mesh_material = args.mesh_material == "dark"    ? sim::DarkMaterial()
+                                   : args.mesh_material == "shiny" ? sim::ShinyMaterial()
+                                                                   : sim::BrightMaterial();
+  for (const std::string& mesh : args.meshes) {
+    options.extra_objects.push_back(sim::MakeUserMeshObject(mesh, args.mesh_unit_m, mesh_material));
+  }
   if (const std::string problem = options.Problem(); !problem.empty()) {
     throw InputError("romunect scan", "options", problem);
   }
 
   if (args.saved_scene.empty()) {
     std::fprintf(stderr, "scan: loading the scene, dropping %d objects (seed %u) and settling the pile...\n",
-                 args.objects, args.seed);
+                 args.objects + static_cast<int>(args.meshes.size()), args.seed);
   } else {
     std::fprintf(stderr, "scan: loading the scene and the settled pile of %s...\n", args.saved_scene.c_str());
   }
@@ -286,11 +299,16 @@ void AddScanCommand(CLI::App& app) {
   auto args = std::make_shared<ScanArguments>();
   auto* scene = cmd->add_option("--scene", args->scene, "MJCF scene with the arm and a bin (default: scenes/default/scene.xml)");
   auto* objects = cmd->add_option("--objects", args->objects, "Objects in the random pile")->capture_default_str();
+  auto* saved = cmd->add_option("--saved-scene", args->saved_scene,
+                                "A run folder's scene.json (its scene and settled pile): the same pile without settling");
+  auto* meshes = cmd->add_option("--mesh", args->meshes,
+                                 "A user mesh (.stl, .obj) dropped into the pile besides the --objects; repeat for more");
   // A saved scene names its MJCF scene and objects itself.
-  cmd->add_option("--saved-scene", args->saved_scene,
-                  "A run folder's scene.json (its scene and settled pile): the same pile without settling")
-      ->excludes(scene)
-      ->excludes(objects);
+  saved->excludes(scene)->excludes(objects)->excludes(meshes);
+  cmd->add_option("--mesh-unit", args->mesh_unit_m, "Metres per --mesh file unit (0.001: millimetres)")
+      ->capture_default_str();
+  cmd->add_option("--mesh-material", args->mesh_material, "IR material of the --mesh objects: bright, dark or shiny")
+      ->capture_default_str();
   cmd->add_option("--seed", args->seed, "Seed of the pile and of the sensor noise")->capture_default_str();
   cmd->add_option("--rig", args->rig, "Rig preset (romunect, kinect-v1) or rig JSON file")->capture_default_str();
   cmd->add_option("--calibration", args->calibration,

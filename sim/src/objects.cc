@@ -8,6 +8,7 @@
 
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/errors.h"
+#include "romunect/sensor/mesh.h"
 
 namespace romunect::sim {
 namespace {
@@ -229,6 +230,27 @@ ObjectSpec MakeUserMeshObject(const std::filesystem::path& mesh_file, double sca
   }
   if (!(scale_to_m > 0.0) || !std::isfinite(scale_to_m)) {
     throw InputError(mesh_file.string(), "scale", "must be a positive finite number");
+  }
+  // Read here too (MuJoCo reads it again), so a bad file is reported as the file's fault, not the
+  // composed scene's: malformed content, a part whose unit is likely wrong, or no volume to give
+  // it mass.
+  const TriangleMesh mesh = LoadMesh(mesh_file, scale_to_m);
+  Eigen::AlignedBox3d box;
+  double six_volume = 0.0;
+  for (const Eigen::Vector3i& t : mesh.triangles) {
+    const Eigen::Vector3d a = mesh.vertices_O[t[0]].cast<double>(), b = mesh.vertices_O[t[1]].cast<double>(),
+                          c = mesh.vertices_O[t[2]].cast<double>();
+    box.extend(a).extend(b).extend(c);
+    six_volume += a.dot(b.cross(c));
+  }
+  const double across_m = box.diagonal().norm();
+  if (!(across_m >= 1e-3)) {
+    throw InputError(mesh_file.string(), "size",
+                     std::to_string(across_m * 1e3) + " mm across at " + std::to_string(scale_to_m) +
+                         " m per file unit: below 1 mm; is the unit right?");
+  }
+  if (!(std::abs(six_volume) / 6.0 > 1e-6 * across_m * across_m * across_m)) {
+    throw InputError(mesh_file.string(), "triangles", "the mesh encloses no volume (it must be closed to have a mass)");
   }
   ObjectSpec spec;
   spec.kind = ObjectKind::kUserMesh;

@@ -21,20 +21,22 @@ constexpr const char* kSceneFormat = "romunect-scene";
 constexpr int kSceneVersion = 1;
 // Objects waiting for their drop are held far from everything, out of every collision.
 constexpr double kParkX = 5.0, kParkY = 5.0, kParkZ = 1.0;
-// User meshes are not measured here: assume a bounding sphere of this radius about O.
-constexpr double kUserMeshRadiusM = 0.02;
 
-// A sphere about the centre of the object's bounding box that holds all its parts, in O.
-void BoundingSphere(const ObjectSpec& spec, Eigen::Vector3d* centre_O, double* radius_m) {
+// A sphere about the centre of the object's bounding box that holds all its parts, in O. A user
+// mesh has its part in its file: a sphere about its compiled geom's origin.
+void BoundingSphere(const World::Impl& w, int object, Eigen::Vector3d* centre_O, double* radius_m) {
+  const ObjectSpec& spec = w.options.objects[object];
+  if (spec.kind == ObjectKind::kUserMesh) {
+    const int g = w.objects[object].geoms.at(0);
+    *centre_O = Eigen::Vector3d(w.model->geom_pos[3 * g], w.model->geom_pos[3 * g + 1], w.model->geom_pos[3 * g + 2]);
+    *radius_m = MeshGeomRadius(w.model.get(), g);
+    return;
+  }
   Eigen::AlignedBox3d box;
   for (const Mesh& part : spec.parts_O) {
     for (const auto& v : part.vertices) box.extend(v);
   }
-  if (box.isEmpty()) {
-    *centre_O = Eigen::Vector3d::Zero();
-    *radius_m = kUserMeshRadiusM;
-    return;
-  }
+  ROMUNECT_CHECK(!box.isEmpty());
   *centre_O = box.center();
   *radius_m = 0.0;
   for (const Mesh& part : spec.parts_O) {
@@ -163,7 +165,7 @@ SettleSummary DropAndSettle(World* world, const PileOptions& options) {
     // is wide enough), its lowest point drop_height_m above the rim.
     Eigen::Vector3d centre_O;
     double radius_m = 0.0;
-    BoundingSphere(world->options().objects[i], &centre_O, &radius_m);
+    BoundingSphere(w, i, &centre_O, &radius_m);
     const double mx = std::clamp(radius_m, 0.0, inner.x() / 2 - 0.002);
     const double my = std::clamp(radius_m, 0.0, inner.y() / 2 - 0.002);
     const Eigen::Vector3d centre_Bin(std::uniform_real_distribution<double>(-inner.x() / 2 + mx, inner.x() / 2 - mx)(rng),

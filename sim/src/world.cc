@@ -1,5 +1,6 @@
 #include "romunect/sim/world.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -188,6 +189,18 @@ void World::Impl::SetScratchQ(const ArmVector& q) const {
   mj_comPos(model.get(), scratch.get());
 }
 
+double MeshGeomRadius(const mjModel* m, int geom) {
+  ROMUNECT_CHECK(m->geom_type[geom] == mjGEOM_MESH);
+  const int mesh = m->geom_dataid[geom];
+  const float* v = m->mesh_vert + 3 * m->mesh_vertadr[mesh];
+  double radius = 0.0;
+  for (int i = 0; i < m->mesh_vertnum[mesh]; ++i) {
+    radius = std::max(radius, std::sqrt(double{v[3 * i]} * v[3 * i] + double{v[3 * i + 1]} * v[3 * i + 1] +
+                                        double{v[3 * i + 2]} * v[3 * i + 2]));
+  }
+  return radius;
+}
+
 World::World(const WorldOptions& options) : impl_(std::make_unique<Impl>()) {
   static const bool handler_installed = [] {
     mju_user_warning = WarnToStderr;
@@ -301,6 +314,21 @@ World::World(const WorldOptions& options) : impl_(std::make_unique<Impl>()) {
       if (m->geom_bodyid[g] == ids.body) ids.geoms.push_back(g);
     }
     w.objects.push_back(ids);
+  }
+  // A user mesh must be able to lie in the bin: not wider than its inner diagonal (too small a
+  // mesh is refused by MakeUserMeshObject).
+  const Eigen::Vector3d inner = bin_inner_size_m();
+  for (size_t i = 0; i < options.objects.size(); ++i) {
+    const ObjectSpec& o = options.objects[i];
+    if (o.kind != ObjectKind::kUserMesh) continue;
+    const double across_m = 2.0 * MeshGeomRadius(m, w.objects[i].geoms.at(0));
+    const double diagonal_m = std::hypot(inner.x(), inner.y());
+    if (!(across_m <= diagonal_m)) {
+      char why[200];
+      std::snprintf(why, sizeof why, "%.4g mm across at %g m per file unit: wider than the bin's inner diagonal, "
+                    "%.0f mm", across_m * 1e3, o.mesh_scale, diagonal_m * 1e3);
+      throw InputError(o.mesh_file.string(), "size", why);
+    }
   }
 
   // The arm starts at its zero configuration, held there.

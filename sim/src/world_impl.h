@@ -30,6 +30,10 @@ Pose PoseFromMujoco(const mjtNum* xpos, const mjtNum* xmat);
 // y down): a half turn about x. The only place the two meet.
 Pose T_M_C();
 
+// The radius about the geom's origin of a mesh geom's compiled vertices (MuJoCo's geom_rbound
+// of a mesh is larger: it bounds the mesh's inertia box).
+double MeshGeomRadius(const mjModel* m, int geom);
+
 struct ObjectIds {
   int body = -1;
   int qpos_adr = -1;  // 7 numbers: position, w-first quaternion

@@ -50,7 +50,8 @@ struct ObjectSpec {
 // lego brick 2x4 (32 x 16 x 11.4 mm), gear 32 mm across, 7 mm thick.
 ObjectSpec MakeObject(ObjectKind kind, uint32_t seed);
 
-// A user mesh object. Throws InputError naming the file when it is missing or not .stl/.obj.
+// A user mesh object (the file is read to check it). Throws InputError naming the file when it
+// is missing, not .stl/.obj, malformed, under 1 mm across at scale_to_m, or encloses no volume.
 ObjectSpec MakeUserMeshObject(const std::filesystem::path& mesh_file, double scale_to_m,
                               const IrMaterial& material, double density_kg_m3 = 1000.0);
 

@@ -62,7 +62,8 @@ class World {
   using Jacobian = Eigen::Matrix<double, 6, kArmDof>;  // rows: linear (3), angular (3), in W
 
   // Loads the scene and adds the objects. Throws InputError naming the file on invalid MJCF,
-  // a missing mesh, a missing bin or arm part, or a rig that does not fit on the hand.
+  // a missing mesh, a missing bin or arm part, a rig that does not fit on the hand, or a user
+  // mesh wider than the bin's inner diagonal.
   explicit World(const WorldOptions& options);
   ~World();
   World(World&&) noexcept;
