@@ -16,6 +16,7 @@
 #include <unistd.h>
 
 #include "commands.h"
+#include "output_folder.h"
 #include "romunect/fusion/frame_inserter.h"
 #include "romunect/fusion/metrics.h"
 #include "romunect/fusion/outputs.h"
@@ -98,10 +99,15 @@ void RunScan(const ScanArguments& args) {
   for (const std::string* file : {&args.scene, &args.saved_scene, &args.calibration}) {
     if (!file->empty() && !fs::exists(*file)) throw InputError(*file, "", "file not found");
   }
-  const fs::path run_dir = args.out.empty() ? fs::path(DefaultRunDir()) : fs::path(args.out);
+  const fs::path run_dir = OutputFolder(args.out.empty() ? DefaultRunDir() : args.out, "--out");
   if (fs::exists(run_dir / "report.json")) {
     throw InputError(run_dir.string(), "", "holds a finished scan (report.json); choose another --out");
   }
+  // The run replaces at most an empty folder: nothing a user put there is ever removed.
+  if (fs::exists(run_dir) && !(fs::is_directory(run_dir) && fs::is_empty(run_dir))) {
+    throw InputError(run_dir.string(), "", "exists and is not an empty folder; choose another --out");
+  }
+  CheckFolderCanBeCreated(run_dir, "--out");
   // The run is built in <run>.incomplete and renamed at the very end, so a folder under the
   // final name is always complete.
   const fs::path work_dir = run_dir.string() + ".incomplete";
@@ -285,7 +291,12 @@ void RunScan(const ScanArguments& args) {
   WriteScanOutputs(work_dir, report);
 
   // Complete: move the run under its final name.
-  if (fs::exists(run_dir)) fs::remove_all(run_dir);
+  if (fs::exists(run_dir)) {
+    if (!fs::is_directory(run_dir) || !fs::is_empty(run_dir)) {
+      throw InputError(run_dir.string(), "", "was filled while the scan ran; the finished run is in " + work_dir.string());
+    }
+    fs::remove(run_dir);  // the empty folder the run replaces
+  }
   fs::create_directories(run_dir.parent_path().empty() ? fs::path(".") : run_dir.parent_path());
   fs::rename(work_dir, run_dir);
   std::printf("%s", ScanSummary(report, run_dir).c_str());

@@ -78,6 +78,23 @@ TEST(CliScan, NeverOverwritesAFinishedRun) {
   EXPECT_EQ(testing::ReadText(dir / "run" / "report.json"), "{}");
 }
 
+// --out never removes what is there: a folder with a user's files (named with a trailing slash),
+// a file, the working directory. A folder that cannot be made is refused before any work.
+TEST(CliScan, NeverRemovesWhatTheOutputPathHolds) {
+  ScratchDir dir("scan");
+  testing::WriteText(dir / "mine" / "notes.txt", "precious");
+  ExpectFailsWith("--out " + (dir / "mine").string() + "/", (dir / "mine").string() + ": exists and is not an empty folder");
+  EXPECT_EQ(testing::ReadText(dir / "mine" / "notes.txt"), "precious");
+  testing::WriteText(dir / "notes.txt", "precious");
+  ExpectFailsWith("--out " + (dir / "notes.txt").string(), "exists and is not an empty folder");
+  EXPECT_EQ(testing::ReadText(dir / "notes.txt"), "precious");
+  ExpectFailsWith("--out .", "--out: '.' names no folder of its own");
+  ExpectFailsWith("--out ../..", "names no folder of its own");
+  ExpectFailsWith("--out " + (dir / "notes.txt" / "run").string(), "notes.txt is not a folder");
+  EXPECT_EQ(testing::ReadText(dir / "mine" / "notes.txt"), "precious");
+  EXPECT_FALSE(fs::exists(dir / "mine.incomplete"));
+}
+
 // A user's part in the pile: a dark 18 mm cube (OBJ) dropped with two generated objects settles
 // in the bin, is scanned and fused, and its saved scene names its file.
 TEST(CliScanIntegration, DropsAUserMeshIntoThePile) {
