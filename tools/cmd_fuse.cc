@@ -19,6 +19,7 @@
 #include <nlohmann/json.hpp>
 
 #include "commands.h"
+#include "output_folder.h"
 #include "romunect/calib/calibration_file.h"
 #include "romunect/fusion/frame_inserter.h"
 #include "romunect/fusion/metrics.h"
@@ -37,6 +38,7 @@ namespace fs = std::filesystem;
 
 struct FuseArguments {
   std::string source, out, gt, box;
+  bool box_given = false;
   double voxel_m = 0.25e-3;
   int threads = 1;
   double max_memory_mb = 16384.0;
@@ -56,6 +58,9 @@ void ParseBox(const std::string& text, fusion::GridOptions* options) {
   std::vector<double> values;
   std::stringstream s(text);
   std::string item;
+  if (text.empty() || text.back() == ',') {
+    throw InputError("--box", "", "'" + text + "': expected 6 comma-separated numbers xmin,ymin,zmin,xmax,ymax,zmax (metres)");
+  }
   while (std::getline(s, item, ',')) {
     try {
       size_t used = 0;
@@ -138,12 +143,32 @@ FuseSource OpenFuseSource(const FuseArguments& args) {
 
 // Default output folder: beside a directory or .oni file; a device has no place of its own.
 fs::path DefaultOutput(const FuseArguments& args) {
+  // The source's own name, without trailing separators ("scan1/" is "scan1", "." the folder's
+  // name): the output lies beside it, never inside.
+  fs::path source = fs::path(args.source).lexically_normal();
+  while (!source.empty() && source.filename().empty() && source != source.root_path()) source = source.parent_path();
+  if (source.empty() || source.filename() == "." || source.filename() == "..") {
+    source = fs::absolute(source).lexically_normal().parent_path();
+  }
   switch (openni2::ClassifySource(args.source)) {
-    case openni2::SourceKind::kFrameDirectory: return fs::path(args.source + "_fused");
-    case openni2::SourceKind::kOniFile: return fs::path(args.source).replace_extension().string() + "_fused";
+    case openni2::SourceKind::kFrameDirectory: return fs::path(source.string() + "_fused");
+    case openni2::SourceKind::kOniFile: return fs::path(source).replace_extension().string() + "_fused";
     case openni2::SourceKind::kDevice: break;
   }
   throw InputError("--out", "", "missing: fusing a live device (" + args.source + ") needs an output folder");
+}
+
+// One voxel across an axis fuses nothing there: a voxel that large is a unit mistake (the grid
+// itself allows it).
+void CheckVoxelFitsBox(const fusion::GridOptions& options) {
+  const Eigen::Vector3i n = options.Dims();
+  for (int a = 0; a < 3; ++a) {
+    if (n[a] >= 2) continue;
+    std::ostringstream s;
+    s << options.voxel_m << " m: the box's " << "xyz"[a] << " extent " << (options.max_W[a] - options.min_W[a])
+      << " m holds fewer than 2 voxels (the voxel is in metres: 0.00025 is 0.25 mm)";
+    throw InputError("--voxel", "", s.str());
+  }
 }
 
 // "[xmin, xmax] x [ymin, ymax] x [zmin, zmax] m".
@@ -158,38 +183,44 @@ std::string BoxText(const fusion::GridOptions& box) {
 void RunFuse(const FuseArguments& args) {
   // Options first: a bad option fails before any file is read.
   fusion::GridOptions grid_options;
-  if (!args.box.empty()) ParseBox(args.box, &grid_options);
+  if (args.box_given) ParseBox(args.box, &grid_options);
   if (!std::isfinite(args.voxel_m) || !(args.voxel_m > 0.0)) {
     throw InputError("--voxel", "", std::to_string(args.voxel_m) + ": must be a positive size in metres");
   }
   grid_options.voxel_m = args.voxel_m;
-  if (!(args.max_memory_mb > 0.0)) throw InputError("--max-memory-mb", "", "must be positive");
+  // Up to 1 TB: beyond that the byte count leaves the size_t the grid compares with.
+  if (!(args.max_memory_mb > 0.0 && args.max_memory_mb <= 1e6)) {
+    throw InputError("--max-memory-mb", "", std::to_string(args.max_memory_mb) + ": expected 0 < MB <= 1000000");
+  }
   grid_options.max_memory_bytes = static_cast<size_t>(args.max_memory_mb * 1e6);
   const std::string box_problem = grid_options.Problem();
   if (!box_problem.empty()) {
-    throw InputError(box_problem.rfind("voxel", 0) == 0 ? "--voxel" : "--box", "", box_problem);
+    throw InputError(box_problem.find("voxel_m") != std::string::npos ? "--voxel" : "--box", "", box_problem);
   }
+  CheckVoxelFitsBox(grid_options);
   fusion::InserterOptions inserter_options;
   inserter_options.threads = args.threads;
   if (const std::string p = inserter_options.Problem(); !p.empty()) throw InputError("--threads", "", p);
-  const fs::path out = args.out.empty() ? DefaultOutput(args) : fs::path(args.out);
+  const fs::path out = args.out.empty() ? DefaultOutput(args) : OutputFolder(args.out, "--out");
   if (fs::exists(out / "report.json")) {
     throw InputError(out.string(), "", "holds a finished fusion (report.json); refusing to overwrite it: give "
                                        "another --out or remove the folder");
   }
+  CheckFolderCanBeCreated(out, "--out");
 
   const FuseSource opened = OpenFuseSource(args);  // validates frames.json
   const std::unique_ptr<FrameSource>& source = opened.source;
   const FrameDirectorySource* directory = openni2::FindFrameDirectorySource(source.get());
   // The box: --box, else the region the frame directory records, else the default.
-  std::string box_from = args.box.empty() ? "the default box" : "--box";
-  if (args.box.empty() && directory != nullptr && directory->manifest().region_W) {
+  std::string box_from = args.box_given ? "--box" : "the default box";
+  if (!args.box_given && directory != nullptr && directory->manifest().region_W) {
     grid_options.min_W = directory->manifest().region_W->min_W;
     grid_options.max_W = directory->manifest().region_W->max_W;
     box_from = "frames.json's region_W";
     if (const std::string problem = grid_options.Problem(); !problem.empty()) {
       throw InputError((fs::path(args.source) / "frames.json").string(), "region_W", problem);
     }
+    CheckVoxelFitsBox(grid_options);
   }
   const CameraModel camera = source->camera();
   const size_t frame_count = directory != nullptr ? directory->manifest().frames.size() : 0;
@@ -282,6 +313,24 @@ void RunFuse(const FuseArguments& args) {
     }
   }
   std::fprintf(stderr, "\n");
+  // A device that skipped frame numbers lost frames fuse could not keep up with (or the link
+  // dropped): the map misses them, so the report counts them.
+  const openni2::OpenNI2Source* device = openni2::FindOpenNI2Source(source.get());
+  const int dropped = device != nullptr ? device->stats().dropped_frames : 0;
+  if (dropped > 0) {
+    std::fprintf(stderr, "romunect: warning: %s dropped %d frame(s) (gaps in its frame numbers): fusion was too slow "
+                 "for its rate, or the link lost them\n", args.source.c_str(), dropped);
+  }
+  // No frame fused: every output would be empty; nothing is written (a rerun into --out stays open).
+  if (report.frames == 0) {
+    std::string why = directory != nullptr ? "frames.json lists no frame"
+                      : report.bad_frames > 0
+                          ? "all " + std::to_string(report.bad_frames) + " frames were skipped (" +
+                                report.bad_frame_messages.front() + ")"
+                          : "the source delivered no frame";
+    if (stopped) why += "; it stopped: " + *stopped;
+    throw InputError(args.source, "", "nothing to fuse: " + why);
+  }
   // Depth that never reaches the box is a box that misses the scene, not an empty scene: the
   // outputs would be empty maps, so none are written.
   if (report.stats.rays > 0 && report.stats.rays == report.stats.rays_missing_box) {
@@ -289,7 +338,7 @@ void RunFuse(const FuseArguments& args) {
     where_cameras.precision(3);
     where_cameras << "x " << cameras_W.min().x() << ".." << cameras_W.max().x() << ", y " << cameras_W.min().y()
                   << ".." << cameras_W.max().y() << ", z " << cameras_W.min().z() << ".." << cameras_W.max().z();
-    throw InputError(args.box.empty() ? args.source : "--box", "",
+    throw InputError(args.box_given ? "--box" : args.source, "",
                      "none of the " + std::to_string(report.stats.rays) + " depth rays of the " +
                          std::to_string(report.frames) + " frames enters the box " + box_text +
                          "; the cameras were at " + where_cameras.str() +
@@ -313,6 +362,7 @@ void RunFuse(const FuseArguments& args) {
   nlohmann::ordered_json json = nlohmann::ordered_json::parse(fusion::FusionReportJson(report));
   json["depth_from"] = opened.depth_from;
   json["box_from"] = box_from;
+  json["dropped_frames"] = dropped;
   json["stopped_early"] = stopped.has_value();
   if (stopped) json["stop_reason"] = *stopped;
   WriteTextAtomically(out / "report.json", json.dump(2) + "\n");
@@ -326,9 +376,9 @@ void RunFuse(const FuseArguments& args) {
                 report.metrics->mae_mm, 100.0 * report.metrics->within_1mm);
   }
   std::printf("\ninsert %.2f ms per frame (median), extract %.2f ms, peak memory %.0f MB; %zu pixels skipped "
-              "(NaN/inf/negative), %zu frames skipped\n%s\n",
+              "(NaN/inf/negative), %zu frames skipped, %d dropped by the device\n%s\n",
               fusion::Quantile(report.insert_ms, 0.5), report.extract_ms, report.peak_rss_mb, report.skipped_pixels,
-              report.bad_frames, report.stats.BriefReport().c_str());
+              report.bad_frames, dropped, report.stats.BriefReport().c_str());
   if (stopped) {
     std::fflush(stdout);
     // Exit non-zero with the device's message, after the outputs of the frames so far.
@@ -350,7 +400,7 @@ void AddFuseCommand(CLI::App& app) {
       ->required();
   cmd->add_option("--out", args->out, "Output folder (default: SOURCE_fused beside a directory or .oni file)");
   cmd->add_option("--gt", args->gt, "Ground-truth height map (EXR, same box and voxel) for RMSE/MAE");
-  cmd->add_option("--box", args->box,
+  auto* box = cmd->add_option("--box", args->box,
                   "Fusion box in world metres: xmin,ymin,zmin,xmax,ymax,zmax (default: the frame directory's "
                   "region_W, as romunect scan records it, else -0.075,-0.04,-0.004,0.075,0.04,0.06)");
   cmd->add_option("--voxel", args->voxel_m, "Voxel size in metres (default 0.00025)");
@@ -368,7 +418,10 @@ void AddFuseCommand(CLI::App& app) {
   cmd->add_option("--timeout", args->timeout_s,
                   ".oni/device: seconds without a frame before the device counts as gone (default 2)")
       ->check(CLI::PositiveNumber);
-  cmd->callback([args] { RunFuse(*args); });
+  cmd->callback([args, box] {
+    args->box_given = box->count() > 0;  // --box "" is a bad box, not the default
+    RunFuse(*args);
+  });
 }
 
 }  // namespace romunect::tools

@@ -98,8 +98,15 @@ TEST(FuseCliTest, RejectsEmptyInvertedOrMalformedBoxesAndBadVoxels) {
            {"--box 0,0.05,0,0.05,0,0.05", "--box: box y range [0.05, 0] is empty or inverted"},
            {"--box 0,0,0,1,1", "expected 6 comma-separated numbers"},
            {"--box 0,0,0,a,1,1", "'a' is not a number"},
+           {"--box ''", "--box: '': expected 6 comma-separated numbers"},
+           {"--box 0,0,0,1,1,1,", "--box: '0,0,0,1,1,1,': expected 6 comma-separated numbers"},
            {"--voxel 0", "--voxel"},
            {"--voxel -0.001", "must be a positive size"},
+           // Metres: 0.25 is a 25 cm voxel (a millimetre figure typed as metres), 1e-300 none at all.
+           {"--voxel 0.25", "--voxel: 0.25 m: the box's x extent 0.15 m holds fewer than 2 voxels"},
+           {"--voxel 1e-300", "--voxel: box x extent 0.15 m at voxel_m = 1e-300"},
+           {"--max-memory-mb inf", "--max-memory-mb: inf: expected 0 < MB <= 1000000"},
+           {"--out " + (scratch / "capture" / "frames.json" / "out").string(), "frames.json is not a folder"},
            {"--threads 0", "--threads: threads = 0"},
        }) {
     const auto result = RunRomunect("fuse " + dir + " " + c.args);
@@ -107,6 +114,27 @@ TEST(FuseCliTest, RejectsEmptyInvertedOrMalformedBoxesAndBadVoxels) {
     EXPECT_THAT(result.output, HasSubstr(c.expected)) << c.args;
     EXPECT_FALSE(std::filesystem::exists(scratch / "capture_fused" / "report.json")) << c.args;
   }
+}
+
+// The default output lies beside the frame directory however it is named ("capture/" too).
+TEST(FuseCliTest, DefaultOutputIsBesideTheSourceEvenWithATrailingSlash) {
+  ScratchDir scratch("fuse_cli_slash");
+  WriteBinDirectory(scratch / "capture", 1);
+  const auto result = RunRomunect("fuse " + (scratch / "capture").string() + "/ " + kVoxelArg);
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  EXPECT_TRUE(std::filesystem::exists(scratch / "capture_fused" / "report.json"));
+  EXPECT_FALSE(std::filesystem::exists(scratch / "capture" / "_fused"));
+}
+
+// A frame directory without frames has nothing to fuse: an error, and no empty maps.
+TEST(FuseCliTest, ADirectoryWithoutFramesIsAnErrorThatWritesNothing) {
+  ScratchDir scratch("fuse_cli_none");
+  FrameDirectoryWriter writer(scratch / "capture", testing::SmallCamera());
+  writer.Finish();
+  const auto result = RunRomunect("fuse " + (scratch / "capture").string() + " " + kVoxelArg);
+  EXPECT_EQ(result.exit_code, 2) << result.output;
+  EXPECT_THAT(result.output, HasSubstr("nothing to fuse: frames.json lists no frame"));
+  EXPECT_FALSE(std::filesystem::exists(scratch / "capture_fused"));
 }
 
 TEST(FuseCliTest, RefusesAGridThatDoesNotFitWithTheSizeItNeeds) {

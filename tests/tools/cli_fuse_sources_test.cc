@@ -228,6 +228,34 @@ TEST(FuseSourcesCli, FramesOutsideThePoseLogAreSkippedAndCounted) {
   EXPECT_EQ(report["bad_frames"], kFrames - kLogged);
 }
 
+// A device faster than fuse loses frames (OpenNI2 keeps the newest): the report and the summary
+// account for every frame sent, fused, skipped or dropped.
+TEST(FuseSourcesCli, FramesTheDeviceDroppedAreCounted) {
+  ScratchDir scratch("fuse_sources_dropped");
+  const Capture c = WriteCapture(scratch.path(), kFrames, kFrames);
+  VirtualDeviceOptions fast;
+  fast.fps = 1000.0;  // a frame every millisecond, at its own pace
+  const auto r = RunRomunect("fuse " + Quote(VirtualDeviceUri(c.dir, fast)) + kFuseArgs + PoseArgs(c) + " --out " +
+                             (scratch / "out").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const nlohmann::json report = Report(scratch / "out");
+  ASSERT_TRUE(report.contains("dropped_frames"));
+  EXPECT_EQ(report["frames"].get<int>() + report["bad_frames"].get<int>() + report["dropped_frames"].get<int>(), kFrames);
+  EXPECT_THAT(r.output, HasSubstr(std::to_string(report["dropped_frames"].get<int>()) + " dropped by the device"));
+}
+
+// Every frame outside the pose log: nothing to fuse is an error, and nothing is written (a rerun
+// with the right offset into the same --out is not refused).
+TEST(FuseSourcesCli, NoFrameToFuseIsAnErrorThatWritesNothing) {
+  ScratchDir scratch("fuse_sources_none");
+  const Capture c = WriteCapture(scratch.path(), kFrames, kFrames);
+  const auto r = RunRomunect("fuse " + Quote(DeviceUri(c.dir)) + kFuseArgs + PoseArgs(c) + " --pose-offset 100 --out " +
+                             (scratch / "out").string());
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_THAT(r.output, HasSubstr("nothing to fuse: all 6 frames were skipped"));
+  EXPECT_FALSE(std::filesystem::exists(scratch / "out"));
+}
+
 TEST(FuseSourcesCli, RejectsMissingOrMisplacedSourceOptions) {
   ScratchDir scratch("fuse_sources_bad");
   const Capture c = WriteCapture(scratch.path(), 1, 1);
