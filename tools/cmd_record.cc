@@ -5,6 +5,7 @@
 #include <csignal>
 #include <cstdio>
 #include <filesystem>
+#include <utility>
 #include <memory>
 #include <string>
 
@@ -12,6 +13,7 @@
 #include <opencv2/core.hpp>
 
 #include "commands.h"
+#include "output_folder.h"
 #include "romunect/openni2/open_source.h"
 #include "romunect/openni2/openni2_source.h"
 #include "romunect/sensor/errors.h"
@@ -19,6 +21,7 @@
 
 namespace romunect::tools {
 namespace {
+namespace fs = std::filesystem;
 
 volatile std::sig_atomic_t g_interrupted = 0;
 void OnInterrupt(int) { g_interrupted = 1; }
@@ -126,13 +129,38 @@ void RunRecord(const RecordArgs& args) {
     device.camera = camera;
     options.pose.T_H_C = T_H_C;  // with a pose log: T_W_C = T_B_H T_H_C (world = robot base)
   }
-  if (!args.oni.empty() && openni2::ClassifySource(args.source) == openni2::SourceKind::kFrameDirectory) {
-    throw InputError("--oni", "", "only an OpenNI2 source (device or .oni file) can be recorded to .oni");
+  const bool from_directory = openni2::ClassifySource(args.source) == openni2::SourceKind::kFrameDirectory;
+  if (from_directory) {
+    // A frame directory is copied as it is: the device's stream options would be ignored.
+    for (const auto& [given, option] : {std::pair{!args.oni.empty(), "--oni"}, std::pair{args.no_ir, "--no-ir"},
+                                        std::pair{args.raw, "--raw"}, std::pair{!args.depth_unit.empty(), "--depth-unit"},
+                                        std::pair{args.width != 0, "--width"}, std::pair{args.height != 0, "--height"},
+                                        std::pair{args.fps != 0, "--fps"}}) {
+      if (given) throw InputError(option, "", "only an OpenNI2 source (device or .oni file) takes it; a frame directory is copied as it is");
+    }
+  }
+  // Refusals before the source opens: opening starts an .oni recording, which would already
+  // have replaced the file.
+  CheckFolderCanBeCreated(args.out_dir, "OUT_DIR");
+  FrameDirectoryWriter::CheckCanWrite(args.out_dir);
+  if (!args.oni.empty() && fs::exists(args.oni)) {
+    throw InputError(args.oni, "", "already exists; refusing to overwrite an earlier recording");
   }
 
   std::unique_ptr<FrameSource> source = openni2::OpenSource(args.source, options);
+  // The frames' camera: the device's (set from --camera or --calibration when given), and for a
+  // frame directory the given one in place of the directory's.
+  CameraModel camera = source->camera();
+  if (from_directory && device.camera) {
+    if (device.camera->width != camera.width || device.camera->height != camera.height) {
+      throw InputError(args.camera.empty() ? args.calibration : args.camera, "image_width/image_height",
+                       std::to_string(device.camera->width) + " x " + std::to_string(device.camera->height) +
+                           ", the frames are " + std::to_string(camera.width) + " x " + std::to_string(camera.height));
+    }
+    camera = *device.camera;
+  }
   // A live device delivers 30 frames a second: uncompressed files keep up (image_io.h).
-  FrameDirectoryWriter writer(args.out_dir, source->camera(),
+  FrameDirectoryWriter writer(args.out_dir, camera,
                               args.compress_frames ? ImageCompression::kCompact : ImageCompression::kFast);
   // A frame directory's region carries over while its poses do (no pose log gives others).
   if (const FrameDirectorySource* d = openni2::FindFrameDirectorySource(source.get());

@@ -238,14 +238,18 @@ void WriteFrameDirectoryManifest(const fs::path& dir, const FrameDirectoryManife
   WriteTextAtomically(dir / kManifestName, document.dump(1) + "\n");
 }
 
-FrameDirectoryWriter::FrameDirectoryWriter(const fs::path& dir, const CameraModel& camera,
-                                           ImageCompression compression)
-    : dir_(dir), compression_(compression) {
-  ROMUNECT_CHECK(camera.Problem().empty());
+void FrameDirectoryWriter::CheckCanWrite(const fs::path& dir) {
   if (fs::exists(dir / kManifestName)) {
     throw InputError((dir / kManifestName).string(), "",
                      "already exists; refusing to overwrite an earlier frame directory");
   }
+}
+
+FrameDirectoryWriter::FrameDirectoryWriter(const fs::path& dir, const CameraModel& camera,
+                                           ImageCompression compression)
+    : dir_(dir), compression_(compression) {
+  ROMUNECT_CHECK(camera.Problem().empty());
+  CheckCanWrite(dir);
   std::error_code ec;
   fs::create_directories(dir, ec);
   if (ec) throw InputError(dir.string(), "", "cannot create directory: " + ec.message());

@@ -149,6 +149,51 @@ TEST(CliRecord, PoseLogAndCalibrationGiveFusableFrames) {
   }
 }
 
+// An earlier recording or frame directory is never replaced, and a refusal comes before the
+// device opens (opening starts the .oni recording, which truncated the file before).
+TEST(CliRecord, NeverReplacesAnEarlierRecordingOrFrameDirectory) {
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 2, 35);
+  const std::string device = StepDevice(dir.path());
+  ASSERT_EQ(RunRomunect("record " + device + " " + (out / "a").string() + " --oni " + (out / "a.oni").string()).exit_code, 0);
+  const std::string recording = testing::ReadText(out / "a.oni");
+  auto r = RunRomunect("record " + device + " " + (out / "b").string() + " --oni " + (out / "a.oni").string());
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.output.find("a.oni: already exists; refusing to overwrite an earlier recording"), std::string::npos) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(out / "b"));
+  r = RunRomunect("record " + device + " " + (out / "a").string() + " --oni " + (out / "new.oni").string());
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.output.find("refusing to overwrite an earlier frame directory"), std::string::npos) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(out / "new.oni"));
+  EXPECT_TRUE(testing::ReadText(out / "a.oni") == recording);
+}
+
+// A frame directory is copied as it is: device stream options are refused rather than ignored,
+// and a given camera (--camera, --calibration) becomes the copy's, as for a device.
+TEST(CliRecord, AFrameDirectoryCopyRefusesDeviceOptionsAndTakesTheGivenCamera) {
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 2, 37);
+  for (const char* option : {"--no-ir", "--raw", "--depth-unit 1mm", "--width 80", "--fps 30"}) {
+    const auto r = RunRomunect("record " + dir.path().string() + " " + (out / "x").string() + " " + option);
+    EXPECT_EQ(r.exit_code, 2) << option;
+    EXPECT_NE(r.output.find("only an OpenNI2 source (device or .oni file) takes it"), std::string::npos) << r.output;
+  }
+  CameraModel calibrated = testing::SmallCamera();
+  calibrated.fx *= 1.01;
+  {
+    cv::FileStorage fs((out / "calib.yml").string(), cv::FileStorage::WRITE);
+    fs << "format" << "romunect-calibration" << "version" << 1;
+    calibrated.Write(fs);
+    fs << "T_H_C" << cv::Mat::eye(4, 4, CV_64F);
+  }
+  const auto r = RunRomunect("record " + dir.path().string() + " " + (out / "copy").string() + " --calibration " +
+                             (out / "calib.yml").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(FrameDirectorySource(out / "copy").camera(), calibrated);
+}
+
 TEST(CliRecord, BadInputGivesClearMessages) {
   ScratchDir out("out");
   auto r = RunRomunect("record /no/such/dir " + (out / "x").string());

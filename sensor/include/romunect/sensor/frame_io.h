@@ -78,6 +78,9 @@ class FrameDirectoryWriter {
   // written with `compression` (image_io.h: kFast keeps up with a 30 Hz loop).
   FrameDirectoryWriter(const std::filesystem::path& dir, const CameraModel& camera,
                        ImageCompression compression = ImageCompression::kCompact);
+  // The constructor's refusal, for callers that must check before their work starts: throws
+  // InputError if `dir` already holds a frames.json.
+  static void CheckCanWrite(const std::filesystem::path& dir);
 
   // Writes the frame's present images (ir, raw, depth_m, gt_depth_m) and records it.
   // Images must be camera-sized and of the types frame.h documents.
