@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -102,6 +103,12 @@ void RunRender(const RenderCommandOptions& o) {
   }
   if (!(o.albedo >= 0.0 && o.albedo <= 1.0)) {
     throw InputError("--albedo", std::to_string(o.albedo), "must be in [0, 1]");
+  }
+  // 0 means the default; anything else must be a size the float meshes can hold.
+  for (const auto& [value, option] : {std::pair{o.distance_m, "--distance"}, std::pair{o.size_m, "--size"}}) {
+    if (value != 0.0 && !(value > 0.0 && value <= 1000.0)) {
+      throw InputError(option, std::to_string(value), "must be in (0, 1000] metres");
+    }
   }
   const double distance_m = o.distance_m > 0.0 ? o.distance_m : rig.optics.focus_distance_m;
   const double size_m =

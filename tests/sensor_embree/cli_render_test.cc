@@ -85,7 +85,11 @@ TEST(CliRenderTest, BadInputEndsWithAMessageNamingTheFieldAndANonZeroExit) {
   ExpectFailure("render " + out + " --mesh " + (dir / "nan.obj").string(), {"nan.obj", "vertices[0]"});
   testing::WriteText(dir / "empty.stl", "solid empty\nendsolid empty\n");
   ExpectFailure("render " + out + " --mesh " + (dir / "empty.stl").string(), {"empty.stl", "empty"});
-  EXPECT_FALSE(fs::exists(dir / "out" / "frames.json"));  // nothing half-written
+  // Distances and sizes: positive, finite, within what float meshes hold (inf crashed the scene).
+  for (const char* bad : {"--distance inf", "--distance -0.2", "--distance nan", "--size 1e39", "--size -1"}) {
+    ExpectFailure("render " + out + " " + bad, {std::string(bad).substr(0, std::string(bad).find(' ')), "must be in (0, 1000] metres"});
+  }
+  EXPECT_FALSE(fs::exists(dir / "out"));  // nothing half-written, not even an empty folder
   // An existing frame directory is never overwritten.
   ASSERT_EQ(RunRomunect("render " + out + " --target plane").exit_code, 0);
   ExpectFailure("render " + out + " --target plane", {"frames.json"});
