@@ -23,6 +23,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "commands.h"
+#include "output_folder.h"
 #include "romunect/calib/calibration_file.h"
 #include "romunect/calib/chain.h"
 #include "romunect/calib/depth_correction.h"
@@ -72,6 +73,10 @@ void Save(const CommonArgs& args, const Calibration& calibration) {
 void RunIntrinsics(const std::string& images, const std::string& board_text, double square_m, bool k3,
                    const CommonArgs& args) {
   const BoardSpec board = ParseBoardSize(board_text, square_m, "--board");
+  // The file is written after the detection: a folder it cannot go into is refused first.
+  if (const fs::path folder = fs::path(args.output).parent_path(); !folder.empty() && !fs::is_directory(folder)) {
+    throw InputError("--output", "", args.output + ": " + folder.string() + " is not a folder");
+  }
   const DetectedViews detected = DetectBoardInFolder(images, board);
   for (const auto& [file, reason] : detected.rejected) std::printf("rejected %s: %s\n", file.c_str(), reason.c_str());
   std::printf("board found in %zu of %zu images\n", detected.views.size(),
@@ -272,7 +277,8 @@ std::string Yes(bool met) { return met ? "met" : "NOT met"; }
 
 void RunInTheLoop(const LoopArgs& args) {
   using nlohmann::json;
-  const fs::path out(args.out);
+  const fs::path out = OutputFolder(args.out, "--out");
+  CheckFolderCanBeCreated(out, "--out");
   const fs::path file = out / "calibration.yaml";
   // the existing-file rules first, so a long run does not end in a refusal
   if (fs::exists(file) && !args.overwrite_worse) {

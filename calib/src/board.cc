@@ -8,9 +8,10 @@
 namespace romunect::calib {
 
 std::string BoardSpec::Problem() const {
-  if (cols < 3 || rows < 3) {
+  // Up to 100 corners a side: OpenCV's corner search has no use for more, and the count fits.
+  if (cols < 3 || rows < 3 || cols > 100 || rows > 100) {
     return "board has " + std::to_string(cols) + " x " + std::to_string(rows) +
-           " inner corners; need at least 3 x 3";
+           " inner corners; need 3 to 100 a side";
   }
   if (!std::isfinite(square_m) || square_m <= 0.0) {
     return "square_m is " + std::to_string(square_m) + "; must be a positive length in metres";
@@ -33,10 +34,14 @@ Eigen::Vector3d BoardSpec::CentreK() const {
 
 BoardSpec ParseBoardSize(const std::string& text, double square_m, const std::string& source) {
   BoardSpec board;
-  char x = 0;
-  char extra = 0;
-  if (std::sscanf(text.c_str(), "%d%c%d%c", &board.cols, &x, &board.rows, &extra) != 3 ||
-      (x != 'x' && x != 'X')) {
+  // Digits, 'x', digits: sscanf's %d would overflow on long numbers (undefined behaviour).
+  const size_t x = text.find_first_of("xX");
+  auto side = [&](const std::string& digits, int* value) {
+    if (digits.empty() || digits.size() > 6 || digits.find_first_not_of("0123456789") != std::string::npos) return false;
+    *value = std::stoi(digits);
+    return true;
+  };
+  if (x == std::string::npos || !side(text.substr(0, x), &board.cols) || !side(text.substr(x + 1), &board.rows)) {
     throw InputError(source, "board", "'" + text + "' is not COLSxROWS of inner corners, e.g. 9x6");
   }
   board.square_m = square_m;

@@ -3,6 +3,8 @@
 #include <cmath>
 #include <random>
 
+#include <utility>
+
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -69,6 +71,21 @@ TEST(CalibrateCliTest, IntrinsicsOnAFolderOfImages) {
                                      (dir / "x.yaml").string());
   EXPECT_EQ(bad_board.exit_code, 2);
   EXPECT_NE(bad_board.output.find("--board"), std::string::npos) << bad_board.output;
+  // Sides too long for an int (they overflowed into a crash) or for any board.
+  for (const auto& [board, expected] : {std::pair{"2147483647x6", "is not COLSxROWS"}, std::pair{"6x99999999999", "is not COLSxROWS"},
+                                        std::pair{"200x6", "need 3 to 100 a side"}}) {
+    const auto r = RunRomunect("calibrate intrinsics --images " + images.string() + " --board " + board + " --output " +
+                               (dir / "x.yaml").string());
+    EXPECT_EQ(r.exit_code, 2) << board << "\n" << r.output;
+    EXPECT_NE(r.output.find(expected), std::string::npos) << r.output;
+  }
+  // A file cannot go under a file: refused before the detection.
+  romunect::testing::WriteText(dir / "afile", "x");
+  const auto under_file = RunRomunect("calibrate intrinsics --images " + images.string() + " --output " +
+                                      (dir / "afile" / "x.yaml").string());
+  EXPECT_EQ(under_file.exit_code, 2);
+  EXPECT_NE(under_file.output.find("afile is not a folder"), std::string::npos) << under_file.output;
+  EXPECT_EQ(under_file.output.find("board found"), std::string::npos) << under_file.output;
   EXPECT_FALSE(fs::exists(dir / "x.yaml"));
 
   // A malformed existing file is kept unless the user asks to overwrite it (and is told).
@@ -151,6 +168,16 @@ TEST(CalibrateCliTest, InTheLoopWritesALoadableFileAndAReport) {
     EXPECT_NE(report.find(key), std::string::npos) << key;
   }
   EXPECT_FALSE(cv::imread((out / "depth_residual.png").string()).empty());
+}
+
+// An output folder that cannot be made is refused before the chain runs, not after it.
+TEST(CalibrateCliTest, InTheLoopRefusesAnOutputFolderItCannotMakeBeforeAnyWork) {
+  ScratchDir dir("cli_loop_out");
+  romunect::testing::WriteText(dir / "afile", "x");
+  const auto result = RunRomunect("calibrate --out " + (dir / "afile").string() + " --views 4 --stations 3 --planes 3");
+  EXPECT_EQ(result.exit_code, 2) << result.output;
+  EXPECT_NE(result.output.find("afile is not a folder"), std::string::npos) << result.output;
+  EXPECT_EQ(result.output.find("calibrating the simulated rig"), std::string::npos) << result.output;
 }
 
 TEST(CalibrateCliTest, InTheLoopWithTooFewViewsWritesNoFile) {
