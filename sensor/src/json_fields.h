@@ -21,13 +21,15 @@ inline const char* TypeName(const json& j) { return j.type_name(); }
 
 // Parses a whole file; malformed or truncated JSON names the byte where parsing stopped.
 inline json ParseFile(const std::filesystem::path& path) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) throw InputError(path.string(), "", "is a folder, not a JSON file");
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InputError(path.string(), "", "file not found or not readable");
   std::stringstream text;
   text << in.rdbuf();
   try {
     return json::parse(text.str());
-  } catch (const json::parse_error& e) {
+  } catch (const json::exception& e) {  // syntax, and numbers out of a double's range (1e999)
     throw InputError(path.string(), "", std::string("malformed JSON (") + e.what() + ")");
   }
 }

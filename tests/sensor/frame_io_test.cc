@@ -159,6 +159,23 @@ TEST_F(BadFrameDirectory, TruncatedJson) {
   ExpectManifestError({"frames.json", "malformed JSON"});
 }
 
+// A number beyond a double (1e999) is bad input naming the file, not an internal error.
+TEST_F(BadFrameDirectory, NumberOutOfRange) {
+  std::string text = testing::ReadText(dir_ / "frames.json");
+  const size_t fx = text.find("\"fx\"");
+  ASSERT_NE(fx, std::string::npos);
+  const size_t value = text.find_first_of("-0123456789", fx);
+  text.replace(value, text.find_first_of(",}\n", value) - value, "1e999");
+  testing::WriteText(dir_ / "frames.json", text);
+  ExpectManifestError({"frames.json", "malformed JSON", "number overflow"});
+}
+
+TEST_F(BadFrameDirectory, ManifestThatIsAFolder) {
+  fs::remove(dir_ / "frames.json");
+  fs::create_directory(dir_ / "frames.json");
+  ExpectManifestError({"frames.json", "is a folder, not a JSON file"});
+}
+
 TEST_F(BadFrameDirectory, UnknownFormatVersion) {
   doc_["version"] = 2;
   Rewrite();
