@@ -257,6 +257,7 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
   const float s0 = static_cast<float>(optics.psf_sigma_px);
   const bool defocus = options_.camera_defocus && !lens_sampled && optics.aperture_m > 0;
   float min_sigma = s0, max_sigma = s0;
+  std::vector<float> row_min, row_max;  // per row, with defocus
   if (defocus) {
     sigma_map_.create(size, CV_32F);
     internal::DefocusArgs args;
@@ -265,7 +266,8 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
     args.inv_focus = static_cast<float>(1.0 / optics.focus_distance_m);
     args.psf2 = s0 * s0;
     const cv::Mat& p0 = geometry.layers[0].p_C;
-    std::vector<float> row_min(size.height), row_max(size.height);
+    row_min.resize(size.height);
+    row_max.resize(size.height);
     const auto defocus_row = KernelRows(kernel_).defocus;
     ParallelRows(options_.threads, size.height, [&](int row_begin, int row_end) {
       for (int y = row_begin; y < row_end; ++y) {
@@ -297,11 +299,34 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
   for (int k = 0; k < count; ++k) {
     camera_levels_[k] = count > 1 ? camera_stack_.rowRange(k * size.height, (k + 1) * size.height) : blurred_;
   }
+  // A row reads the levels of its pixels' sigmas and their blend partners (FinishPixels), so each
+  // level is blurred over the bands of rows that read it: a band blurs to the bytes the whole
+  // image has there (OpenCV takes the rows around a band for its border; tested).
+  std::vector<int> row_k_lo(size.height, k_first), row_k_hi(size.height, k_last);
+  if (count > 1 && !row_min.empty()) {
+    const internal::LevelStack table = StackOf(camera_table_, nullptr, size.area(), size.width);
+    float w;
+    for (int y = 0; y < size.height; ++y) {
+      internal::FindLevel<internal::ScalarLanes>(table, row_min[y], &row_k_lo[y], &w);
+      internal::FindLevel<internal::ScalarLanes>(table, row_max[y], &row_k_hi[y], &w);
+      row_k_hi[y] += 1;
+    }
+  }
   for (int k = k_first; k <= k_last; ++k) {
-    if (levels[k] <= 0.f) {
-      electrons_.copyTo(camera_levels_[k]);
-    } else {
-      cv::GaussianBlur(electrons_, camera_levels_[k], cv::Size(0, 0), levels[k], levels[k], cv::BORDER_REPLICATE);
+    for (int y0 = 0; y0 < size.height;) {
+      if (k < row_k_lo[y0] || k > row_k_hi[y0]) {
+        ++y0;
+        continue;
+      }
+      int y1 = y0 + 1;
+      while (y1 < size.height && k >= row_k_lo[y1] && k <= row_k_hi[y1]) ++y1;
+      cv::Mat band = camera_levels_[k].rowRange(y0, y1);
+      if (levels[k] <= 0.f) {
+        electrons_.rowRange(y0, y1).copyTo(band);
+      } else {
+        cv::GaussianBlur(electrons_.rowRange(y0, y1), band, cv::Size(0, 0), levels[k], levels[k], cv::BORDER_REPLICATE);
+      }
+      y0 = y1;
     }
   }
 

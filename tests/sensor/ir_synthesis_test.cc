@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <random>
+#include <utility>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
@@ -238,6 +239,26 @@ double ExactPattern(const cv::Mat& displayed, double x, double y, double sigma) 
 // ~13 % of the peak midway between levels; on the dot pattern (dots of 0.6, spots of 1.0 on
 // 0) that stays below 0.06 of the brightest pattern value.
 constexpr double kLevelBlendTolerance = 0.06;
+
+// The camera blur blurs each level only over the bands of rows that read it (ir_synthesis.cc):
+// that relies on OpenCV blurring a band of rows to the bytes the whole image has there (it takes
+// the rows around the band as its border). Checked at the levels' range of sigmas and at bands
+// touching the image's edges.
+TEST(IrSynthesisTest, ABandOfRowsBlursToTheWholeImagesBytes) {
+  cv::Mat image(120, 160, CV_32F);
+  cv::RNG rng(7);
+  rng.fill(image, cv::RNG::UNIFORM, 0.0, 5000.0);
+  for (const float sigma : {0.3f, 0.9f, 2.0f, 4.5f, 12.0f, 30.0f}) {
+    cv::Mat whole;
+    cv::GaussianBlur(image, whole, cv::Size(0, 0), sigma, sigma, cv::BORDER_REPLICATE);
+    for (const auto& [y0, y1] : {std::pair{0, 120}, std::pair{0, 17}, std::pair{40, 41}, std::pair{33, 90}, std::pair{101, 120}}) {
+      cv::Mat out(image.size(), CV_32F, cv::Scalar(-1.0f));
+      cv::Mat band = out.rowRange(y0, y1);
+      cv::GaussianBlur(image.rowRange(y0, y1), band, cv::Size(0, 0), sigma, sigma, cv::BORDER_REPLICATE);
+      EXPECT_TRUE(testing::ImagesBitEqual(band, whole.rowRange(y0, y1))) << "sigma " << sigma << ", rows " << y0 << ".." << y1;
+    }
+  }
+}
 
 TEST(IrSynthesisTest, PatternBlurLevelsStayCloseToTheExactBlur) {
   Rig rig = RigPreset("romunect");
