@@ -37,20 +37,6 @@ namespace romunect::tools {
 namespace {
 namespace fs = std::filesystem;
 
-struct ScanArguments {
-  std::string scene, saved_scene, rig = "romunect", calibration, out;
-  uint32_t seed = 1;
-  int objects = 12;
-  int threads = 2;
-  int samples = 1;
-  double voxel_m = 0.25e-3;
-  bool ideal_depth = false;
-  bool compress_frames = false;
-  std::string sweep = "columns";
-  std::vector<std::string> meshes;  // user meshes added to the pile, one object each
-  double mesh_unit_m = 1e-3;
-  std::string mesh_material = "bright";
-};
 
 // CPU time of all of the process's threads.
 double ProcessCpuSeconds() {
@@ -114,6 +100,7 @@ void RunScan(const ScanArguments& args) {
   if (fs::exists(work_dir)) fs::remove_all(work_dir);
 
   ScanReport report;
+  report.args = args;
   report.started_at = std::time(nullptr);
   sim::ScanOptions options;
   options.scene_file = args.scene;

@@ -125,6 +125,21 @@ std::string InlinePng(const fs::path& file) {
   return "<img src=\"data:image/png;base64," + Base64(png) + "\" alt=\"" + file.filename().string() + "\">";
 }
 
+// Text for HTML: the markup characters escaped (scene and mesh paths are the user's).
+std::string Escape(const std::string& text) {
+  std::string out;
+  for (const char c : text) {
+    switch (c) {
+      case '&': out += "&amp;"; break;
+      case '<': out += "&lt;"; break;
+      case '>': out += "&gt;"; break;
+      case '"': out += "&quot;"; break;
+      default: out += c;
+    }
+  }
+  return out;
+}
+
 std::string Html(const ScanReport& r, const fs::path& dir) {
   const fusion::HeightMapMetrics& m = *r.fusion.metrics;
   const json j = json::parse(ScanReportJson(r));
@@ -136,9 +151,10 @@ std::string Html(const ScanReport& r, const fs::path& dir) {
        "body{font-family:sans-serif;margin:2em;max-width:1300px}table{border-collapse:collapse;margin:1em 0}"
        "td,th{border:1px solid #bbb;padding:4px 10px;text-align:right}th{background:#eee}"
        "img{max-width:100%;border:1px solid #ddd;margin:4px 0}</style></head><body>";
-  h << "<h1>romunect scan</h1><p>" << r.scan_description << "<br>rig <b>" << r.rig_name << "</b>, seed "
-    << r.seed << ", " << r.objects << " objects, " << r.fusion.threads << " threads, " << r.samples
-    << " sample(s) per pixel.<br>Depth correction: " << r.depth_correction << "</p>";
+  h << "<h1>romunect scan</h1><p>" << Escape(r.scan_description) << "<br>rig <b>" << Escape(r.rig_name)
+    << "</b>, seed " << r.seed << ", " << r.objects << " objects, " << r.args.threads << " threads (fusion "
+    << r.fusion.threads << "), " << r.samples << " sample(s) per pixel.<br>Depth correction: "
+    << Escape(r.depth_correction) << "</p>";
   h << "<h2>Completeness (the paper's table 1)</h2><table><tr><th>frames</th>";
   for (int n : kTableFrames) h << "<th>" << n << "</th>";
   h << "<th>all (" << r.fusion.completeness_per_frame.size() << ")</th></tr><tr><th>completeness [%]</th>";
@@ -154,10 +170,10 @@ std::string Html(const ScanReport& r, const fs::path& dir) {
     << "</td></tr></table>";
   h << "<h2>Depth maps</h2>" << InlinePng(dir / "figure2.png") << InlinePng(dir / "fused_depth.png")
     << InlinePng(dir / "error.png");
-  h << "<h2>Pick</h2><p>" << r.pick.BriefReport() << "</p>" << InlinePng(dir / "overview.png");
+  h << "<h2>Pick</h2><p>" << Escape(r.pick.BriefReport()) << "</p>" << InlinePng(dir / "overview.png");
   h << "<h2>Timings</h2><table><tr><th>stage</th><th>seconds</th></tr>";
   for (const auto& [stage, seconds] : j["timings_s"].items()) {
-    h << "<tr><td style=\"text-align:left\">" << stage << "</td><td>" << Format("%.3f", seconds.get<double>())
+    h << "<tr><td style=\"text-align:left\">" << Escape(stage) << "</td><td>" << Format("%.3f", seconds.get<double>())
       << "</td></tr>";
   }
   h << "</table><p>Simulated approach " << Format("%.2f s", j["realtime"]["simulated_s"].get<double>())
@@ -165,7 +181,7 @@ std::string Html(const ScanReport& r, const fs::path& dir) {
     << Format("%.2fx real time", j["realtime"]["factor"].get<double>()) << ", "
     << Format("%.2f s", j["realtime"]["loop_cpu_s"].get<double>()) << " of CPU on "
     << j["realtime"]["cores"].get<unsigned>() << " cores.</p>";
-  h << "<h2>report.json</h2><pre>" << j.dump(1) << "</pre></body></html>\n";
+  h << "<h2>report.json</h2><pre>" << Escape(j.dump(1)) << "</pre></body></html>\n";
   return h.str();
 }
 
@@ -186,6 +202,12 @@ std::string ScanReportJson(const ScanReport& r) {
   j["objects"] = r.objects;
   j["samples_per_pixel"] = r.samples;
   j["depth_correction"] = r.depth_correction;
+  const ScanArguments& a = r.args;  // `romunect scan` with these repeats the run (same bytes)
+  j["options"] = {{"scene", a.scene},         {"saved_scene", a.saved_scene}, {"seed", a.seed},
+                  {"objects", a.objects},     {"meshes", a.meshes},           {"mesh_unit_m", a.mesh_unit_m},
+                  {"mesh_material", a.mesh_material}, {"rig", a.rig},         {"calibration", a.calibration},
+                  {"threads", a.threads},     {"samples", a.samples},         {"voxel_m", a.voxel_m},
+                  {"sweep", a.sweep},         {"ideal_depth", a.ideal_depth}, {"compress_frames", a.compress_frames}};
   j["frames"] = r.fusion.completeness_per_frame.size();
   json table = json::object();
   for (int n : kTableFrames) table["after_" + std::to_string(n)] = CompletenessAfter(r, n);
@@ -228,7 +250,7 @@ std::string ScanReportJson(const ScanReport& r) {
   j["tracking"] = {{"max_position_error_mm", 1e3 * s.tracking.max_position_error_m},
                    {"rms_position_error_mm", 1e3 * s.tracking.rms_position_error_m},
                    {"max_angle_error_deg", s.tracking.max_angle_error_rad * 180.0 / M_PI}};
-  j["outputs"] = {"frames/", "fused_depth.exr", "fused_depth.png", "fused_points.ply", "gt_height.exr",
+  j["outputs"] = {"frames/", "scene.json", "fused_depth.exr", "fused_depth.png", "fused_points.ply", "gt_height.exr",
                   "figure2.png", "error.png", "overview.png", "completeness.png", "report.html"};
   return j.dump(1) + "\n";
 }

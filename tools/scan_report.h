@@ -21,6 +21,23 @@
 
 namespace romunect::tools {
 
+// The command's arguments (defaults as `romunect scan --help` shows them): the report records
+// them, so a run says how to repeat it.
+struct ScanArguments {
+  std::string scene, saved_scene, rig = "romunect", calibration, out;
+  uint32_t seed = 1;
+  int objects = 12;
+  int threads = 2;
+  int samples = 1;
+  double voxel_m = 0.25e-3;
+  bool ideal_depth = false;
+  bool compress_frames = false;
+  std::string sweep = "columns";
+  std::vector<std::string> meshes;  // user meshes added to the pile, one object each
+  double mesh_unit_m = 1e-3;
+  std::string mesh_material = "bright";
+};
+
 // Keeps two single depth maps of the scan for figure 2: the first one with a useful share of
 // valid pixels (far frames lie outside the focused depth range and hold almost nothing) and the
 // latest one.
@@ -40,6 +57,7 @@ struct SampleDepths {
 };
 
 struct ScanReport {
+  ScanArguments args;
   std::time_t started_at = 0;
   std::string scan_description, rig_name, depth_correction;
   uint32_t seed = 0;

@@ -43,6 +43,20 @@ std::string Num(double v) {
 
 // The MJCF for the objects: a material, meshes and a free body with one geom per convex part,
 // and an inactive weld to the suction cup, for each object.
+// A value for a double-quoted XML attribute: a user's path may hold the markup characters.
+std::string XmlAttribute(const std::string& value) {
+  std::string out;
+  for (const char c : value) {
+    switch (c) {
+      case '&': out += "&amp;"; break;
+      case '<': out += "&lt;"; break;
+      case '"': out += "&quot;"; break;
+      default: out += c;
+    }
+  }
+  return out;
+}
+
 std::string ObjectsXml(const std::vector<ObjectSpec>& objects) {
   std::string assets, bodies, welds;
   for (size_t i = 0; i < objects.size(); ++i) {
@@ -63,7 +77,7 @@ std::string ObjectsXml(const std::vector<ObjectSpec>& objects) {
                                    " solref=\"0.002 1\"/>\n";
     if (o.kind == ObjectKind::kUserMesh) {
       const std::string s = Num(o.mesh_scale);
-      assets += "<mesh name=\"" + name + "_p0\" file=\"" + o.mesh_file.string() + "\" scale=\"" + s + " " + s +
+      assets += "<mesh name=\"" + name + "_p0\" file=\"" + XmlAttribute(o.mesh_file.string()) + "\" scale=\"" + s + " " + s +
                 " " + s + "\"/>\n";
       bodies += "<geom name=\"" + name + "_p0\" type=\"mesh\" mesh=\"" + name + "_p0" + geom_attrs;
     } else {

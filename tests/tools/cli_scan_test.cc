@@ -99,13 +99,21 @@ TEST(CliScan, NeverRemovesWhatTheOutputPathHolds) {
 // in the bin, is scanned and fused, and its saved scene names its file.
 TEST(CliScanIntegration, DropsAUserMeshIntoThePile) {
   ScratchDir dir("scan_mesh");
-  WriteCubeObj(dir / "cube.obj", 9.0);
+  const fs::path mesh = dir / "parts <b&c>" / "cube.obj";  // markup in a path: the HTML escapes it
+  WriteCubeObj(mesh, 9.0);
   const fs::path run = dir / "run";
-  const auto r = RunRomunect("scan --objects 2 --seed 5 --mesh " + (dir / "cube.obj").string() +
-                             " --mesh-material dark --out " + run.string());
+  const auto r = RunRomunect("scan --objects 2 --seed 5 --mesh '" + mesh.string() + "' --mesh-material dark --out " +
+                             run.string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const auto report = nlohmann::json::parse(testing::ReadText(run / "report.json"));
   EXPECT_EQ(report["objects"].get<int>(), 3);
+  // The report records the options that repeat the run.
+  EXPECT_EQ(report["options"]["meshes"][0].get<std::string>(), mesh.string());
+  EXPECT_EQ(report["options"]["seed"].get<int>(), 5);
+  EXPECT_EQ(report["options"]["sweep"].get<std::string>(), "columns");
+  const std::string html = testing::ReadText(run / "report.html");
+  EXPECT_EQ(html.find("<b&c>"), std::string::npos);
+  EXPECT_NE(html.find("parts &lt;b&amp;c&gt;"), std::string::npos);
   EXPECT_THAT(report["settle"].get<std::string>(), ::testing::HasSubstr("3 objects in the bin"));
   // Measured 86 % complete, 99.5 % within 1 mm: as the generated piles (SmallPileEndToEnd).
   EXPECT_GT(report["accuracy"]["completeness"].get<double>(), 0.80);
@@ -113,7 +121,7 @@ TEST(CliScanIntegration, DropsAUserMeshIntoThePile) {
   const auto scene = nlohmann::json::parse(testing::ReadText(run / "scene.json"));
   ASSERT_EQ(scene["objects"].size(), 3u);
   EXPECT_EQ(scene["objects"][2]["kind"], "user_mesh");
-  EXPECT_EQ(fs::path(scene["objects"][2]["file"].get<std::string>()), fs::absolute(dir / "cube.obj"));
+  EXPECT_EQ(fs::path(scene["objects"][2]["file"].get<std::string>()), fs::absolute(mesh));
   EXPECT_NEAR(scene["objects"][2]["material"]["albedo"].get<double>(), 0.05, 1e-6);  // dark
 }
 
