@@ -1,6 +1,6 @@
 // romunect render OUT_DIR: renders a rig (preset or JSON file) looking at a built-in target or a
 // mesh file with the Embree renderer, synthesizes the IR image, runs the depth engine, and
-// writes a frame directory (IR, raw, reported depth, ground-truth depth) plus pictures.
+// writes a frame directory (IR, raw, metric depth, ground-truth depth) plus pictures.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -23,6 +23,7 @@
 #include "romunect/sensor/ir_synthesis.h"
 #include "romunect/sensor/mesh.h"
 #include "romunect/sensor/rig.h"
+#include "romunect/sim/sensor_imager.h"
 
 namespace romunect::tools {
 
@@ -148,8 +149,21 @@ void RunRender(const RenderCommandOptions& o) {
   DepthEngineOutput depth;
   engine.Compute(frame.ir, &depth);
 
+  // A frame directory's depth is metric (docs/frame-directory.md). The chip's own depth is, on
+  // the stock device it assumes; on modified hardware (another camera or projector placement)
+  // it is off, and the rig's ground-truth correction (a plane sweep, as `romunect scan` uses
+  // without a calibration) makes it metric. The chip's depth is reported beside it either way.
+  const ChipGeometry& chip_geometry = rig.depth_engine.chip;
+  const bool stock = rig.camera == chip_geometry.camera && rig.T_C_P.linear().isIdentity(1e-12) &&
+                     rig.T_C_P.translation().isApprox(Eigen::Vector3d(chip_geometry.baseline_m, 0, 0), 1e-12);
   frame.raw = depth.raw;
-  frame.depth_m = depth.depth_m;
+  if (stock) {
+    frame.depth_m = depth.depth_m;
+  } else {
+    sim::SensorImagerOptions correction_options;
+    correction_options.threads = o.threads;
+    frame.depth_m = ApplyDepthCorrection(sim::GroundTruthDepthCorrection(rig, correction_options), depth);
+  }
   frame.gt_depth_m = embree::GroundTruthDepth(geometry);
   frame.T_W_C = Pose::Identity();
   writer.Add(frame);
@@ -163,27 +177,35 @@ void RunRender(const RenderCommandOptions& o) {
   WritePicture(pictures / "depth.png", DepthPicture(frame.depth_m, &lo, &hi));
   double gt_lo = 0.0, gt_hi = 0.0;
   WritePicture(pictures / "gt_depth.png", DepthPicture(frame.gt_depth_m, &gt_lo, &gt_hi));
-  std::vector<double> errors;
-  for (int v = 0; v < camera.height; ++v) {
-    for (int u = 0; u < camera.width; ++u) {
-      const float d = frame.depth_m.at<float>(v, u), t = frame.gt_depth_m.at<float>(v, u);
-      if (d > 0.0f && t > 0.0f) errors.push_back(static_cast<double>(d) - t);
+  // Measured minus true depth where both exist: median, RMS, 95th percentile of |error|, count.
+  struct DepthErrors {
+    double median = 0.0, rms = 0.0, p95 = 0.0;
+    size_t pixels = 0;
+  };
+  auto errors_of = [&](const cv::Mat& measured_m) {
+    std::vector<double> errors;
+    for (int v = 0; v < camera.height; ++v) {
+      for (int u = 0; u < camera.width; ++u) {
+        const float d = measured_m.at<float>(v, u), t = frame.gt_depth_m.at<float>(v, u);
+        if (d > 0.0f && t > 0.0f) errors.push_back(static_cast<double>(d) - t);
+      }
     }
-  }
-  double rms = 0.0, median = 0.0, p95 = 0.0;
-  if (!errors.empty()) {
-    for (double e : errors) rms += e * e;
-    rms = std::sqrt(rms / errors.size());
+    DepthErrors e;
+    e.pixels = errors.size();
+    if (errors.empty()) return e;
+    for (double x : errors) e.rms += x * x;
+    e.rms = std::sqrt(e.rms / errors.size());
     std::nth_element(errors.begin(), errors.begin() + errors.size() / 2, errors.end());
-    median = errors[errors.size() / 2];
-    std::vector<double> magnitudes(errors.size());
-    std::transform(errors.begin(), errors.end(), magnitudes.begin(), [](double e) { return std::abs(e); });
-    const size_t k = magnitudes.size() * 95 / 100;
-    std::nth_element(magnitudes.begin(), magnitudes.begin() + k, magnitudes.end());
-    p95 = magnitudes[k];
-  }
+    e.median = errors[errors.size() / 2];
+    for (double& x : errors) x = std::abs(x);
+    const size_t k = errors.size() * 95 / 100;
+    std::nth_element(errors.begin(), errors.begin() + k, errors.end());
+    e.p95 = errors[k];
+    return e;
+  };
+  const DepthErrors metric = errors_of(frame.depth_m), chip = errors_of(depth.depth_m);
   // Full colour at the 95th percentile of |error|: outliers at edges do not wash it out.
-  const double scale_m = std::max(p95, 1e-5);
+  const double scale_m = std::max(metric.p95, 1e-5);
   WritePicture(pictures / "error.png", ErrorPicture(frame.depth_m, frame.gt_depth_m, scale_m));
 
   std::printf("rig: %s, camera %d x %d, %s at %.4f m (%zu triangles)\n", rig.name.c_str(),
@@ -194,9 +216,12 @@ void RunRender(const RenderCommandOptions& o) {
   std::printf("%s\n", depth.stats.BriefReport().c_str());
   std::printf("valid depth: %.1f %% of pixels; reported depth %.4f .. %.4f m; ground truth %.4f .. %.4f m\n",
               100.0 * depth.stats.valid / (camera.width * camera.height), lo, hi, gt_lo, gt_hi);
-  std::printf("reported - true depth: median %.3f mm, RMS %.3f mm over %zu pixels "
-              "(uncorrected chip depth; error.png scale +-%.3f mm)\n",
-              1e3 * median, 1e3 * rms, errors.size(), 1e3 * scale_m);
+  std::printf("metric - true depth: median %.3f mm, RMS %.3f mm over %zu pixels (%s; error.png scale +-%.3f mm)\n",
+              1e3 * metric.median, 1e3 * metric.rms, metric.pixels,
+              stock ? "the chip's depth: the rig is the stock device" : "the rig's ground-truth correction",
+              1e3 * scale_m);
+  std::printf("chip depth (uncorrected) - true depth: median %.3f mm, RMS %.3f mm\n", 1e3 * chip.median,
+              1e3 * chip.rms);
   std::printf("wrote %s (frames.json, ir, raw, depth, gt_depth) and %s/{ir,depth,gt_depth,error}.png\n",
               o.out_dir.c_str(), pictures.string().c_str());
 }

@@ -1,7 +1,10 @@
 // `romunect render` end to end, as a user runs it: both presets to frame directories with
 // pictures, and bad input that must end with a clear message and a non-zero exit.
+#include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -42,6 +45,19 @@ TEST(CliRenderTest, RendersBothPresetsIntoFrameDirectoriesWithPictures) {
     EXPECT_LE(hi, 2047.0);  // 11-bit raw, 2047 = invalid
     // A textured plane in focus: most pixels get a depth.
     EXPECT_GT(cv::countNonZero(frame.depth_m), frame.depth_m.total() / 2) << rig;
+    // The directory's depth is metric on both rigs (the modified one's chip depth is 0.8 m off at
+    // 0.2 m): the median error is a fraction of a raw step. Measured 0.001 mm (romunect, through
+    // the ground-truth correction) and 0.000 mm (kinect-v1, whose chip depth is metric).
+    std::vector<float> errors;
+    for (int v = 0; v < frame.depth_m.rows; ++v) {
+      for (int u = 0; u < frame.depth_m.cols; ++u) {
+        if (frame.depth_m.at<float>(v, u) > 0.0f) errors.push_back(std::abs(frame.depth_m.at<float>(v, u) - frame.gt_depth_m.at<float>(v, u)));
+      }
+    }
+    ASSERT_FALSE(errors.empty());
+    std::nth_element(errors.begin(), errors.begin() + errors.size() / 2, errors.end());
+    constexpr double kMedianErrorM = 1e-3;  // a raw step is ~0.1 mm at 0.2 m (romunect), ~3 mm at 1 m (kinect)
+    EXPECT_LT(errors[errors.size() / 2], kMedianErrorM) << rig;
     for (const char* picture : {"ir.png", "depth.png", "gt_depth.png", "error.png"}) {
       EXPECT_TRUE(fs::exists(out / "pictures" / picture)) << picture;
     }
