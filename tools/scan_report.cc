@@ -160,7 +160,7 @@ std::string Html(const ScanReport& r, const fs::path& dir) {
   h << "<th>all (" << r.fusion.completeness_per_frame.size() << ")</th></tr><tr><th>completeness [%]</th>";
   for (int n : kTableFrames) h << "<td>" << cell(CompletenessAfter(r, n), "%.2f", 100.0) << "</td>";
   h << "<td>" << Format("%.2f", 100.0 * m.completeness) << "</td></tr></table><p>Frames are counted from "
-    << "frame " << FirstFrameWithDepth(r) << ", the first that holds depth (the descent starts above the focused "
+    << "frame " << FirstFrameWithDepth(r) << ", the first with at least 5 % valid depth pixels (the descent starts above the focused "
     << "range).</p>";
   h << InlinePng(dir / "completeness.png");
   h << "<h2>Accuracy against ground truth</h2><table><tr><th>RMSE [mm]</th><th>MAE [mm]</th><th>within 1 mm</th>"
@@ -271,7 +271,7 @@ void WriteScanOutputs(const fs::path& dir, const ScanReport& r) {
 std::string ScanSummary(const ScanReport& r, const fs::path& run_dir) {
   const fusion::HeightMapMetrics& m = *r.fusion.metrics;
   std::ostringstream s;
-  s << "completeness after 1 / 20 / 50 frames (from frame " << FirstFrameWithDepth(r) << ", the first with depth):";
+  s << "completeness after 1 / 20 / 50 frames (from frame " << FirstFrameWithDepth(r) << ", the first with >= 5 % valid depth):";
   for (int n : kTableFrames) {
     const json v = CompletenessAfter(r, n);
     s << (v.is_null() ? std::string(" -") : Format(" %.1f %%", 100.0 * v.get<double>()));
