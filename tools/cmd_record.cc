@@ -5,9 +5,9 @@
 #include <csignal>
 #include <cstdio>
 #include <filesystem>
-#include <utility>
 #include <memory>
 #include <string>
+#include <utility>
 
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>

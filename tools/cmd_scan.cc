@@ -37,7 +37,6 @@ namespace romunect::tools {
 namespace {
 namespace fs = std::filesystem;
 
-
 // CPU time of all of the process's threads.
 double ProcessCpuSeconds() {
   timespec ts{};
