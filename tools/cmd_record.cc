@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <string>
 #include <utility>
 
@@ -14,8 +15,10 @@
 
 #include "commands.h"
 #include "output_folder.h"
+#include "romunect/calib/calibration_file.h"
 #include "romunect/openni2/open_source.h"
 #include "romunect/openni2/openni2_source.h"
+#include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
 
@@ -59,11 +62,24 @@ void ReadCalibration(const std::string& path, CameraModel* camera, Pose* T_H_C) 
   *T_H_C = PoseFromRowMajor(row_major);
 }
 
+// The depth model of a calibration file that holds one (`romunect calibrate`'s, after its depth
+// step), with the chip it reads; a file of camera and T_H_C alone holds none.
+std::optional<calib::Calibration> DepthModelOf(const std::string& path) {
+  cv::FileStorage fs(path, cv::FileStorage::READ);
+  const cv::FileNode model = fs["depth_model"];
+  if (!model.isMap() || static_cast<std::string>(model["kind"]) == "none") return std::nullopt;
+  calib::Calibration calibration = calib::LoadCalibration(path);
+  if (!calibration.depth) return std::nullopt;
+  return calibration;
+}
+
 // frames.json's top-level "recording" (provenance) and "ps1080" (the chip's geometry, in the
 // keys the virtual device reads back, so a recorded directory replays with the same chip).
-std::string ExtraJson(const RecordArgs& args, FrameSource& source, const std::string& incomplete) {
+std::string ExtraJson(const RecordArgs& args, FrameSource& source, const std::string& incomplete,
+                      const std::string& depth_from) {
   nlohmann::json extra;
   extra["recording"]["source"] = args.source;
+  extra["recording"]["depth_from"] = depth_from;
   extra["recording"]["description"] = source.Describe();
   if (!incomplete.empty()) extra["recording"]["incomplete"] = incomplete;
   if (auto* device = openni2::FindOpenNI2Source(&source)) {
@@ -122,14 +138,22 @@ void RunRecord(const RecordArgs& args) {
     throw InputError("--camera", "", "give either --camera or --calibration (which holds a camera too)");
   }
   if (!args.camera.empty()) device.camera = CameraModel::Load(args.camera);
+  const bool from_directory = openni2::ClassifySource(args.source) == openni2::SourceKind::kFrameDirectory;
+  // A calibration's depth model turns the device's raw shifts into the directory's metric depth,
+  // as fuse does for a device: the device's own depth is the chip's, off on modified hardware.
+  std::optional<calib::Calibration> depth_model;
   if (!args.calibration.empty()) {
     CameraModel camera;
     Pose T_H_C;
     ReadCalibration(args.calibration, &camera, &T_H_C);
     device.camera = camera;
     options.pose.T_H_C = T_H_C;  // with a pose log: T_W_C = T_B_H T_H_C (world = robot base)
+    if (!from_directory) depth_model = DepthModelOf(args.calibration);
+    if (depth_model && (depth_model->depth->a.cols != camera.width || depth_model->depth->a.rows != camera.height)) {
+      throw InputError(args.calibration, "depth_model", "its maps are not the camera's size");
+    }
+    if (depth_model) device.raw = true;  // the model reads the chip's raw shifts
   }
-  const bool from_directory = openni2::ClassifySource(args.source) == openni2::SourceKind::kFrameDirectory;
   if (from_directory) {
     // A frame directory is copied as it is: the device's stream options would be ignored.
     for (const auto& [given, option] : {std::pair{!args.oni.empty(), "--oni"}, std::pair{args.no_ir, "--no-ir"},
@@ -148,6 +172,11 @@ void RunRecord(const RecordArgs& args) {
   }
 
   std::unique_ptr<FrameSource> source = openni2::OpenSource(args.source, options);
+  const std::string depth_from =
+      depth_model ? std::string("the calibration's depth model (") + DepthCorrectionModelName(depth_model->depth->model) +
+                        ") on the device's raw shifts (" + args.calibration + ")"
+      : from_directory ? "the source directory's depth"
+                       : "the device's depth";
   // The frames' camera: the device's (set from --camera or --calibration when given), and for a
   // frame directory the given one in place of the directory's.
   CameraModel camera = source->camera();
@@ -188,18 +217,21 @@ void RunRecord(const RecordArgs& args) {
         std::fprintf(stderr, "romunect: warning: frame %d has no depth, skipped\n", frame.index);
         continue;
       }
+      if (depth_model && !frame.raw.empty()) {
+        frame.depth_m = ApplyDepthCorrection(*depth_model->depth, frame.raw, depth_model->chip);
+      }
       writer.Add(frame);
     }
   } catch (const InputError& e) {
     // The device is gone: keep what arrived, say so in the directory, then report the error.
     std::signal(SIGINT, previous);
-    writer.SetExtraJson(ExtraJson(args, *source, e.what()));
+    writer.SetExtraJson(ExtraJson(args, *source, e.what(), depth_from));
     writer.Finish();
     std::fprintf(stderr, "romunect: kept %zu frames in %s\n", writer.size(), args.out_dir.c_str());
     throw;
   }
   std::signal(SIGINT, previous);
-  writer.SetExtraJson(ExtraJson(args, *source, g_interrupted ? "interrupted" : ""));
+  writer.SetExtraJson(ExtraJson(args, *source, g_interrupted ? "interrupted" : "", depth_from));
   writer.Finish();
   std::string dropped;
   if (auto* d = openni2::FindOpenNI2Source(source.get())) {

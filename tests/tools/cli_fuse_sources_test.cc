@@ -190,6 +190,26 @@ TEST(FuseSourcesCli, TheCalibrationsDepthModelIsAppliedToTheDevicesRawShifts) {
   EXPECT_TRUE(ImagesBitEqual(ReadDepthExr(scratch / "device" / "fused_depth.exr"), device_map));
 }
 
+// Recording first, then fusing the directory, applies the calibration's depth model too: record
+// reads the raw shifts and writes the model's metric depth beside them, so the directory fuses
+// to the map of fusing the device directly (it fused the chip's uncorrected depth before).
+TEST(FuseSourcesCli, RecordingWithADepthModelWritesItsMetricDepth) {
+  ScratchDir scratch("fuse_sources_record_model");
+  const Capture c = WriteCapture(scratch.path(), kFrames, kFrames, /*raw_model=*/true);
+  const auto rec = RunRomunect("record " + Quote(DeviceUri(c.dir)) + " " + (scratch / "rec").string() + " --pose-log " +
+                               c.poses.string() + " --calibration " + c.calibration.string() + " --no-ir");
+  ASSERT_EQ(rec.exit_code, 0) << rec.output;
+  const FrameDirectorySource recorded(scratch / "rec"), model(c.model_dir);
+  ASSERT_EQ(recorded.manifest().frames.size(), static_cast<size_t>(kFrames));
+  for (int i = 0; i < kFrames; ++i) {
+    const Frame a = LoadFrame(scratch / "rec", recorded.manifest(), i), b = LoadFrame(c.model_dir, model.manifest(), i);
+    EXPECT_FALSE(a.raw.empty()) << i;
+    EXPECT_TRUE(ImagesBitEqual(a.depth_m, b.depth_m)) << "frame " << i;
+  }
+  const auto doc = nlohmann::json::parse(ReadText(scratch / "rec" / "frames.json"));
+  EXPECT_THAT(doc["recording"]["depth_from"].get<std::string>(), HasSubstr("the calibration's depth model"));
+}
+
 TEST(FuseSourcesCli, ADeviceThatStopsKeepsTheFramesFusedSoFarAndExitsNonZero) {
   ScratchDir scratch("fuse_sources_stop");
   const Capture c = WriteCapture(scratch.path(), kFrames, kFrames);
