@@ -5,6 +5,7 @@
 #include <csignal>
 #include <cstdio>
 #include <filesystem>
+#include <map>
 #include <memory>
 #include <optional>
 #include <string>
@@ -77,7 +78,11 @@ std::optional<calib::Calibration> DepthModelOf(const std::string& path) {
 // keys the virtual device reads back, so a recorded directory replays with the same chip).
 std::string ExtraJson(const RecordArgs& args, FrameSource& source, const std::string& incomplete,
                       const std::string& depth_from) {
-  nlohmann::json extra;
+  // A copied frame directory keeps its unknown keys (its "ps1080" chip among them); "recording"
+  // says where this copy came from.
+  const FrameDirectorySource* directory = openni2::FindFrameDirectorySource(&source);
+  nlohmann::json extra = directory != nullptr ? nlohmann::json::parse(directory->manifest().extra_json) : nlohmann::json::object();
+  extra["recording"] = nlohmann::json::object();
   extra["recording"]["source"] = args.source;
   extra["recording"]["depth_from"] = depth_from;
   extra["recording"]["description"] = source.Describe();
@@ -198,6 +203,11 @@ void RunRecord(const RecordArgs& args) {
   }
   std::printf("recording from %s\n", source->Describe().c_str());
 
+  // A copied directory's entries keep their unknown keys, found by frame index.
+  std::map<int, std::string> entry_extra;
+  if (const FrameDirectorySource* d = openni2::FindFrameDirectorySource(source.get())) {
+    for (const FrameRecord& r : d->manifest().frames) entry_extra[r.index] = r.extra_json;
+  }
   g_interrupted = 0;
   auto previous = std::signal(SIGINT, OnInterrupt);
   int skipped = 0;
@@ -220,7 +230,8 @@ void RunRecord(const RecordArgs& args) {
       if (depth_model && !frame.raw.empty()) {
         frame.depth_m = ApplyDepthCorrection(*depth_model->depth, frame.raw, depth_model->chip);
       }
-      writer.Add(frame);
+      const auto entry = entry_extra.find(frame.index);
+      writer.Add(frame, entry != entry_extra.end() ? entry->second : "{}");
     }
   } catch (const InputError& e) {
     // The device is gone: keep what arrived, say so in the directory, then report the error.

@@ -265,7 +265,7 @@ void FrameDirectoryWriter::SetRegion(const WorldBox& region_W) {
   manifest_.region_W = region_W;
 }
 
-void FrameDirectoryWriter::Add(const Frame& frame) {
+void FrameDirectoryWriter::Add(const Frame& frame, const std::string& extra_json) {
   ROMUNECT_CHECK(!finished_);
   const CameraModel& c = manifest_.camera;
   auto check = [&](const cv::Mat& m, int type) {
@@ -283,6 +283,7 @@ void FrameDirectoryWriter::Add(const Frame& frame) {
   record.time_s = frame.time_s;
   record.T_W_C = frame.T_W_C;
   record.T_B_H = frame.T_B_H;
+  record.extra_json = extra_json;
   auto write = [&](const cv::Mat& image, const char* folder, const char* extension, std::string* field) {
     if (image.empty()) return;
     *field = FrameFile(folder, frame.index, extension);

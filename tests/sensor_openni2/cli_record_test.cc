@@ -74,18 +74,28 @@ TEST(CliRecord, RecordsTheVirtualDeviceToAFrameDirectoryAndOniAndPlaysTheOniBack
   EXPECT_NE(modes.output.find("depth 80x60 @30 Hz 100um"), std::string::npos) << modes.output;
 }
 
-// Copying a frame directory keeps the region its frames are of (their world poses are kept).
-TEST(CliRecord, AFrameDirectoryCopyKeepsItsRegion) {
+// Copying a frame directory keeps the region its frames are of (their world poses are kept) and
+// its unknown keys, top level (the chip's "ps1080" among them) and per entry, as the format says.
+TEST(CliRecord, AFrameDirectoryCopyKeepsItsRegionAndUnknownKeys) {
   ScratchDir dir("frames");
   ScratchDir out("out");
   testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 2, 31);
   nlohmann::json manifest = nlohmann::json::parse(testing::ReadText(dir / "frames.json"));
   const nlohmann::json region = {0.375, -0.04, -0.004, 0.525, 0.04, 0.065};
   manifest["region_W"] = region;
+  manifest["ps1080"] = {{"zero_plane_distance_mm", 120}};
+  manifest["my_top_key"] = 7;
+  manifest["frames"][1]["my_frame_key"] = "x";
   testing::WriteText(dir / "frames.json", manifest.dump());
   const auto r = RunRomunect("record " + dir.path().string() + " " + (out / "copy").string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
-  EXPECT_EQ(nlohmann::json::parse(testing::ReadText(out / "copy" / "frames.json"))["region_W"], region);
+  const auto copy = nlohmann::json::parse(testing::ReadText(out / "copy" / "frames.json"));
+  EXPECT_EQ(copy["region_W"], region);
+  EXPECT_EQ(copy["ps1080"], manifest["ps1080"]);
+  EXPECT_EQ(copy["my_top_key"], 7);
+  EXPECT_EQ(copy["frames"][1]["my_frame_key"], "x");
+  EXPECT_FALSE(copy["frames"][0].contains("my_frame_key"));
+  EXPECT_EQ(copy["recording"]["source"], dir.path().string());
 }
 
 TEST(CliRecord, RawShiftsGoToTheFrameDirectorysRawImages) {

@@ -82,9 +82,10 @@ class FrameDirectoryWriter {
   // InputError if `dir` already holds a frames.json.
   static void CheckCanWrite(const std::filesystem::path& dir);
 
-  // Writes the frame's present images (ir, raw, depth_m, gt_depth_m) and records it.
-  // Images must be camera-sized and of the types frame.h documents.
-  void Add(const Frame& frame);
+  // Writes the frame's present images (ir, raw, depth_m, gt_depth_m) and records it, with the
+  // entry's unknown keys (a JSON object text: a copied entry keeps its own). Images must be
+  // camera-sized and of the types frame.h documents.
+  void Add(const Frame& frame, const std::string& extra_json = "{}");
 
   // Writes frames.json; the directory is complete from then on. Call once.
   void Finish();
