@@ -151,6 +151,10 @@ void RunRecord(const RecordArgs& args) {
     CameraModel camera;
     Pose T_H_C;
     ReadCalibration(args.calibration, &camera, &T_H_C);
+    if (!args.pose_log.empty() && T_H_C.isApprox(Pose::Identity(), 0.0)) {
+      std::fprintf(stderr, "romunect: warning: %s: T_H_C is the identity (a camera at the flange): not calibrated "
+                   "yet? (`romunect calibrate hand-eye`)\n", args.calibration.c_str());
+    }
     device.camera = camera;
     options.pose.T_H_C = T_H_C;  // with a pose log: T_W_C = T_B_H T_H_C (world = robot base)
     if (!from_directory) depth_model = DepthModelOf(args.calibration);

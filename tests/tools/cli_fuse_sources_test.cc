@@ -243,6 +243,9 @@ TEST(FuseSourcesCli, FramesOutsideThePoseLogAreSkippedAndCounted) {
                              (scratch / "out").string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_THAT(r.output, HasSubstr("lies outside the pose log"));
+  // The fixture's hand-eye pose is the identity with no hand-eye residual, as `calibrate
+  // intrinsics` leaves a file: fuse says it looks uncalibrated (and uses it).
+  EXPECT_THAT(r.output, HasSubstr("T_H_C is the identity and has no hand-eye residual"));
   const nlohmann::json report = Report(scratch / "out");
   EXPECT_EQ(report["frames"], kLogged);
   EXPECT_EQ(report["bad_frames"], kFrames - kLogged);
