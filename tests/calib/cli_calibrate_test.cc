@@ -180,15 +180,20 @@ TEST(CalibrateCliTest, InTheLoopRefusesAnOutputFolderItCannotMakeBeforeAnyWork) 
   EXPECT_EQ(result.output.find("calibrating the simulated rig"), std::string::npos) << result.output;
 }
 
-TEST(CalibrateCliTest, InTheLoopWithTooFewViewsWritesNoFile) {
+// Fewer planned views or planes than the steps need are refused before the chain runs (the
+// intrinsics step needs 4 usable views, the depth step 3 planes); nothing is written.
+TEST(CalibrateCliTest, InTheLoopWithTooFewViewsOrPlanesWritesNoFile) {
   ScratchDir dir("cli_loop_fail");
   const fs::path out = dir / "run";
-  // 3 planned views: intrinsics needs 4 usable ones
-  const auto result = RunRomunect("calibrate --out " + out.string() + " --views 3 --stations 3 --board-samples 1");
-  EXPECT_EQ(result.exit_code, 2) << result.output;
-  EXPECT_NE(result.output.find("usable views"), std::string::npos) << result.output;
-  EXPECT_FALSE(fs::exists(out / "calibration.yaml"));
-  EXPECT_FALSE(fs::exists(out / "report.json"));
+  for (const auto& [args, expected] : {std::pair{" --views 3 --stations 3", "views = 3: need at least 4"},
+                                       std::pair{" --views 4 --stations 3 --planes 2", "depth_planes = 2: need at least 3"}}) {
+    const auto result = RunRomunect("calibrate --out " + out.string() + args + " --board-samples 1");
+    EXPECT_EQ(result.exit_code, 2) << result.output;
+    EXPECT_NE(result.output.find(expected), std::string::npos) << result.output;
+    EXPECT_EQ(result.output.find("calibrating the simulated rig"), std::string::npos) << result.output;
+    EXPECT_FALSE(fs::exists(out / "calibration.yaml"));
+    EXPECT_FALSE(fs::exists(out / "report.json"));
+  }
 }
 
 // The chain's file is what the scan pipeline consumes: a reduced in-the-loop calibration (8 views
