@@ -198,7 +198,7 @@ Frame LoadFrame(const fs::path& dir, const FrameDirectoryManifest& manifest, siz
   if (!record.gt_depth.empty()) {
     frame.gt_depth_m = ReadDepthExr(dir / record.gt_depth);
     CheckImage(frame.gt_depth_m, manifest.camera, CV_32F, dir / record.gt_depth);
-    CheckDepthValues(&frame.gt_depth_m, dir / record.gt_depth, InvalidDepthPolicy::kReject, nullptr);
+    CheckDepthValues(&frame.gt_depth_m, dir / record.gt_depth, policy, skipped_pixels);
   }
   if (!record.ir.empty()) {
     frame.ir = ReadPng16(dir / record.ir);

@@ -190,11 +190,17 @@ TEST(FuseCliTest, CountsNaNInfAndNegativePixelsAsSkipped) {
   depth.at<float>(1, 1) = std::numeric_limits<float>::infinity();
   depth.at<float>(2, 2) = -0.2f;
   WriteDepthExr(depth_path, depth);
+  // Ground truth fuse does not read: its junk is skipped and counted too, never fatal.
+  ASSERT_TRUE(manifest["frames"][1].contains("gt_depth"));
+  const std::filesystem::path gt_path = scratch / "capture" / manifest["frames"][1]["gt_depth"].get<std::string>();
+  cv::Mat gt = ReadDepthExr(gt_path);
+  gt.at<float>(3, 3) = std::numeric_limits<float>::quiet_NaN();
+  WriteDepthExr(gt_path, gt);
   const auto result = RunRomunect("fuse " + (scratch / "capture").string() + " " + kVoxelArg + " --out " +
                                   (scratch / "out").string());
   ASSERT_EQ(result.exit_code, 0) << result.output;
   const nlohmann::json report = nlohmann::json::parse(ReadText(scratch / "out" / "report.json"));
-  EXPECT_EQ(report["skipped_pixels"], 3);
+  EXPECT_EQ(report["skipped_pixels"], 4);
   EXPECT_EQ(report["frames"], 2);
 }
 
