@@ -94,6 +94,10 @@ TEST(PoseLog, RejectsBadLogsNamingLineAndColumn) {
   EXPECT_NE(LoadError(dir, "0,0,0,0,1,0,0\n").find("line 1: 7 columns, expected 8"), std::string::npos);
   EXPECT_NE(LoadError(dir, "time_s,x_m,y_m,z_m,qw,qx,qy,qz\n0,0,zero,0,1,0,0,0\n").find("line 2: y_m: 'zero' is not a finite number"), std::string::npos);
   EXPECT_NE(LoadError(dir, "# nothing\n").find("holds no poses"), std::string::npos);
+  // A header in another order (w last, as ROS writes quaternions) is refused, not read w-first.
+  EXPECT_NE(LoadError(dir, "time_s,x_m,y_m,z_m,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n")
+                .find("line 1: header 'time_s,x_m,y_m,z_m,qx,qy,qz,qw' is not 'time_s,x_m,y_m,z_m,qw,qx,qy,qz'"),
+            std::string::npos);
   EXPECT_NE(LoadError(dir, "0,0,0,nan,1,0,0,0\n").find("z_m: 'nan' is not a finite number"), std::string::npos);
 }
 

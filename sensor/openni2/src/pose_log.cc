@@ -41,8 +41,34 @@ PoseLog PoseLog::Load(const std::filesystem::path& path) {
     const size_t hash = line.find('#');
     if (hash != std::string::npos) line.resize(hash);
     line = Trim(line);
-    if (line.empty() || line.rfind("time_s", 0) == 0) continue;
+    if (line.empty()) continue;
     std::stringstream cells(line);
+    // A header (a first line whose first cell is not a number) must name the columns in their
+    // order: a log written elsewhere (w last, say) would otherwise be read as w-first unnoticed.
+    const std::string first = Trim(line.substr(0, line.find(',')));
+    char* first_end = nullptr;
+    std::strtod(first.c_str(), &first_end);
+    if (poses.empty() && (first.empty() || *first_end != '\0')) {
+      std::string cell, expected, found;
+      bool same = true;
+      int n = 0;
+      while (std::getline(cells, cell, ',')) {
+        cell = Trim(cell);
+        same = same && n < 8 && cell == kColumns[n];
+        if (n > 0) found += ',';
+        found += cell;
+        ++n;
+      }
+      for (int k = 0; k < 8; ++k) {
+        if (k > 0) expected += ',';
+        expected += kColumns[k];
+      }
+      if (!same || n != 8) {
+        throw InputError(source, "line " + std::to_string(line_number),
+                         "header '" + found + "' is not '" + expected + "' (quaternion w first)");
+      }
+      continue;
+    }
     std::string cell;
     double v[8];
     int n = 0;
