@@ -113,11 +113,9 @@ FuseSource OpenFuseSource(const FuseArguments& args) {
     throw InputError("--calibration", "", "missing: turning the pose log's flange poses into camera poses needs "
                                           "the calibration file's hand-eye pose T_H_C");
   }
-  const calib::Calibration calibration = calib::LoadCalibration(args.calibration);
-  // `calibrate intrinsics` writes an identity T_H_C until the hand-eye step: a camera at the flange.
-  if (calibration.residuals.hand_eye_rms_px < 0 && calibration.T_H_C.isApprox(Pose::Identity(), 0.0)) {
-    std::fprintf(stderr, "romunect: warning: %s: T_H_C is the identity and has no hand-eye residual: not calibrated "
-                 "yet? (`romunect calibrate hand-eye`)\n", args.calibration.c_str());
+  const calib::Calibration calibration = calib::LoadDeviceCalibration(args.calibration);
+  if (const std::string warning = calib::UncalibratedHandEyeWarning(calibration, args.calibration); !warning.empty()) {
+    std::fprintf(stderr, "romunect: warning: %s\n", warning.c_str());
   }
   options.pose_log = args.poses;
   options.pose.time_offset_s = args.pose_offset_s;

@@ -37,43 +37,6 @@ struct RecordArgs {
   bool no_ir = false, raw = false, list_devices = false, list_modes = false, compress_frames = false;
 };
 
-// The camera and T_H_C of a romunect calibration file (calib/calibration_file.h: OpenCV's camera
-// names and T_H_C as a 4x4 matrix), read with cv::FileStorage so `record` needs no calib code.
-void ReadCalibration(const std::string& path, CameraModel* camera, Pose* T_H_C) {
-  cv::FileStorage fs;
-  try {
-    fs.open(path, cv::FileStorage::READ);
-  } catch (const cv::Exception& e) {
-    throw InputError(path, "", std::string("not a readable calibration file: ") + e.what());
-  }
-  if (!fs.isOpened()) throw InputError(path, "", "cannot open the calibration file");
-  *camera = CameraModel::Read(fs.root(), path);
-  cv::Mat m;
-  fs["T_H_C"] >> m;
-  if (m.rows != 4 || m.cols != 4) throw InputError(path, "T_H_C", "missing or not a 4x4 matrix");
-  m.convertTo(m, CV_64F);
-  std::array<double, 16> row_major;
-  Eigen::Matrix4d matrix;
-  for (int i = 0; i < 16; ++i) {
-    row_major[i] = m.at<double>(i / 4, i % 4);
-    matrix(i / 4, i % 4) = row_major[i];
-  }
-  const std::string problem = RigidityProblem(matrix);
-  if (!problem.empty()) throw InputError(path, "T_H_C", problem);
-  *T_H_C = PoseFromRowMajor(row_major);
-}
-
-// The depth model of a calibration file that holds one (`romunect calibrate`'s, after its depth
-// step), with the chip it reads; a file of camera and T_H_C alone holds none.
-std::optional<calib::Calibration> DepthModelOf(const std::string& path) {
-  cv::FileStorage fs(path, cv::FileStorage::READ);
-  const cv::FileNode model = fs["depth_model"];
-  if (!model.isMap() || static_cast<std::string>(model["kind"]) == "none") return std::nullopt;
-  calib::Calibration calibration = calib::LoadCalibration(path);
-  if (!calibration.depth) return std::nullopt;
-  return calibration;
-}
-
 // frames.json's top-level "recording" (provenance) and "ps1080" (the chip's geometry, in the
 // keys the virtual device reads back, so a recorded directory replays with the same chip).
 std::string ExtraJson(const RecordArgs& args, FrameSource& source, const std::string& incomplete,
@@ -148,20 +111,17 @@ void RunRecord(const RecordArgs& args) {
   // as fuse does for a device: the device's own depth is the chip's, off on modified hardware.
   std::optional<calib::Calibration> depth_model;
   if (!args.calibration.empty()) {
-    CameraModel camera;
-    Pose T_H_C;
-    ReadCalibration(args.calibration, &camera, &T_H_C);
-    if (!args.pose_log.empty() && T_H_C.isApprox(Pose::Identity(), 0.0)) {
-      std::fprintf(stderr, "romunect: warning: %s: T_H_C is the identity (a camera at the flange): not calibrated "
-                   "yet? (`romunect calibrate hand-eye`)\n", args.calibration.c_str());
+    calib::Calibration calibration = calib::LoadDeviceCalibration(args.calibration);
+    if (const std::string warning = calib::UncalibratedHandEyeWarning(calibration, args.calibration);
+        !warning.empty() && !args.pose_log.empty()) {
+      std::fprintf(stderr, "romunect: warning: %s\n", warning.c_str());
     }
-    device.camera = camera;
-    options.pose.T_H_C = T_H_C;  // with a pose log: T_W_C = T_B_H T_H_C (world = robot base)
-    if (!from_directory) depth_model = DepthModelOf(args.calibration);
-    if (depth_model && (depth_model->depth->a.cols != camera.width || depth_model->depth->a.rows != camera.height)) {
-      throw InputError(args.calibration, "depth_model", "its maps are not the camera's size");
+    device.camera = calibration.camera;
+    options.pose.T_H_C = calibration.T_H_C;  // with a pose log: T_W_C = T_B_H T_H_C (world = robot base)
+    if (!from_directory && calibration.depth) {
+      depth_model = std::move(calibration);  // its maps have the camera's size (LoadCalibration checks)
+      device.raw = true;                     // the model reads the chip's raw shifts
     }
-    if (depth_model) device.raw = true;  // the model reads the chip's raw shifts
   }
   if (from_directory) {
     // A frame directory is copied as it is: the device's stream options would be ignored.

@@ -129,6 +129,28 @@ constexpr ResidualField kResidualFields[] = {
     {"depth_rms_m", &CalibrationResiduals::depth_rms_m},
 };
 
+// Opens a calibration file and checks its format and version.
+cv::FileStorage OpenCalibrationFile(const fs::path& path) {
+  const std::string source = path.string();
+  if (!fs::is_regular_file(path)) throw InputError(source, "", "no such calibration file");
+  cv::FileStorage fs;
+  try {
+    if (!fs.open(source, cv::FileStorage::READ | cv::FileStorage::FORMAT_YAML)) {
+      throw InputError(source, "", "cannot be opened as an OpenCV YAML file");
+    }
+  } catch (const cv::Exception& e) {
+    throw InputError(source, "", std::string("not a valid OpenCV YAML file: ") + e.what());
+  }
+  const cv::FileNode root = fs.root();
+  if (ReadString(root, "format", source, "format") != kCalibrationFormat) {
+    throw InputError(source, "format", std::string("must be \"") + kCalibrationFormat + "\"");
+  }
+  if (static_cast<int>(ReadReal(root, "version", source, "version")) != kCalibrationVersion) {
+    throw InputError(source, "version", "must be " + std::to_string(kCalibrationVersion));
+  }
+  return fs;
+}
+
 }  // namespace
 
 std::string WorseThan(const Calibration& candidate, const Calibration& existing) {
@@ -222,22 +244,8 @@ SaveReport SaveCalibration(const fs::path& path, Calibration calibration, const 
 
 Calibration LoadCalibration(const fs::path& path) {
   const std::string source = path.string();
-  if (!fs::is_regular_file(path)) throw InputError(source, "", "no such calibration file");
-  cv::FileStorage fs;
-  try {
-    if (!fs.open(source, cv::FileStorage::READ | cv::FileStorage::FORMAT_YAML)) {
-      throw InputError(source, "", "cannot be opened as an OpenCV YAML file");
-    }
-  } catch (const cv::Exception& e) {
-    throw InputError(source, "", std::string("not a valid OpenCV YAML file: ") + e.what());
-  }
+  const cv::FileStorage fs = OpenCalibrationFile(path);
   const cv::FileNode root = fs.root();
-  if (ReadString(root, "format", source, "format") != kCalibrationFormat) {
-    throw InputError(source, "format", std::string("must be \"") + kCalibrationFormat + "\"");
-  }
-  if (static_cast<int>(ReadReal(root, "version", source, "version")) != kCalibrationVersion) {
-    throw InputError(source, "version", "must be " + std::to_string(kCalibrationVersion));
-  }
   Calibration c;
   c.date = ReadString(root, "date", source, "date");
   c.camera = CameraModel::Read(root, source);
@@ -282,6 +290,22 @@ Calibration LoadCalibration(const fs::path& path) {
     c.residuals.*(f.member) = v;
   }
   return c;
+}
+
+Calibration LoadDeviceCalibration(const fs::path& path) {
+  const std::string source = path.string();
+  const cv::FileStorage fs = OpenCalibrationFile(path);
+  const cv::FileNode root = fs.root();
+  if (!root["depth_model"].empty()) return LoadCalibration(path);
+  Calibration c;
+  c.camera = CameraModel::Read(root, source);
+  c.T_H_C = ReadPose(root, "T_H_C", source);
+  return c;
+}
+
+std::string UncalibratedHandEyeWarning(const Calibration& calibration, const std::string& path) {
+  if (calibration.residuals.hand_eye_rms_px >= 0.0 || !calibration.T_H_C.isApprox(Pose::Identity(), 0.0)) return "";
+  return path + ": T_H_C is the identity and has no hand-eye residual: not calibrated yet? (`romunect calibrate hand-eye`)";
 }
 
 }  // namespace romunect::calib

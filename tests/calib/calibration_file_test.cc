@@ -156,6 +156,53 @@ TEST(CalibrationFileTest, MissingOrMalformedFieldsNameTheField) {
   ExpectLoadFails("(a: !!opencv-matrix\\n\\s*rows: )48", "$0147", "depth_model.a");
 }
 
+// A device's calibration (record, fuse): a file `calibrate` wrote loads whole; an integrator's
+// file of camera and T_H_C alone loads without a depth model or residuals; both are validated.
+TEST(CalibrationFileTest, DeviceCalibrationTakesFullFilesAndCameraWithHandEyeAlone) {
+  ScratchDir dir("device");
+  const Calibration full = Sample();
+  SaveCalibration(dir / "full.yml", full);
+  ExpectSame(LoadDeviceCalibration(dir / "full.yml"), full);
+
+  auto write_minimal = [&](const std::string& name, const std::string& format, const Pose& T_H_C) {
+    cv::FileStorage fs((dir / name).string(), cv::FileStorage::WRITE);
+    fs << "format" << format << "version" << kCalibrationVersion;
+    full.camera.Write(fs);
+    cv::Mat m(4, 4, CV_64F);
+    for (int i = 0; i < 16; ++i) m.at<double>(i / 4, i % 4) = T_H_C.matrix()(i / 4, i % 4);
+    fs << "T_H_C" << m;
+  };
+  write_minimal("minimal.yml", kCalibrationFormat, full.T_H_C);
+  const Calibration minimal = LoadDeviceCalibration(dir / "minimal.yml");
+  EXPECT_EQ(minimal.camera, full.camera);
+  EXPECT_TRUE(minimal.T_H_C.isApprox(full.T_H_C, 1e-15));
+  EXPECT_FALSE(minimal.depth.has_value());
+  EXPECT_EQ(minimal.residuals.hand_eye_rms_px, -1.0);
+  EXPECT_THROW(LoadCalibration(dir / "minimal.yml"), InputError);  // not a whole calibration
+
+  write_minimal("other_format.yml", "something", full.T_H_C);
+  Pose skewed = full.T_H_C;
+  skewed.matrix()(0, 0) *= 1.5;
+  write_minimal("skewed.yml", kCalibrationFormat, skewed);
+  for (const auto& [name, field] : {std::pair{"other_format.yml", "format"}, std::pair{"skewed.yml", "T_H_C"}}) {
+    try {
+      LoadDeviceCalibration(dir / name);
+      ADD_FAILURE() << name << " loaded";
+    } catch (const InputError& e) {
+      EXPECT_EQ(e.field(), field) << name << ": " << e.what();
+    }
+  }
+
+  // The hand-eye warning: an identity T_H_C that no hand-eye step produced.
+  write_minimal("identity.yml", kCalibrationFormat, Pose::Identity());
+  EXPECT_NE(UncalibratedHandEyeWarning(LoadDeviceCalibration(dir / "identity.yml"), "identity.yml"), "");
+  EXPECT_EQ(UncalibratedHandEyeWarning(minimal, "minimal.yml"), "");
+  Calibration solved = minimal;
+  solved.T_H_C = Pose::Identity();
+  solved.residuals.hand_eye_rms_px = 0.2;
+  EXPECT_EQ(UncalibratedHandEyeWarning(solved, "solved.yml"), "");
+}
+
 TEST(CalibrationFileTest, NeverOverwritesWithAWorseResultWithoutTheFlag) {
   ScratchDir dir("worse");
   const Calibration good = Sample();

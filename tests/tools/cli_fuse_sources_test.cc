@@ -160,6 +160,34 @@ TEST(FuseSourcesCli, OniWithPoseLogAndLiveDeviceFuseToTheDirectorysMap) {
   EXPECT_EQ(Report(scratch / "live")["input"], DeviceUri(c.dir));
 }
 
+// An integrator's calibration file of camera and T_H_C alone (no depth model, no residuals):
+// record took it and fuse refused it ("date: missing"); both take it now, and fuse gives the map
+// of the whole calibration file with the same camera and T_H_C.
+TEST(FuseSourcesCli, RecordAndFuseTakeTheSameCameraAndHandEyeFile) {
+  ScratchDir scratch("fuse_sources_minimal_calibration");
+  const Capture c = WriteCapture(scratch.path(), kFrames, kFrames);
+  const std::filesystem::path minimal = scratch / "camera_and_hand_eye.yml";
+  {
+    cv::FileStorage fs(minimal.string(), cv::FileStorage::WRITE);
+    fs << "format" << calib::kCalibrationFormat << "version" << calib::kCalibrationVersion;
+    calib::LoadCalibration(c.calibration).camera.Write(fs);
+    fs << "T_H_C" << cv::Mat::eye(4, 4, CV_64F);
+  }
+  const std::string minimal_args = " --poses " + c.poses.string() + " --calibration " + minimal.string();
+  const auto fused = RunRomunect("fuse " + Quote(DeviceUri(c.dir)) + kFuseArgs + minimal_args + " --out " +
+                                 (scratch / "minimal").string());
+  ASSERT_EQ(fused.exit_code, 0) << fused.output;
+  EXPECT_THAT(fused.output, HasSubstr("T_H_C is the identity and has no hand-eye residual"));
+  const auto whole = RunRomunect("fuse " + Quote(DeviceUri(c.dir)) + kFuseArgs + PoseArgs(c) + " --out " +
+                                 (scratch / "whole").string());
+  ASSERT_EQ(whole.exit_code, 0) << whole.output;
+  EXPECT_TRUE(ImagesBitEqual(ReadDepthExr(scratch / "minimal" / "fused_depth.exr"),
+                             ReadDepthExr(scratch / "whole" / "fused_depth.exr")));
+  const auto recorded = RunRomunect("record " + Quote(DeviceUri(c.dir)) + " " + (scratch / "rec").string() +
+                                    " --no-ir --pose-log " + c.poses.string() + " --calibration " + minimal.string());
+  ASSERT_EQ(recorded.exit_code, 0) << recorded.output;
+}
+
 // With a depth model in the calibration, fuse reads the chip's raw shifts and applies the model,
 // as the simulated pipeline does; --device-depth fuses the device's own metric depth instead.
 TEST(FuseSourcesCli, TheCalibrationsDepthModelIsAppliedToTheDevicesRawShifts) {

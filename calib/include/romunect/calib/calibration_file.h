@@ -75,4 +75,15 @@ SaveReport SaveCalibration(const std::filesystem::path& path, Calibration calibr
 // Loads and validates every field; throws InputError naming the file and the field.
 Calibration LoadCalibration(const std::filesystem::path& path);
 
+// What a device's frames need from a calibration file (`record`, `fuse`: one reader, so a file
+// one command takes the other takes too): the camera, T_H_C and the depth model with its chip.
+// A file with a `depth_model` (as `romunect calibrate` writes) is loaded whole by LoadCalibration;
+// an integrator's own file may hold only format, version, the camera (OpenCV's names) and T_H_C,
+// and then has no depth model and every residual -1.
+Calibration LoadDeviceCalibration(const std::filesystem::path& path);
+
+// A warning for a device calibration whose T_H_C is the identity without a hand-eye residual
+// (what `calibrate intrinsics` leaves: a camera at the flange, not calibrated yet); "" otherwise.
+std::string UncalibratedHandEyeWarning(const Calibration& calibration, const std::string& path);
+
 }  // namespace romunect::calib
