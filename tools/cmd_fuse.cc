@@ -148,8 +148,7 @@ FuseSource OpenFuseSource(const FuseArguments& args) {
 fs::path DefaultOutput(const FuseArguments& args) {
   // The source's own name, without trailing separators ("scan1/" is "scan1", "." the folder's
   // name): the output lies beside it, never inside.
-  fs::path source = fs::path(args.source).lexically_normal();
-  while (!source.empty() && source.filename().empty() && source != source.root_path()) source = source.parent_path();
+  fs::path source = WithoutTrailingSeparators(args.source);
   if (source.empty() || source.filename() == "." || source.filename() == "..") {
     source = fs::absolute(source).lexically_normal().parent_path();
   }

@@ -9,9 +9,14 @@
 namespace romunect::tools {
 namespace fs = std::filesystem;
 
+fs::path WithoutTrailingSeparators(const fs::path& path) {
+  fs::path p = path.lexically_normal();
+  while (!p.empty() && p.filename().empty() && p != p.root_path()) p = p.parent_path();
+  return p;
+}
+
 fs::path OutputFolder(const std::string& value, const std::string& option) {
-  fs::path dir = fs::path(value).lexically_normal();
-  while (!dir.empty() && dir.filename().empty() && dir != dir.root_path()) dir = dir.parent_path();
+  const fs::path dir = WithoutTrailingSeparators(value);
   const std::string name = dir.filename().string();
   if (dir.empty() || name.empty() || name == "." || name == "..") {
     throw InputError(option, "", "'" + value + "' names no folder of its own; give a new folder's name");

@@ -7,6 +7,9 @@
 
 namespace romunect::tools {
 
+// `path` lexically normal and without trailing separators ("scan1/" is "scan1"; a root stays).
+std::filesystem::path WithoutTrailingSeparators(const std::filesystem::path& path);
+
 // The folder `value` names, lexically normal and without trailing separators ("runs/a/" is
 // "runs/a", "runs/a/../b" is "runs/b"). Throws InputError(option) for "", ".", "..", "../.." or a
 // root: they name no folder of their own.
