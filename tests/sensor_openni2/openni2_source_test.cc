@@ -382,6 +382,17 @@ TEST(OpenNI2SourceErrors, UnknownUriNamesTheUriAndTheDevicesFound) {
   EXPECT_NE(m.find("devices found:"), std::string::npos) << m;
 }
 
+// A directory without frames used to open as a device without sensors: "the device has no depth
+// sensor".
+TEST(OpenNI2SourceErrors, AFrameDirectoryWithoutFramesIsRefusedAsSuch) {
+  ScratchDir dir("no_frames");
+  FrameDirectoryWriter(dir.path(), testing::SmallCamera()).Finish();
+  OpenNI2SourceOptions options;
+  options.uri = VirtualDeviceUri(dir.path(), Step());
+  const std::string m = OpenError(options);
+  EXPECT_NE(m.find("frames.json: frames: is empty: a virtual device needs at least one frame"), std::string::npos) << m;
+}
+
 TEST(OpenNI2SourceErrors, UnsupportedModeListsTheOfferedModes) {
   ScratchDir dir("frames");
   testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 2, 16);

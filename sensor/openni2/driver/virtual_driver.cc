@@ -37,6 +37,7 @@
 #include "romunect/openni2/feed_abi.h"
 #include "romunect/openni2/virtual_device.h"
 #include "romunect/sensor/depth_engine.h"
+#include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/rig.h"
 #include "virtual_device_uri.h"
@@ -115,6 +116,11 @@ class DirectoryFeed : public FrameFeed {
     for (FrameRecord& r : manifest_.frames) r.gt_depth.clear();  // no device sends ground truth
 
     const auto& frames = manifest_.frames;
+    // A device without frames would open with no sensor at all and be reported as one lacking a
+    // depth sensor.
+    if (frames.empty()) {
+      throw InputError((dir_ / "frames.json").string(), "frames", "is empty: a virtual device needs at least one frame");
+    }
     has_depth_ = !frames.empty() && std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.depth.empty(); });
     has_ir_ = !frames.empty() && std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.ir.empty(); });
     has_raw_ = !frames.empty() && std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.raw.empty(); });
