@@ -256,7 +256,7 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
   const CameraOptics& optics = rig.optics;
   const float s0 = static_cast<float>(optics.psf_sigma_px);
   const bool defocus = options_.camera_defocus && !lens_sampled && optics.aperture_m > 0;
-  float min_sigma = s0, max_sigma = s0;
+  float max_sigma = s0;
   std::vector<float> row_min, row_max;  // per row, with defocus
   if (defocus) {
     sigma_map_.create(size, CV_32F);
@@ -274,7 +274,6 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
         defocus_row(args, {p0.ptr<float>(y), sigma_map_.ptr<float>(y), &row_min[y], &row_max[y]});
       }
     });
-    min_sigma = *std::min_element(row_min.begin(), row_min.end());
     max_sigma = std::max(s0, *std::max_element(row_max.begin(), row_max.end()));
   }
   const bool blend = defocus && max_sigma > s0 * 1.01f;
@@ -282,15 +281,6 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
   if (sigmas[0] != s0) sigmas.insert(sigmas.begin(), s0);
   camera_table_ = LevelTable(std::move(sigmas));
   const std::vector<float>& levels = camera_table_.sigmas;
-  // Only the levels between those of the smallest and the largest sigma are blended.
-  int k_first = 0, k_last = 0;
-  if (levels.size() > 1) {
-    const internal::LevelStack table = StackOf(camera_table_, nullptr, size.area(), size.width);
-    float w;
-    internal::FindLevel<internal::ScalarLanes>(table, min_sigma, &k_first, &w);
-    internal::FindLevel<internal::ScalarLanes>(table, max_sigma, &k_last, &w);
-    k_last += 1;
-  }
   // The levels in one stack (one level: blurred_ itself, read in place by the last pass).
   blurred_.create(size, CV_32F);
   const int count = static_cast<int>(levels.size());
@@ -302,8 +292,10 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
   // A row reads the levels of its pixels' sigmas and their blend partners (FinishPixels), so each
   // level is blurred over the bands of rows that read it: a band blurs to the bytes the whole
   // image has there (OpenCV takes the rows around a band for its border; tested).
-  std::vector<int> row_k_lo(size.height, k_first), row_k_hi(size.height, k_last);
-  if (count > 1 && !row_min.empty()) {
+  // Several levels come only from defocus, which measured every row's sigmas.
+  std::vector<int> row_k_lo(size.height, 0), row_k_hi(size.height, 0);
+  if (count > 1) {
+    ROMUNECT_CHECK(!row_min.empty());
     const internal::LevelStack table = StackOf(camera_table_, nullptr, size.area(), size.width);
     float w;
     for (int y = 0; y < size.height; ++y) {
@@ -312,6 +304,8 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
       row_k_hi[y] += 1;
     }
   }
+  const int k_first = *std::min_element(row_k_lo.begin(), row_k_lo.end());
+  const int k_last = std::min(count - 1, *std::max_element(row_k_hi.begin(), row_k_hi.end()));
   for (int k = k_first; k <= k_last; ++k) {
     for (int y0 = 0; y0 < size.height;) {
       if (k < row_k_lo[y0] || k > row_k_hi[y0]) {
