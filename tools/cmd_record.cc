@@ -1,6 +1,8 @@
 // romunect record SOURCE OUT_DIR: capture from an OpenNI2 device (real or virtual), a recording
 // or a frame directory into a frame directory, optionally also into an .oni file. A device that
 // stops mid-stream ends the capture with an error, and the frames up to then are kept.
+#include <unistd.h>
+
 #include <atomic>
 #include <csignal>
 #include <cstdio>
@@ -112,7 +114,7 @@ void RunRecord(const RecordArgs& args) {
   std::optional<calib::Calibration> depth_model;
   if (!args.calibration.empty()) {
     calib::Calibration calibration = calib::LoadDeviceCalibration(args.calibration);
-    if (const std::string warning = calib::UncalibratedHandEyeWarning(calibration, args.calibration);
+    if (const std::string warning = calib::HandEyeWarning(calibration, args.calibration);
         !warning.empty() && !args.pose_log.empty()) {
       std::fprintf(stderr, "romunect: warning: %s\n", warning.c_str());
     }
@@ -136,10 +138,24 @@ void RunRecord(const RecordArgs& args) {
   // have replaced the file.
   CheckFolderCanBeCreated(args.out_dir, "OUT_DIR");
   FrameDirectoryWriter::CheckCanWrite(args.out_dir);
-  if (!args.oni.empty() && fs::exists(args.oni)) {
-    throw InputError(args.oni, "", "already exists; refusing to overwrite an earlier recording");
+  // Another capture's files would mix with this one's (an unfinished one has no frames.json).
+  if (std::error_code ec; fs::is_directory(args.out_dir, ec) && !fs::is_empty(args.out_dir, ec)) {
+    throw InputError("OUT_DIR", "", args.out_dir + ": is not empty; give a new or empty folder");
+  }
+  if (!args.oni.empty()) {
+    if (fs::exists(args.oni)) throw InputError(args.oni, "", "already exists; refusing to overwrite an earlier recording");
+    if (fs::weakly_canonical(args.oni) == fs::weakly_canonical(args.out_dir)) {
+      throw InputError("--oni", "", args.oni + ": is OUT_DIR; give the recording a file name of its own");
+    }
+    // OpenNI2 crashes when its recorder cannot create the file (a missing or read-only folder).
+    const fs::path folder = fs::path(args.oni).has_parent_path() ? fs::path(args.oni).parent_path() : fs::path(".");
+    if (std::error_code ec; !fs::is_directory(folder, ec) || ::access(folder.c_str(), W_OK | X_OK) != 0) {
+      throw InputError("--oni", "", args.oni + ": cannot be created: " + folder.string() +
+                                        " is not an existing folder this process may write in");
+    }
   }
 
+  const bool out_dir_existed = fs::exists(args.out_dir);
   std::unique_ptr<FrameSource> source = openni2::OpenSource(args.source, options);
   const std::string depth_from =
       depth_model ? std::string("the calibration's depth model (") + DepthCorrectionModelName(depth_model->depth->model) +
@@ -206,13 +222,21 @@ void RunRecord(const RecordArgs& args) {
     throw;
   }
   std::signal(SIGINT, previous);
-  writer.SetExtraJson(ExtraJson(args, *source, g_interrupted ? "interrupted" : "", depth_from));
-  writer.Finish();
   std::string dropped;
   if (auto* d = openni2::FindOpenNI2Source(source.get())) {
     d->FinishRecording();
     dropped = ", " + std::to_string(d->stats().dropped_frames) + " dropped by the device";
   }
+  if (writer.size() == 0) {
+    // No frame directory claims a capture that holds nothing; a folder this run made is removed.
+    std::error_code ec;
+    if (!out_dir_existed) fs::remove(args.out_dir, ec);
+    throw InputError(args.source, "", "recorded no frames (" + std::to_string(skipped) + " skipped" + dropped +
+                                          "); " + args.out_dir + " was not written" +
+                                          (args.oni.empty() ? "" : "; the streams are in " + args.oni));
+  }
+  writer.SetExtraJson(ExtraJson(args, *source, g_interrupted ? "interrupted" : "", depth_from));
+  writer.Finish();
   std::printf("recorded %zu frames (%d skipped%s) to %s%s\n", writer.size(), skipped, dropped.c_str(),
               args.out_dir.c_str(), args.oni.empty() ? "" : (" and " + args.oni).c_str());
 }

@@ -179,6 +179,45 @@ TEST(CliRecord, NeverReplacesAnEarlierRecordingOrFrameDirectory) {
   EXPECT_TRUE(testing::ReadText(out / "a.oni") == recording);
 }
 
+// Where the capture goes is checked before the device opens: OpenNI2's recorder crashed (exit
+// 139) on an .oni file it cannot create, an .oni named like OUT_DIR was left behind when the
+// folder then failed, and an unfinished capture's files mixed with the new one's.
+TEST(CliRecord, RefusesCaptureTargetsItCannotUseBeforeOpeningTheDevice) {
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 2, 36);
+  const std::string device = StepDevice(dir.path());
+  auto r = RunRomunect("record " + device + " " + (out / "a").string() + " --oni " + (out / "no_such" / "a.oni").string());
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("a.oni: cannot be created: "), std::string::npos) << r.output;
+  r = RunRomunect("record " + device + " " + (out / "same").string() + " --oni " + (out / "same").string());
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("is OUT_DIR"), std::string::npos) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(out / "same"));
+  std::filesystem::create_directories(out / "unfinished" / "depth");
+  r = RunRomunect("record " + device + " " + (out / "unfinished").string());
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("is not empty; give a new or empty folder"), std::string::npos) << r.output;
+  EXPECT_TRUE(std::filesystem::is_empty(out / "unfinished" / "depth"));
+  EXPECT_FALSE(std::filesystem::exists(out / "a"));
+}
+
+// A capture that keeps no frame (here: all of them before the pose log) is an error that leaves
+// no frame directory, as `fuse` refuses to fuse nothing.
+TEST(CliRecord, RecordingNoFrameIsAnErrorThatLeavesNoDirectory) {
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 3, 38);  // at 0 .. 2/30 s
+  testing::WriteText(out / "late.csv", "time_s,x_m,y_m,z_m,qw,qx,qy,qz\n5,0.5,0,0.4,0,1,0,0\n6,0.5,0,0.3,0,1,0,0\n");
+  const auto r = RunRomunect("record " + StepDevice(dir.path()) + " " + (out / "rec").string() + " --no-ir --pose-log " +
+                             (out / "late.csv").string() + " --oni " + (out / "rec.oni").string());
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("recorded no frames (3 skipped"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("the streams are in"), std::string::npos) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(out / "rec"));
+  EXPECT_TRUE(std::filesystem::exists(out / "rec.oni"));  // the device's streams are kept
+}
+
 // A frame directory is copied as it is: device stream options are refused rather than ignored,
 // and a given camera (--camera, --calibration) becomes the copy's, as for a device.
 TEST(CliRecord, AFrameDirectoryCopyRefusesDeviceOptionsAndTakesTheGivenCamera) {
