@@ -47,6 +47,7 @@ struct FuseArguments {
   double pose_offset_s = 0.0;
   double timeout_s = 2.0;
   bool device_depth = false;  // fuse the device's metric depth even with a depth model
+  bool pose_offset_given = false, timeout_given = false;
 };
 
 double NowMs() {
@@ -97,7 +98,10 @@ FuseSource OpenFuseSource(const FuseArguments& args) {
   if (kind == openni2::SourceKind::kFrameDirectory) {
     for (const auto& [flag, given] : {std::pair<const char*, bool>{"--poses", !args.poses.empty()},
                                       {"--calibration", !args.calibration.empty()},
-                                      {"--camera", !args.camera.empty()}}) {
+                                      {"--camera", !args.camera.empty()},
+                                      {"--pose-offset", args.pose_offset_given},
+                                      {"--device-depth", args.device_depth},
+                                      {"--timeout", args.timeout_given}}) {
       if (given) {
         throw InputError(flag, "", std::string("applies to .oni files and devices; ") + args.source +
                                        " is a frame directory, whose frames.json holds the camera and the poses");
@@ -114,7 +118,7 @@ FuseSource OpenFuseSource(const FuseArguments& args) {
                                           "the calibration file's hand-eye pose T_H_C");
   }
   const calib::Calibration calibration = calib::LoadDeviceCalibration(args.calibration);
-  if (const std::string warning = calib::UncalibratedHandEyeWarning(calibration, args.calibration); !warning.empty()) {
+  if (const std::string warning = calib::HandEyeWarning(calibration, args.calibration); !warning.empty()) {
     std::fprintf(stderr, "romunect: warning: %s\n", warning.c_str());
   }
   options.pose_log = args.poses;
@@ -333,16 +337,34 @@ void RunFuse(const FuseArguments& args) {
     if (stopped) why += "; it stopped: " + *stopped;
     throw InputError(args.source, "", "nothing to fuse: " + why);
   }
-  // Depth that never reaches the box is a box that misses the scene, not an empty scene: the
+  // Frames without one valid depth pixel (a dark scene, a depth model that fits no pixel): the
   // outputs would be empty maps, so none are written.
-  if (report.stats.rays > 0 && report.stats.rays == report.stats.rays_missing_box) {
+  if (report.stats.rays == 0) {
+    std::string why = "no frame has a valid depth pixel: of the " + std::to_string(report.stats.pixels) +
+                      " pixels of the " + std::to_string(report.frames) + " frames, " +
+                      std::to_string(report.stats.no_measurement) + " have no measurement and " +
+                      std::to_string(report.stats.invalid_depth) + " NaN, inf or negative depth (depth from " +
+                      opened.depth_from + ")";
+    if (stopped) why += "; it stopped: " + *stopped;
+    throw InputError(args.source, "", "nothing to fuse: " + why);
+  }
+  // Depth that never reaches the box, or reaches it only on the way to points beyond it, is a
+  // box that misses the scene, not an empty scene: the outputs would be empty maps, so none are
+  // written.
+  if (report.stats.hits == 0) {
     std::ostringstream where_cameras;
     where_cameras.precision(3);
     where_cameras << "x " << cameras_W.min().x() << ".." << cameras_W.max().x() << ", y " << cameras_W.min().y()
                   << ".." << cameras_W.max().y() << ", z " << cameras_W.min().z() << ".." << cameras_W.max().z();
+    const std::string what = report.stats.rays == report.stats.rays_missing_box
+                                 ? " enters the box "
+                                 : " ends inside the box (" +
+                                       std::to_string(report.stats.rays - report.stats.rays_missing_box) +
+                                       " cross it to points beyond, " +
+                                       std::to_string(report.stats.rays_missing_box) + " miss it) ";
     throw InputError(args.box_given ? "--box" : args.source, "",
                      "none of the " + std::to_string(report.stats.rays) + " depth rays of the " +
-                         std::to_string(report.frames) + " frames enters the box " + box_text +
+                         std::to_string(report.frames) + " frames" + what + box_text +
                          "; the cameras were at " + where_cameras.str() +
                          " m (world). Give the scene's region as --box xmin,ymin,zmin,xmax,ymax,zmax (metres)");
   }
@@ -410,18 +432,21 @@ void AddFuseCommand(CLI::App& app) {
   cmd->add_option("--max-memory-mb", args->max_memory_mb, "Refuse grids larger than this (default 16384)");
   cmd->add_option("--poses,--pose-log", args->poses,
                   ".oni/device: CSV pose log of T_B_H (time_s,x_m,y_m,z_m,qw,qx,qy,qz; docs/openni2.md)");
-  cmd->add_option("--pose-offset", args->pose_offset_s, ".oni/device: seconds added to frame times to get pose-log times");
+  auto* pose_offset =
+      cmd->add_option("--pose-offset", args->pose_offset_s, ".oni/device: seconds added to frame times to get pose-log times");
   cmd->add_option("--calibration", args->calibration,
                   ".oni/device: romunect calibration file: T_H_C turns flange poses into camera poses (world = robot "
                   "base), and its camera is the frames' camera");
   cmd->add_option("--camera", args->camera, ".oni/device: camera model (OpenCV YAML/JSON) replacing the calibration's");
   cmd->add_flag("--device-depth", args->device_depth,
                 ".oni/device: fuse the device's metric depth, not the calibration's depth model applied to raw shifts");
-  cmd->add_option("--timeout", args->timeout_s,
-                  ".oni/device: seconds without a frame before the device counts as gone (default 2)")
-      ->check(CLI::PositiveNumber);
-  cmd->callback([args, box] {
+  auto* timeout = cmd->add_option("--timeout", args->timeout_s,
+                                  ".oni/device: seconds without a frame before the device counts as gone (default 2)")
+                      ->check(CLI::PositiveNumber);
+  cmd->callback([args, box, pose_offset, timeout] {
     args->box_given = box->count() > 0;  // --box "" is a bad box, not the default
+    args->pose_offset_given = pose_offset->count() > 0;
+    args->timeout_given = timeout->count() > 0;
     RunFuse(*args);
   });
 }

@@ -137,6 +137,29 @@ TEST(FuseCliTest, ADirectoryWithoutFramesIsAnErrorThatWritesNothing) {
   EXPECT_FALSE(std::filesystem::exists(scratch / "capture_fused"));
 }
 
+// Frames that give no hit would fuse to empty maps written with exit 0: frames without one
+// valid depth pixel, and a box that the rays cross on the way to points beyond it.
+TEST(FuseCliTest, FramesThatHitNothingInTheBoxAreAnErrorThatWritesNothing) {
+  ScratchDir scratch("fuse_cli_no_hits");
+  WriteBinDirectory(scratch / "capture", 2);
+  const auto above = RunRomunect("fuse " + (scratch / "capture").string() + " " + kVoxelArg +
+                                 " --box -0.075,-0.04,0.1,0.075,0.04,0.15 --out " + (scratch / "above").string());
+  EXPECT_EQ(above.exit_code, 2) << above.output;
+  EXPECT_THAT(above.output, HasSubstr("frames ends inside the box (5560 cross it to points beyond, 293 miss it)"));
+  EXPECT_FALSE(std::filesystem::exists(scratch / "above"));
+
+  const nlohmann::json manifest = ReadManifestJson(scratch / "capture");
+  for (const nlohmann::json& frame : manifest["frames"]) {
+    const std::filesystem::path depth_path = scratch / "capture" / frame["depth"].get<std::string>();
+    WriteDepthExr(depth_path, cv::Mat::zeros(ReadDepthExr(depth_path).size(), CV_32F));
+  }
+  const auto dark = RunRomunect("fuse " + (scratch / "capture").string() + " " + kVoxelArg + " --out " +
+                                (scratch / "dark").string());
+  EXPECT_EQ(dark.exit_code, 2) << dark.output;
+  EXPECT_THAT(dark.output, HasSubstr("nothing to fuse: no frame has a valid depth pixel"));
+  EXPECT_FALSE(std::filesystem::exists(scratch / "dark"));
+}
+
 TEST(FuseCliTest, RefusesAGridThatDoesNotFitWithTheSizeItNeeds) {
   ScratchDir scratch("fuse_cli_memory");
   WriteBinDirectory(scratch / "capture", 1);

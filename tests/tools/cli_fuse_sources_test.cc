@@ -319,6 +319,10 @@ TEST(FuseSourcesCli, RejectsMissingOrMisplacedSourceOptions) {
            {device + " --out " + (scratch / "o").string() + " --poses " + c.poses.string(), "--calibration: missing"},
            {device + PoseArgs(c), "--out: missing: fusing a live device"},
            {c.dir.string() + PoseArgs(c), "--poses: applies to .oni files and devices"},
+           // Ignored for a directory before: exit 0 as if they had taken effect.
+           {c.dir.string() + " --pose-offset 1", "--pose-offset: applies to .oni files and devices"},
+           {c.dir.string() + " --timeout 3", "--timeout: applies to .oni files and devices"},
+           {c.dir.string() + " --device-depth", "--device-depth: applies to .oni files and devices"},
            {(scratch / "none.oni").string() + PoseArgs(c), "no such .oni file"},
            {Quote("romunect:" + (scratch / "nowhere").string()) + PoseArgs(c) + " --out " + (scratch / "o").string(),
             "no frames.json"},
