@@ -3,7 +3,9 @@
 #include <chrono>
 #include <cmath>
 #include <ctime>
+#include <sstream>
 
+#include <opencv2/core.hpp>
 #include <opencv2/core/persistence.hpp>
 
 #include "romunect/sensor/check.h"
@@ -281,6 +283,9 @@ Calibration LoadCalibration(const fs::path& path) {
   if (c.depth) {
     ReadMap(depth, "a", path, c.camera).convertTo(c.depth->a, CV_64F);
     ReadMap(depth, "b", path, c.camera).convertTo(c.depth->b, CV_64F);
+    // NaN marks an unfitted pixel; a model that fits none would turn every frame into no depth.
+    const cv::Mat fitted = (c.depth->a == c.depth->a) & (c.depth->b == c.depth->b);
+    if (cv::countNonZero(fitted) == 0) throw InputError(source, "depth_model.a", "fits no pixel (every a or b is NaN)");
   }
   const cv::FileNode residuals = root["residuals"];
   if (residuals.empty() || !residuals.isMap()) throw InputError(source, "residuals", "missing or not a map");
@@ -296,16 +301,31 @@ Calibration LoadDeviceCalibration(const fs::path& path) {
   const std::string source = path.string();
   const cv::FileStorage fs = OpenCalibrationFile(path);
   const cv::FileNode root = fs.root();
-  if (!root["depth_model"].empty()) return LoadCalibration(path);
+  if (!root["depth_model"].empty()) {
+    try {
+      return LoadCalibration(path);
+    } catch (const InputError& e) {
+      throw InputError(e.source(), e.field(),
+                       e.problem() + " (the file has a depth_model, so it is read as a whole calibration file, "
+                                     "as `romunect calibrate` writes one)");
+    }
+  }
   Calibration c;
   c.camera = CameraModel::Read(root, source);
   c.T_H_C = ReadPose(root, "T_H_C", source);
   return c;
 }
 
-std::string UncalibratedHandEyeWarning(const Calibration& calibration, const std::string& path) {
-  if (calibration.residuals.hand_eye_rms_px >= 0.0 || !calibration.T_H_C.isApprox(Pose::Identity(), 0.0)) return "";
-  return path + ": T_H_C is the identity and has no hand-eye residual: not calibrated yet? (`romunect calibrate hand-eye`)";
+std::string HandEyeWarning(const Calibration& calibration, const std::string& path) {
+  if (calibration.residuals.hand_eye_rms_px < 0.0 && calibration.T_H_C.isApprox(Pose::Identity(), 0.0)) {
+    return path + ": T_H_C is the identity and has no hand-eye residual: not calibrated yet? (`romunect calibrate hand-eye`)";
+  }
+  if (const double t = calibration.T_H_C.translation().norm(); t > kHandEyeMaxTranslationM) {
+    std::ostringstream s;
+    s << path << ": T_H_C puts the camera " << t << " m from the flange: millimetres where metres are expected?";
+    return s.str();
+  }
+  return "";
 }
 
 }  // namespace romunect::calib

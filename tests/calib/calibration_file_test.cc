@@ -195,12 +195,40 @@ TEST(CalibrationFileTest, DeviceCalibrationTakesFullFilesAndCameraWithHandEyeAlo
 
   // The hand-eye warning: an identity T_H_C that no hand-eye step produced.
   write_minimal("identity.yml", kCalibrationFormat, Pose::Identity());
-  EXPECT_NE(UncalibratedHandEyeWarning(LoadDeviceCalibration(dir / "identity.yml"), "identity.yml"), "");
-  EXPECT_EQ(UncalibratedHandEyeWarning(minimal, "minimal.yml"), "");
+  EXPECT_NE(HandEyeWarning(LoadDeviceCalibration(dir / "identity.yml"), "identity.yml"), "");
+  EXPECT_EQ(HandEyeWarning(minimal, "minimal.yml"), "");
   Calibration solved = minimal;
   solved.T_H_C = Pose::Identity();
   solved.residuals.hand_eye_rms_px = 0.2;
-  EXPECT_EQ(UncalibratedHandEyeWarning(solved, "solved.yml"), "");
+  EXPECT_EQ(HandEyeWarning(solved, "solved.yml"), "");
+  // A T_H_C written in millimetres is rigid, but no camera on a hand lies 66 m from the flange.
+  Calibration millimetres = minimal;
+  millimetres.T_H_C.translation() = Eigen::Vector3d(40.0, 0.0, 52.0);
+  EXPECT_NE(HandEyeWarning(millimetres, "mm.yml").find("millimetres where metres are expected"), std::string::npos);
+
+  // A file with a depth_model is a whole calibration file, and the error says so.
+  WriteText(dir / "half.yml", ReadText(dir / "minimal.yml") + "depth_model:\n  kind: none\n");
+  try {
+    LoadDeviceCalibration(dir / "half.yml");
+    ADD_FAILURE() << "half.yml loaded";
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.field(), "date") << e.what();
+    EXPECT_NE(std::string(e.what()).find("read as a whole calibration file"), std::string::npos) << e.what();
+  }
+}
+
+// A depth model without one fitted pixel would turn every frame into no depth.
+TEST(CalibrationFileTest, RefusesADepthModelThatFitsNoPixel) {
+  ScratchDir dir("unfitted");
+  Calibration c = Sample();
+  c.depth->a.setTo(std::numeric_limits<double>::quiet_NaN());
+  SaveCalibration(dir / "c.yml", c);
+  try {
+    LoadCalibration(dir / "c.yml");
+    FAIL() << "loaded";
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.field(), "depth_model.a") << e.what();
+  }
 }
 
 TEST(CalibrationFileTest, NeverOverwritesWithAWorseResultWithoutTheFlag) {

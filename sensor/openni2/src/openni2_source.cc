@@ -400,12 +400,16 @@ OpenNI2Source::OpenNI2Source(const OpenNI2SourceOptions& options) : impl_(std::m
   if (options.depth && options.raw) {
     const openni::PixelFormat f = s.depth.getVideoMode().getPixelFormat();
     if (f != openni::PIXEL_FORMAT_SHIFT_9_2) {
-      throw InputError(s.name, "depth stream", std::string("pixel format ") + FormatName(f) + ", not the raw shifts (shift9.2) asked for");
+      throw InputError(s.name, "depth stream", std::string("pixel format ") + FormatName(f) +
+                                                       ", not the raw shifts (shift9.2) asked for (a calibration's depth "
+                                                       "model reads raw shifts; `fuse --device-depth` fuses the metric "
+                                                       "depth instead)");
     }
   } else if (options.depth) {
     const openni::PixelFormat f = s.depth.getVideoMode().getPixelFormat();
     if (f == openni::PIXEL_FORMAT_SHIFT_9_2) {
-      throw InputError(s.name, "depth stream", "holds the chip's raw shifts (shift9.2); read them with raw = true (--raw)");
+      throw InputError(s.name, "depth stream", "holds the chip's raw shifts (shift9.2), not metric depth: `record --raw` "
+                                                       "copies them, `fuse` needs a calibration with a depth model for them");
     }
     if (!IsDepthFormat(f)) throw InputError(s.name, "depth stream", std::string("pixel format ") + FormatName(f) + " is not a depth unit (1mm or 100um)");
     s.unit = f == openni::PIXEL_FORMAT_DEPTH_100_UM ? DepthUnit::k100um : DepthUnit::k1mm;

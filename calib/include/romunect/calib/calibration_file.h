@@ -82,8 +82,12 @@ Calibration LoadCalibration(const std::filesystem::path& path);
 // and then has no depth model and every residual -1.
 Calibration LoadDeviceCalibration(const std::filesystem::path& path);
 
+// A camera on the hand lies within this of the flange (the rig's is 66 mm away).
+inline constexpr double kHandEyeMaxTranslationM = 1.0;
+
 // A warning for a device calibration whose T_H_C is the identity without a hand-eye residual
-// (what `calibrate intrinsics` leaves: a camera at the flange, not calibrated yet); "" otherwise.
-std::string UncalibratedHandEyeWarning(const Calibration& calibration, const std::string& path);
+// (what `calibrate intrinsics` leaves: a camera at the flange, not calibrated yet), or whose
+// translation exceeds kHandEyeMaxTranslationM (a file written in millimetres); "" otherwise.
+std::string HandEyeWarning(const Calibration& calibration, const std::string& path);
 
 }  // namespace romunect::calib

@@ -16,10 +16,12 @@ class InputError : public std::runtime_error {
   InputError(const std::string& source, const std::string& field, const std::string& problem)
       : std::runtime_error(Compose(source, field, problem)),
         source_(source),
-        field_(field) {}
+        field_(field),
+        problem_(problem) {}
 
   const std::string& source() const { return source_; }
   const std::string& field() const { return field_; }
+  const std::string& problem() const { return problem_; }
 
  private:
   static std::string Compose(const std::string& source, const std::string& field,
@@ -31,6 +33,7 @@ class InputError : public std::runtime_error {
 
   std::string source_;
   std::string field_;
+  std::string problem_;
 };
 
 }  // namespace romunect
