@@ -120,6 +120,10 @@ void RunRecord(const RecordArgs& args) {
     }
     device.camera = calibration.camera;
     options.pose.T_H_C = calibration.T_H_C;  // with a pose log: T_W_C = T_B_H T_H_C (world = robot base)
+    if (from_directory && calibration.depth) {
+      std::fprintf(stderr, "romunect: warning: %s: its depth model is not applied: a frame directory is copied with "
+                   "its own depth\n", args.calibration.c_str());
+    }
     if (!from_directory && calibration.depth) {
       depth_model = std::move(calibration);  // its maps have the camera's size (LoadCalibration checks)
       device.raw = true;                     // the model reads the chip's raw shifts
