@@ -244,10 +244,11 @@ SaveReport SaveCalibration(const fs::path& path, Calibration calibration, const 
   return report;
 }
 
-Calibration LoadCalibration(const fs::path& path) {
+namespace {
+
+// Every field of an opened calibration file's root (LoadCalibration).
+Calibration ReadWholeCalibration(const cv::FileNode& root, const fs::path& path) {
   const std::string source = path.string();
-  const cv::FileStorage fs = OpenCalibrationFile(path);
-  const cv::FileNode root = fs.root();
   Calibration c;
   c.date = ReadString(root, "date", source, "date");
   c.camera = CameraModel::Read(root, source);
@@ -297,13 +298,20 @@ Calibration LoadCalibration(const fs::path& path) {
   return c;
 }
 
+}  // namespace
+
+Calibration LoadCalibration(const fs::path& path) {
+  const cv::FileStorage fs = OpenCalibrationFile(path);
+  return ReadWholeCalibration(fs.root(), path);
+}
+
 Calibration LoadDeviceCalibration(const fs::path& path) {
   const std::string source = path.string();
   const cv::FileStorage fs = OpenCalibrationFile(path);
   const cv::FileNode root = fs.root();
   if (!root["depth_model"].empty()) {
     try {
-      return LoadCalibration(path);
+      return ReadWholeCalibration(root, path);
     } catch (const InputError& e) {
       throw InputError(e.source(), e.field(),
                        e.problem() + " (the file has a depth_model, so it is read as a whole calibration file, "

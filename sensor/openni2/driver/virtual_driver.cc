@@ -121,9 +121,9 @@ class DirectoryFeed : public FrameFeed {
     if (frames.empty()) {
       throw InputError((dir_ / "frames.json").string(), "frames", "is empty: a virtual device needs at least one frame");
     }
-    has_depth_ = !frames.empty() && std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.depth.empty(); });
-    has_ir_ = !frames.empty() && std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.ir.empty(); });
-    has_raw_ = !frames.empty() && std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.raw.empty(); });
+    has_depth_ = std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.depth.empty(); });
+    has_ir_ = std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.ir.empty(); });
+    has_raw_ = std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.raw.empty(); });
     if (frames.size() >= 2) {
       std::vector<double> dt;
       for (size_t i = 1; i < frames.size(); ++i) dt.push_back(frames[i].time_s - frames[i - 1].time_s);
