@@ -18,7 +18,8 @@ namespace romunect::sim {
 namespace {
 
 constexpr const char* kSceneFormat = "romunect-scene";
-constexpr int kSceneVersion = 1;
+constexpr int kSceneVersion = 2;  // 1: scene_file and mesh files only as absolute paths
+constexpr const char* kInScenes = "romunect scenes";
 // Objects waiting for their drop are held far from everything, out of every collision.
 constexpr double kParkX = 5.0, kParkY = 5.0, kParkZ = 1.0;
 
@@ -217,12 +218,54 @@ SettleSummary DropAndSettle(World* world, const PileOptions& options) {
   return summary;
 }
 
+namespace {
+
+// A file of the project's scenes folder is saved relative to it, marked `<key>_relative_to`, so a
+// moved or re-cloned checkout still reloads it; any other file by its absolute path, so it
+// reloads from any working directory.
+void SaveFilePath(const std::filesystem::path& file, const char* key, nlohmann::ordered_json* j) {
+  const std::filesystem::path absolute = std::filesystem::absolute(file).lexically_normal();
+  const std::filesystem::path in_scenes =
+      std::filesystem::weakly_canonical(absolute).lexically_relative(std::filesystem::weakly_canonical(ScenesDir()));
+  if (!in_scenes.empty() && *in_scenes.begin() != "..") {
+    (*j)[key] = in_scenes.generic_string();
+    (*j)[std::string(key) + "_relative_to"] = kInScenes;
+  } else {
+    (*j)[key] = absolute.string();
+  }
+}
+
+// The file SaveFilePath wrote; it must exist (a message naming the field, not MuJoCo's parse
+// error). With `empty_is_default`, "" stands for the default and is returned as is.
+std::filesystem::path LoadFilePath(const nlohmann::json& j, const char* key, const std::string& source,
+                                   const std::string& where, bool empty_is_default) {
+  std::filesystem::path file = Get<std::string>(j, key, source, where);
+  if (file.empty() && empty_is_default) return file;
+  const std::string field = where.empty() ? key : where + "." + key;
+  const std::string relative_key = std::string(key) + "_relative_to";
+  if (j.contains(relative_key)) {
+    if (!j[relative_key].is_string() || j[relative_key].get<std::string>() != kInScenes) {
+      throw InputError(source, field + "_relative_to", std::string("expected '") + kInScenes + "'");
+    }
+    if (file.is_absolute()) throw InputError(source, field, "expected a path within the scenes folder, got an absolute one");
+    file = ScenesDir() / file;
+  } else if (!file.is_absolute()) {
+    throw InputError(source, field, "expected an absolute path (or " + relative_key + ")");
+  }
+  std::error_code error;
+  if (!std::filesystem::is_regular_file(file, error)) {
+    throw InputError(source, field, "names '" + file.string() + "', which is not a file (moved or deleted?)");
+  }
+  return file;
+}
+
+}  // namespace
+
 void SaveSettledScene(const World& world, const std::filesystem::path& path) {
   nlohmann::ordered_json j;
   j["format"] = kSceneFormat;
   j["version"] = kSceneVersion;
-  // Absolute paths: the file reloads from any working directory.
-  j["scene_file"] = std::filesystem::absolute(world.options().scene_file).lexically_normal().string();
+  SaveFilePath(world.options().scene_file, "scene_file", &j);
   if (world.options().T_H_C) j["T_H_C"] = PoseJson(*world.options().T_H_C);
   if (world.options().T_C_P) j["T_C_P"] = PoseJson(*world.options().T_C_P);
   nlohmann::ordered_json objects = nlohmann::ordered_json::array();
@@ -230,7 +273,7 @@ void SaveSettledScene(const World& world, const std::filesystem::path& path) {
     nlohmann::ordered_json e;
     e["kind"] = ToString(o.kind);
     if (o.kind == ObjectKind::kUserMesh) {
-      e["file"] = std::filesystem::absolute(o.mesh_file).lexically_normal().string();
+      SaveFilePath(o.mesh_file, "file", &e);
       e["scale"] = o.mesh_scale;
     } else {
       e["seed"] = o.seed;
@@ -256,9 +299,10 @@ World LoadSettledScene(const std::filesystem::path& path) {
     throw InputError(source, "", std::string("not valid JSON: ") + e.what());
   }
   if (!j.is_object() || j.value("format", "") != kSceneFormat) throw InputError(source, "format", std::string("expected '") + kSceneFormat + "'");
-  if (j.value("version", 0) != kSceneVersion) throw InputError(source, "version", "expected 1");
+  const int version = j.contains("version") && j["version"].is_number_integer() ? j["version"].get<int>() : 0;
+  if (version != 1 && version != kSceneVersion) throw InputError(source, "version", "expected 1 or 2");
   WorldOptions options;
-  options.scene_file = Get<std::string>(j, "scene_file", source, "");
+  options.scene_file = LoadFilePath(j, "scene_file", source, "", /*empty_is_default=*/true);
   if (j.contains("T_H_C")) options.T_H_C = PoseFromJson(j["T_H_C"], source, "T_H_C");
   if (j.contains("T_C_P")) options.T_C_P = PoseFromJson(j["T_C_P"], source, "T_C_P");
   if (!j.contains("objects") || !j["objects"].is_array()) throw InputError(source, "objects", "expected an array");
@@ -273,7 +317,7 @@ World LoadSettledScene(const std::filesystem::path& path) {
     material.shininess = Get<float>(e["material"], "shininess", source, where + ".material");
     const double density = Get<double>(e, "density_kg_m3", source, where);
     ObjectSpec spec = kind == ObjectKind::kUserMesh
-                          ? MakeUserMeshObject(Get<std::string>(e, "file", source, where),
+                          ? MakeUserMeshObject(LoadFilePath(e, "file", source, where, /*empty_is_default=*/false),
                                                Get<double>(e, "scale", source, where), material, density)
                           : MakeObject(kind, Get<uint32_t>(e, "seed", source, where));
     spec.material = material;

@@ -57,9 +57,63 @@ TEST(PileTest, SavedSceneReloadsExactly) {
     EXPECT_TRUE(reloaded.T_W_O(i).matrix() == world.T_W_O(i).matrix()) << "object " << i;  // bit for bit
   }
   EXPECT_EQ(reloaded.composed_xml(), world.composed_xml());
-  // It names its scene by an absolute path, so it reloads from any working directory.
+  // It names the built-in scene within the scenes folder, so a moved checkout still reloads it.
   const auto saved = nlohmann::json::parse(testing::ReadText(dir / "scene.json"));
-  EXPECT_TRUE(std::filesystem::path(saved["scene_file"].get<std::string>()).is_absolute());
+  EXPECT_EQ(saved["scene_file"], "default/scene.xml");
+  EXPECT_EQ(saved["scene_file_relative_to"], "romunect scenes");
+}
+
+// A 20 mm cube in millimetres, as an OBJ.
+void WriteCubeObjMm(const std::filesystem::path& path) {
+  std::string text;
+  for (int i = 0; i < 8; ++i) {
+    text += "v " + std::to_string(i & 1 ? 10 : -10) + " " + std::to_string(i & 2 ? 10 : -10) + " " +
+            std::to_string(i & 4 ? 10 : -10) + "\n";
+  }
+  text += "f 1 3 4 2\nf 5 6 8 7\nf 1 2 6 5\nf 3 7 8 4\nf 1 5 7 3\nf 2 4 8 6\n";
+  testing::WriteText(path, text);
+}
+
+TEST(PileTest, SavedSceneNamesUserFilesAbsolutelyAndRefusesMissingOnes) {
+  testing::ScratchDir dir("sim_pile_paths");
+  WriteCubeObjMm(dir / "cube.obj");
+  WorldOptions options;
+  options.objects.push_back(MakeUserMeshObject(dir / "cube.obj", 1e-3, IrMaterial{}));
+  World world(options);
+  SaveSettledScene(world, dir / "scene.json");
+  const auto saved = nlohmann::json::parse(testing::ReadText(dir / "scene.json"));
+  const std::filesystem::path mesh = saved["objects"][0]["file"].get<std::string>();
+  EXPECT_TRUE(mesh.is_absolute()) << mesh;  // a user's file: reloads from any working directory
+  EXPECT_FALSE(saved["objects"][0].contains("file_relative_to"));
+
+  // A version 1 file (absolute scene path) still loads, to the same world.
+  nlohmann::json v1 = saved;
+  v1["version"] = 1;
+  v1["scene_file"] = (ScenesDir() / "default" / "scene.xml").string();
+  v1.erase("scene_file_relative_to");
+  testing::WriteText(dir / "v1.json", v1.dump());
+  EXPECT_EQ(LoadSettledScene(dir / "v1.json").composed_xml(), world.composed_xml());
+
+  auto expect_refused = [&](const nlohmann::json& j, const std::string& field) {
+    testing::WriteText(dir / "bad.json", j.dump());
+    try {
+      LoadSettledScene(dir / "bad.json");
+      ADD_FAILURE() << "accepted a scene with a bad " << field;
+    } catch (const InputError& e) {
+      EXPECT_EQ(e.field(), field) << e.what();
+    }
+  };
+  nlohmann::json moved = saved;
+  moved["scene_file"] = "default/no_such_scene.xml";
+  expect_refused(moved, "scene_file");
+  nlohmann::json relative = v1;
+  relative["scene_file"] = "default/scene.xml";  // relative, but to nothing said
+  expect_refused(relative, "scene_file");
+  nlohmann::json other_root = saved;
+  other_root["scene_file_relative_to"] = "somewhere";
+  expect_refused(other_root, "scene_file_relative_to");
+  std::filesystem::remove(dir / "cube.obj");
+  expect_refused(saved, "objects[0].file");
 }
 
 TEST(PileTest, SettleThatNeverConvergesIsReported) {
