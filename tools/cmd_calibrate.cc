@@ -5,8 +5,8 @@
 //       error against the rig's ground truth and the goals.
 // Each step alone, on recorded input, updating one calibration file (calib/calibration_file.h):
 //   calibrate intrinsics --images DIR --board 9x6 --square 0.025 [--output FILE]
-//   calibrate hand-eye   --frames SOURCE [--poses LOG] --board 9x6 --square 0.025 [--output FILE]
-//   calibrate depth      --frames SOURCE [--poses LOG] [--output FILE] [--model exact|affine]
+//   calibrate hand-eye   --frames SOURCE [--poses LOG [--pose-offset S]] --board 9x6 --square 0.025 [--output FILE]
+//   calibrate depth      --frames SOURCE [--poses LOG [--pose-offset S]] [--output FILE] [--model exact|affine]
 // SOURCE is what OpenSource opens (a frame directory, an .oni file, a device URI); frames need
 // T_B_H (from frames.json or the pose log): IR images of the board for hand-eye (projector
 // off); raw depth of the reference plane, the board's plane z = 0 of K, for depth.
@@ -100,12 +100,29 @@ void RunIntrinsics(const std::string& images, const std::string& board_text, dou
   Save(args, calibration);
 }
 
+// Where the hand-eye and depth steps take T_B_H from when the frames do not carry it.
+struct PoseArgs {
+  std::string log;        // CSV pose log of T_B_H; empty: the frames' own (frames.json)
+  double offset_s = 0.0;  // added to frame times to get pose-log times
+  const CLI::Option* offset_option = nullptr;  // to tell a given 0 from none
+};
+
+void AddPoseOptions(CLI::App* cmd, PoseArgs* args) {
+  cmd->add_option("--poses", args->log, "CSV pose log of T_B_H, for an .oni file or a device");
+  args->offset_option =
+      cmd->add_option("--pose-offset", args->offset_s, "With --poses: seconds added to frame times to get pose-log times");
+}
+
 // Every frame of a recorded source (OpenSource: frame directory, .oni file with a pose log,
 // device) with its T_B_H and the image a step needs; bad frames are reported and skipped.
-void ForEachFrame(const std::string& source_text, const std::string& poses, bool need_raw, const cv::Size& size,
+void ForEachFrame(const std::string& source_text, const PoseArgs& poses, bool need_raw, const cv::Size& size,
                   const std::function<void(const Frame&)>& use) {
+  if (poses.offset_option != nullptr && poses.offset_option->count() > 0 && poses.log.empty()) {
+    throw InputError("--pose-offset", "", "applies with --poses: it shifts frame times onto the pose log's clock");
+  }
   openni2::OpenSourceOptions options;
-  options.pose_log = poses;
+  options.pose_log = poses.log;
+  options.pose.time_offset_s = poses.offset_s;
   options.invalid_depth = InvalidDepthPolicy::kSkip;
   // a recording or device: open only the stream the step reads (IR of the board, or the raw
   // shifts of the plane), so one capture recorded with both (`record --raw`) serves each step
@@ -141,7 +158,7 @@ void ForEachFrame(const std::string& source_text, const std::string& poses, bool
   }
 }
 
-void RunHandEye(const std::string& frames, const std::string& poses, const std::string& board_text, double square_m,
+void RunHandEye(const std::string& frames, const PoseArgs& poses, const std::string& board_text, double square_m,
                 const CommonArgs& args) {
   const BoardSpec board = ParseBoardSize(board_text, square_m, "--board");
   if (!fs::exists(args.output)) {
@@ -168,7 +185,7 @@ void RunHandEye(const std::string& frames, const std::string& poses, const std::
   Save(args, calibration);
 }
 
-void RunDepth(const std::string& frames, const std::string& poses, const std::string& model, const CommonArgs& args) {
+void RunDepth(const std::string& frames, const PoseArgs& poses, const std::string& model, const CommonArgs& args) {
   if (!fs::exists(args.output)) {
     throw InputError(args.output, "", "no calibration file; run intrinsics and hand-eye first");
   }
@@ -510,7 +527,8 @@ void AddCalibrateCommand(CLI::App& app) {
   intrinsics->callback([in] { RunIntrinsics(in->images, in->board, in->square_m, in->k3, in->common); });
 
   struct HandEyeArgs {
-    std::string frames, poses, board = "9x6";
+    std::string frames, board = "9x6";
+    PoseArgs poses;
     double square_m = 0.025;
     CommonArgs common;
   };
@@ -518,21 +536,22 @@ void AddCalibrateCommand(CLI::App& app) {
   auto* hand_eye = calibrate->add_subcommand("hand-eye", "T_H_C from IR board views with T_B_H per frame");
   hand_eye->add_option("--frames", he->frames, "Frame directory, .oni file or device URI (IR images of the board)")
       ->required();
-  hand_eye->add_option("--poses", he->poses, "CSV pose log of T_B_H, for an .oni file or a device");
+  AddPoseOptions(hand_eye, &he->poses);
   hand_eye->add_option("--board", he->board, "Inner corners, COLSxROWS (default 9x6)");
   hand_eye->add_option("--square", he->square_m, "Square edge in metres (default 0.025)");
   AddCommon(hand_eye, &he->common);
   hand_eye->callback([he] { RunHandEye(he->frames, he->poses, he->board, he->square_m, he->common); });
 
   struct DepthArgs {
-    std::string frames, poses, model = "exact";
+    std::string frames, model = "exact";
+    PoseArgs poses;
     CommonArgs common;
   };
   auto de = std::make_shared<DepthArgs>();
   auto* depth = calibrate->add_subcommand("depth", "Per-pixel depth correction from raw depth of the board plane");
   depth->add_option("--frames", de->frames, "Frame directory, .oni file or device URI (raw depth of the plane)")
       ->required();
-  depth->add_option("--poses", de->poses, "CSV pose log of T_B_H, for an .oni file or a device");
+  AddPoseOptions(depth, &de->poses);
   depth->add_option("--model", de->model, "exact (1/Z affine in raw) or affine (paper eq. 3)")
       ->check(CLI::IsMember({"exact", "affine"}));
   AddCommon(depth, &de->common);

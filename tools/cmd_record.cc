@@ -37,6 +37,7 @@ struct RecordArgs {
   int frames = 0, width = 0, height = 0, fps = 0;
   double timeout_s = 2.0, pose_offset_s = 0.0;
   bool no_ir = false, raw = false, list_devices = false, list_modes = false, compress_frames = false;
+  const CLI::Option* pose_offset_option = nullptr;  // to tell a given 0 from none
 };
 
 // frames.json's top-level "recording" (provenance) and "ps1080" (the chip's geometry, in the
@@ -89,6 +90,9 @@ void RunRecord(const RecordArgs& args) {
   }
   if (args.out_dir.empty()) throw InputError("record", "OUT_DIR", "missing (the frame directory to write)");
 
+  if (args.pose_offset_option->count() > 0 && args.pose_log.empty()) {
+    throw InputError("--pose-offset", "", "applies with --pose-log: it shifts frame times onto the pose log's clock");
+  }
   openni2::OpenSourceOptions options;
   options.pose_log = args.pose_log;
   options.pose.time_offset_s = args.pose_offset_s;
@@ -273,7 +277,8 @@ void AddRecordCommand(CLI::App& app) {
                   "romunect calibration file: its camera replaces the fields-of-view camera, and with --pose-log its "
                   "T_H_C gives every frame T_W_C (world = robot base), so `fuse` can use the directory");
   cmd->add_option("--pose-log", args->pose_log, "CSV pose log of T_B_H (time_s,x_m,y_m,z_m,qw,qx,qy,qz)");
-  cmd->add_option("--pose-offset", args->pose_offset_s, "Seconds added to frame times to get pose-log times");
+  args->pose_offset_option =
+      cmd->add_option("--pose-offset", args->pose_offset_s, "With --pose-log: seconds added to frame times to get pose-log times");
   cmd->add_flag("--list-devices", args->list_devices, "List the OpenNI2 devices and exit");
   cmd->add_flag("--list-modes", args->list_modes, "List the video modes of SOURCE and exit");
   cmd->callback([args] { RunRecord(*args); });

@@ -62,11 +62,22 @@ TEST(CalibrateSourcesCliTest, OniWithPoseLogCalibratesAsItsFrameDirectory) {
   start.camera = camera;
   start.residuals.intrinsics_rms_px = 0.05;
   const std::string common = " --board 9x6 --square 0.025";
+  // The pose logs again on a clock 100 s ahead of the frames', as a robot's log would be:
+  // --pose-offset 100 maps the frame times onto it.
+  constexpr double kClockOffsetS = 100.0;
+  for (const char* name : {"board_poses", "plane_poses"}) {
+    std::vector<openni2::TimedPose> shifted = openni2::PoseLog::Load(dir / (std::string(name) + ".csv")).poses();
+    for (openni2::TimedPose& p : shifted) p.time_s += kClockOffsetS;
+    openni2::PoseLog(shifted).Save(dir / (std::string(name) + "_ahead.csv"));
+  }
+  const std::string offset = " --pose-offset " + std::to_string(kClockOffsetS);
   std::vector<Calibration> results;
   for (const auto& [board_source, plane_source] :
        {std::pair{(dir / "board").string(), (dir / "plane").string()},
         std::pair{board_oni.string() + " --poses " + (dir / "board_poses.csv").string(),
-                  plane_oni.string() + " --poses " + (dir / "plane_poses.csv").string()}}) {
+                  plane_oni.string() + " --poses " + (dir / "plane_poses.csv").string()},
+        std::pair{board_oni.string() + " --poses " + (dir / "board_poses_ahead.csv").string() + offset,
+                  plane_oni.string() + " --poses " + (dir / "plane_poses_ahead.csv").string() + offset}}) {
     const fs::path file = dir / ("calibration" + std::to_string(results.size()) + ".yaml");
     SaveCalibration(file, start);
     const auto hand_eye =
@@ -77,15 +88,31 @@ TEST(CalibrateSourcesCliTest, OniWithPoseLogCalibratesAsItsFrameDirectory) {
     results.push_back(LoadCalibration(file));
   }
   const Calibration& from_dir = results[0];
-  const Calibration& from_oni = results[1];
-  EXPECT_TRUE(romunect::testing::PosesNear(from_oni.T_H_C, from_dir.T_H_C, kSameAngleRad, kSameTranslationM));
-  EXPECT_TRUE(romunect::testing::PosesNear(from_oni.T_B_K, from_dir.T_B_K, kSameAngleRad, kSameTranslationM));
-  ASSERT_TRUE(from_dir.depth.has_value() && from_oni.depth.has_value());
-  EXPECT_EQ(from_oni.depth->model, from_dir.depth->model);
-  EXPECT_LE(cv::norm(from_oni.depth->a, from_dir.depth->a, cv::NORM_INF), kSameDepthMapAbs);
-  EXPECT_LE(cv::norm(from_oni.depth->b, from_dir.depth->b, cv::NORM_INF), kSameDepthMapAbs);
-  // and the calibration itself is right (the frame-directory test's tolerance)
-  EXPECT_TRUE(romunect::testing::PosesNear(from_oni.T_H_C, rig.T_H_C, 0.05 * M_PI / 180.0, 0.3e-3));
+  for (size_t i = 1; i < results.size(); ++i) {
+    SCOPED_TRACE(i == 1 ? "the .oni with its pose log" : "the .oni with a pose log 100 s ahead and --pose-offset");
+    const Calibration& from_oni = results[i];
+    EXPECT_TRUE(romunect::testing::PosesNear(from_oni.T_H_C, from_dir.T_H_C, kSameAngleRad, kSameTranslationM));
+    EXPECT_TRUE(romunect::testing::PosesNear(from_oni.T_B_K, from_dir.T_B_K, kSameAngleRad, kSameTranslationM));
+    ASSERT_TRUE(from_dir.depth.has_value() && from_oni.depth.has_value());
+    EXPECT_EQ(from_oni.depth->model, from_dir.depth->model);
+    EXPECT_LE(cv::norm(from_oni.depth->a, from_dir.depth->a, cv::NORM_INF), kSameDepthMapAbs);
+    EXPECT_LE(cv::norm(from_oni.depth->b, from_dir.depth->b, cv::NORM_INF), kSameDepthMapAbs);
+    // and the calibration itself is right (the frame-directory test's tolerance)
+    EXPECT_TRUE(romunect::testing::PosesNear(from_oni.T_H_C, rig.T_H_C, 0.05 * M_PI / 180.0, 0.3e-3));
+  }
+
+  // Without the offset the ahead log holds no frame time; an offset without a log is refused.
+  const fs::path file = dir / "calibration_refused.yaml";
+  SaveCalibration(file, results[0]);
+  const auto unshifted = RunRomunect("calibrate hand-eye --frames " + board_oni.string() + " --poses " +
+                                     (dir / "board_poses_ahead.csv").string() + common + " --output " + file.string());
+  EXPECT_NE(unshifted.exit_code, 0) << unshifted.output;
+  for (const char* step : {"hand-eye", "depth"}) {
+    const auto no_log = RunRomunect(std::string("calibrate ") + step + " --frames " + board_oni.string() + offset +
+                                    (std::string(step) == "hand-eye" ? common : "") + " --output " + file.string());
+    EXPECT_EQ(no_log.exit_code, 2) << step;
+    EXPECT_NE(no_log.output.find("--pose-offset: applies with --poses"), std::string::npos) << no_log.output;
+  }
 }
 
 }  // namespace

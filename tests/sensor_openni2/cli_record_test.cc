@@ -258,6 +258,12 @@ TEST(CliRecord, BadInputGivesClearMessages) {
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_NE(r.output.find("OUT_DIR: missing"), std::string::npos) << r.output;
   EXPECT_NE(RunRomunect("record oni:// x --depth-unit 2mm").exit_code, 0);
+  // an offset onto no pose log's clock would be silently ignored
+  r = RunRomunect("record " + Quote("romunect:/no/such/dir?pace=step") + " " + (out / "x").string() +
+                  " --pose-offset 0.5");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.output.find("--pose-offset: applies with --pose-log"), std::string::npos) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(out / "x"));
 }
 
 }  // namespace
