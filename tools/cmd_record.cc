@@ -37,6 +37,7 @@ struct RecordArgs {
   int frames = 0, width = 0, height = 0, fps = 0;
   double timeout_s = 2.0, pose_offset_s = 0.0;
   bool no_ir = false, raw = false, list_devices = false, list_modes = false, compress_frames = false;
+  bool device_depth = false;  // record the device's metric depth even with a depth model
   const CLI::Option* pose_offset_option = nullptr;  // to tell a given 0 from none
 };
 
@@ -116,6 +117,7 @@ void RunRecord(const RecordArgs& args) {
   // A calibration's depth model turns the device's raw shifts into the directory's metric depth,
   // as fuse does for a device: the device's own depth is the chip's, off on modified hardware.
   std::optional<calib::Calibration> depth_model;
+  bool depth_model_skipped = false;  // --device-depth with a calibration that has one
   if (!args.calibration.empty()) {
     calib::Calibration calibration = calib::LoadDeviceCalibration(args.calibration);
     if (const std::string warning = calib::HandEyeWarning(calibration, args.calibration);
@@ -128,7 +130,8 @@ void RunRecord(const RecordArgs& args) {
       std::fprintf(stderr, "romunect: warning: %s: its depth model is not applied: a frame directory is copied with "
                    "its own depth\n", args.calibration.c_str());
     }
-    if (!from_directory && calibration.depth) {
+    depth_model_skipped = !from_directory && calibration.depth && args.device_depth;
+    if (!from_directory && calibration.depth && !args.device_depth) {
       depth_model = std::move(calibration);  // its maps have the camera's size (LoadCalibration checks)
       device.raw = true;                     // the model reads the chip's raw shifts
     }
@@ -138,7 +141,7 @@ void RunRecord(const RecordArgs& args) {
     for (const auto& [given, option] : {std::pair{!args.oni.empty(), "--oni"}, std::pair{args.no_ir, "--no-ir"},
                                         std::pair{args.raw, "--raw"}, std::pair{!args.depth_unit.empty(), "--depth-unit"},
                                         std::pair{args.width != 0, "--width"}, std::pair{args.height != 0, "--height"},
-                                        std::pair{args.fps != 0, "--fps"}}) {
+                                        std::pair{args.fps != 0, "--fps"}, std::pair{args.device_depth, "--device-depth"}}) {
       if (given) throw InputError(option, "", "only an OpenNI2 source (device or .oni file) takes it; a frame directory is copied as it is");
     }
   }
@@ -169,6 +172,7 @@ void RunRecord(const RecordArgs& args) {
       depth_model ? std::string("the calibration's depth model (") + DepthCorrectionModelName(depth_model->depth->model) +
                         ") on the device's raw shifts (" + args.calibration + ")"
       : from_directory ? "the source directory's depth"
+      : depth_model_skipped ? "the device's depth (--device-depth: the calibration's depth model not applied)"
                        : "the device's depth";
   // The frames' camera: the device's (set from --camera or --calibration when given), and for a
   // frame directory the given one in place of the directory's.
@@ -272,6 +276,8 @@ void AddRecordCommand(CLI::App& app) {
                 "Compress the frame files (PNG, EXR ZIP: 2-5x smaller, ~50 ms of CPU per frame)");
   cmd->add_flag("--raw", args->raw,
                 "Record the chip's raw 11-bit shifts (PS1080 shift9.2, frames' raw images) instead of metric depth");
+  cmd->add_flag("--device-depth", args->device_depth,
+                "Record the device's metric depth, not the calibration's depth model applied to raw shifts");
   cmd->add_option("--camera", args->camera, "Camera model (OpenCV YAML/JSON) of the frames; default: from the fields of view");
   cmd->add_option("--calibration", args->calibration,
                   "romunect calibration file: its camera replaces the fields-of-view camera, and with --pose-log its "

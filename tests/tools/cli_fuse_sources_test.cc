@@ -236,6 +236,23 @@ TEST(FuseSourcesCli, RecordingWithADepthModelWritesItsMetricDepth) {
   }
   const auto doc = nlohmann::json::parse(ReadText(scratch / "rec" / "frames.json"));
   EXPECT_THAT(doc["recording"]["depth_from"].get<std::string>(), HasSubstr("the calibration's depth model"));
+
+  // --device-depth records the device's own depth, as fuse --device-depth fuses it.
+  const auto dev = RunRomunect("record " + Quote(DeviceUri(c.dir)) + " " + (scratch / "dev").string() + " --pose-log " +
+                               c.poses.string() + " --calibration " + c.calibration.string() + " --no-ir --device-depth");
+  ASSERT_EQ(dev.exit_code, 0) << dev.output;
+  const FrameDirectorySource device_rec(scratch / "dev"), device(c.dir);
+  ASSERT_EQ(device_rec.manifest().frames.size(), static_cast<size_t>(kFrames));
+  for (int i = 0; i < kFrames; ++i) {
+    const Frame a = LoadFrame(scratch / "dev", device_rec.manifest(), i), b = LoadFrame(c.dir, device.manifest(), i);
+    EXPECT_TRUE(a.raw.empty()) << i;
+    EXPECT_TRUE(ImagesBitEqual(a.depth_m, b.depth_m)) << "frame " << i;
+  }
+  EXPECT_EQ(nlohmann::json::parse(ReadText(scratch / "dev" / "frames.json"))["recording"]["depth_from"],
+            "the device's depth (--device-depth: the calibration's depth model not applied)");
+  const auto copy = RunRomunect("record " + c.dir.string() + " " + (scratch / "copy").string() + " --device-depth");
+  EXPECT_NE(copy.exit_code, 0);
+  EXPECT_THAT(copy.output, HasSubstr("--device-depth: only an OpenNI2 source"));
 }
 
 TEST(FuseSourcesCli, ADeviceThatStopsKeepsTheFramesFusedSoFarAndExitsNonZero) {
