@@ -130,10 +130,13 @@ void RunRecord(const RecordArgs& args) {
       std::fprintf(stderr, "romunect: warning: %s: its depth model is not applied: a frame directory is copied with "
                    "its own depth\n", args.calibration.c_str());
     }
-    depth_model_skipped = !from_directory && calibration.depth && args.device_depth;
-    if (!from_directory && calibration.depth && !args.device_depth) {
-      depth_model = std::move(calibration);  // its maps have the camera's size (LoadCalibration checks)
-      device.raw = true;                     // the model reads the chip's raw shifts
+    if (!from_directory && calibration.depth) {
+      if (args.device_depth) {
+        depth_model_skipped = true;
+      } else {
+        depth_model = std::move(calibration);  // its maps have the camera's size (LoadCalibration checks)
+        device.raw = true;                     // the model reads the chip's raw shifts
+      }
     }
   }
   if (from_directory) {

@@ -227,13 +227,17 @@ TEST(FuseSourcesCli, RecordingWithADepthModelWritesItsMetricDepth) {
   const auto rec = RunRomunect("record " + Quote(DeviceUri(c.dir)) + " " + (scratch / "rec").string() + " --pose-log " +
                                c.poses.string() + " --calibration " + c.calibration.string() + " --no-ir");
   ASSERT_EQ(rec.exit_code, 0) << rec.output;
-  const FrameDirectorySource recorded(scratch / "rec"), model(c.model_dir);
-  ASSERT_EQ(recorded.manifest().frames.size(), static_cast<size_t>(kFrames));
-  for (int i = 0; i < kFrames; ++i) {
-    const Frame a = LoadFrame(scratch / "rec", recorded.manifest(), i), b = LoadFrame(c.model_dir, model.manifest(), i);
-    EXPECT_FALSE(a.raw.empty()) << i;
-    EXPECT_TRUE(ImagesBitEqual(a.depth_m, b.depth_m)) << "frame " << i;
-  }
+  // A recording's frames against a directory's: the same depth, bit for bit, raw shifts kept or not.
+  auto expect_frames = [](const std::filesystem::path& recorded_dir, const std::filesystem::path& source_dir, bool raw) {
+    const FrameDirectorySource recorded(recorded_dir), source(source_dir);
+    ASSERT_EQ(recorded.manifest().frames.size(), static_cast<size_t>(kFrames));
+    for (int i = 0; i < kFrames; ++i) {
+      const Frame a = LoadFrame(recorded_dir, recorded.manifest(), i), b = LoadFrame(source_dir, source.manifest(), i);
+      EXPECT_EQ(a.raw.empty(), !raw) << i;
+      EXPECT_TRUE(ImagesBitEqual(a.depth_m, b.depth_m)) << "frame " << i;
+    }
+  };
+  expect_frames(scratch / "rec", c.model_dir, /*raw=*/true);
   const auto doc = nlohmann::json::parse(ReadText(scratch / "rec" / "frames.json"));
   EXPECT_THAT(doc["recording"]["depth_from"].get<std::string>(), HasSubstr("the calibration's depth model"));
 
@@ -241,13 +245,7 @@ TEST(FuseSourcesCli, RecordingWithADepthModelWritesItsMetricDepth) {
   const auto dev = RunRomunect("record " + Quote(DeviceUri(c.dir)) + " " + (scratch / "dev").string() + " --pose-log " +
                                c.poses.string() + " --calibration " + c.calibration.string() + " --no-ir --device-depth");
   ASSERT_EQ(dev.exit_code, 0) << dev.output;
-  const FrameDirectorySource device_rec(scratch / "dev"), device(c.dir);
-  ASSERT_EQ(device_rec.manifest().frames.size(), static_cast<size_t>(kFrames));
-  for (int i = 0; i < kFrames; ++i) {
-    const Frame a = LoadFrame(scratch / "dev", device_rec.manifest(), i), b = LoadFrame(c.dir, device.manifest(), i);
-    EXPECT_TRUE(a.raw.empty()) << i;
-    EXPECT_TRUE(ImagesBitEqual(a.depth_m, b.depth_m)) << "frame " << i;
-  }
+  expect_frames(scratch / "dev", c.dir, /*raw=*/false);
   EXPECT_EQ(nlohmann::json::parse(ReadText(scratch / "dev" / "frames.json"))["recording"]["depth_from"],
             "the device's depth (--device-depth: the calibration's depth model not applied)");
   const auto copy = RunRomunect("record " + c.dir.string() + " " + (scratch / "copy").string() + " --device-depth");
