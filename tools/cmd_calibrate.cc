@@ -114,9 +114,10 @@ void AddPoseOptions(CLI::App* cmd, PoseArgs* args) {
 }
 
 // Every frame of a recorded source (OpenSource: frame directory, .oni file with a pose log,
-// device) with its T_B_H and the image a step needs; bad frames are reported and skipped.
-void ForEachFrame(const std::string& source_text, const PoseArgs& poses, bool need_raw, const cv::Size& size,
-                  const std::function<void(const Frame&)>& use) {
+// device) with its T_B_H and the image a step needs; bad frames are reported and skipped. The
+// source's camera must have the image size of `calibration` (read from `calibration_file`).
+void ForEachFrame(const std::string& source_text, const PoseArgs& poses, bool need_raw, const Calibration& calibration,
+                  const std::string& calibration_file, const std::function<void(const Frame&)>& use) {
   if (poses.offset_option != nullptr && poses.offset_option->count() > 0 && poses.log.empty()) {
     throw InputError("--pose-offset", "", "applies with --poses: it shifts frame times onto the pose log's clock");
   }
@@ -130,10 +131,13 @@ void ForEachFrame(const std::string& source_text, const PoseArgs& poses, bool ne
   options.openni2.raw = need_raw;
   options.openni2.ir = !need_raw;
   std::unique_ptr<FrameSource> source = openni2::OpenSource(source_text, options);
-  if (source->camera().width != size.width || source->camera().height != size.height) {
-    throw InputError(source_text, "camera", "image size " + std::to_string(source->camera().width) + " x " +
-                                                std::to_string(source->camera().height) +
-                                                " differs from the calibration's; use the same camera mode");
+  const CameraModel& camera = source->camera();
+  if (camera.width != calibration.camera.width || camera.height != calibration.camera.height) {
+    throw InputError(source_text, "camera",
+                     "image size " + std::to_string(camera.width) + " x " + std::to_string(camera.height) +
+                         " differs from " + std::to_string(calibration.camera.width) + " x " +
+                         std::to_string(calibration.camera.height) + " in " + calibration_file +
+                         "; record with the camera mode that file was calibrated in");
   }
   Frame frame;
   std::string error;
@@ -166,8 +170,7 @@ void RunHandEye(const std::string& frames, const PoseArgs& poses, const std::str
   }
   Calibration calibration = LoadCalibration(args.output);
   std::vector<HandEyeStation> stations;
-  const cv::Size size(calibration.camera.width, calibration.camera.height);
-  ForEachFrame(frames, poses, false, size, [&](const Frame& frame) {
+  ForEachFrame(frames, poses, false, calibration, args.output, [&](const Frame& frame) {
     std::string reason;
     auto corners = DetectBoard(frame.ir, board, &reason);
     if (!corners) {
@@ -194,8 +197,7 @@ void RunDepth(const std::string& frames, const PoseArgs& poses, const std::strin
     throw InputError(args.output, "T_H_C", "not calibrated yet; run `romunect calibrate hand-eye` first");
   }
   std::vector<PlaneCapture> captures;
-  const cv::Size size(calibration.camera.width, calibration.camera.height);
-  ForEachFrame(frames, poses, true, size, [&](const Frame& frame) {
+  ForEachFrame(frames, poses, true, calibration, args.output, [&](const Frame& frame) {
     // The reference plane is the board's plane (z = 0 of K), placed by the hand-eye step.
     const Pose T_C_K = (*frame.T_B_H * calibration.T_H_C).inverse() * calibration.T_B_K;
     captures.push_back({frame.raw.clone(), T_C_K});

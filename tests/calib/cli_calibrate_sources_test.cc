@@ -113,6 +113,25 @@ TEST(CalibrateSourcesCliTest, OniWithPoseLogCalibratesAsItsFrameDirectory) {
     EXPECT_EQ(no_log.exit_code, 2) << step;
     EXPECT_NE(no_log.output.find("--pose-offset: applies with --poses"), std::string::npos) << no_log.output;
   }
+
+  // A calibration of another camera mode is refused before any work, naming both sizes and the
+  // file, which keeps its contents.
+  Calibration other_mode = start;
+  other_mode.camera.width *= 2;
+  other_mode.camera.height *= 2;
+  const fs::path other_file = dir / "calibration_other_mode.yaml";
+  SaveCalibration(other_file, other_mode);
+  for (const std::string& source :
+       {(dir / "board").string(), board_oni.string() + " --poses " + (dir / "board_poses.csv").string()}) {
+    const auto mismatch =
+        RunRomunect("calibrate hand-eye --frames " + source + common + " --output " + other_file.string());
+    EXPECT_EQ(mismatch.exit_code, 2) << mismatch.output;
+    const std::string expected = "image size " + std::to_string(camera.width) + " x " + std::to_string(camera.height) +
+                                 " differs from " + std::to_string(other_mode.camera.width) + " x " +
+                                 std::to_string(other_mode.camera.height) + " in " + other_file.string();
+    EXPECT_NE(mismatch.output.find(expected), std::string::npos) << mismatch.output;
+  }
+  EXPECT_EQ(LoadCalibration(other_file).camera.width, other_mode.camera.width);
 }
 
 }  // namespace
