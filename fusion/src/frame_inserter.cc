@@ -4,15 +4,12 @@
 
 #include <algorithm>
 #include <cmath>
-#include <condition_variable>
 #include <cstdint>
 #include <cstdlib>
 #include <limits>
-#include <mutex>
 #include <new>
 #include <span>
 #include <sstream>
-#include <thread>
 #include <type_traits>
 #include <vector>
 
@@ -23,6 +20,7 @@
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/cpu_features.h"
 #include "romunect/sensor/errors.h"
+#include "romunect/sensor/parallel_rows.h"
 
 namespace romunect::fusion {
 namespace {
@@ -34,83 +32,6 @@ constexpr Vote kVoteMin = -kVoteMax;  // symmetric saturation
 // the same columns, so a tile's columns stay in cache (pixel-row order revisits a column only
 // 640 rays later). Not part of the semantics (voting_grid.h: the order of rays does not matter).
 constexpr int kInsertionTilePx = 32;
-
-// A fixed set of threads that run one job at a time; the caller is thread 0. Jobs are passed as
-// a function pointer and context, so running one allocates nothing.
-class WorkerPool {
- public:
-  explicit WorkerPool(int threads) {
-    for (int t = 1; t < threads; ++t) workers_.emplace_back([this, t] { WorkerLoop(t); });
-  }
-  ~WorkerPool() {
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      stop_ = true;
-    }
-    start_cv_.notify_all();
-    for (std::thread& w : workers_) w.join();
-  }
-
-  // Runs f(thread) on every thread, f(0) on the caller; returns when all are done.
-  template <class F>
-  void Run(F& f) {
-    RunImpl(&Trampoline<F>, &f);
-  }
-
- private:
-  template <class F>
-  static void Trampoline(void* context, int thread) {
-    (*static_cast<F*>(context))(thread);
-  }
-
-  void RunImpl(void (*fn)(void*, int), void* context) {
-    if (workers_.empty()) {
-      fn(context, 0);
-      return;
-    }
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      fn_ = fn;
-      context_ = context;
-      pending_ = static_cast<int>(workers_.size());
-      ++generation_;
-    }
-    start_cv_.notify_all();
-    fn(context, 0);
-    std::unique_lock<std::mutex> lock(mutex_);
-    done_cv_.wait(lock, [this] { return pending_ == 0; });
-  }
-
-  void WorkerLoop(int thread) {
-    uint64_t seen = 0;
-    for (;;) {
-      void (*fn)(void*, int);
-      void* context;
-      {
-        std::unique_lock<std::mutex> lock(mutex_);
-        start_cv_.wait(lock, [&] { return stop_ || generation_ != seen; });
-        if (stop_) return;
-        seen = generation_;
-        fn = fn_;
-        context = context_;
-      }
-      fn(context, thread);
-      {
-        std::lock_guard<std::mutex> lock(mutex_);
-        if (--pending_ == 0) done_cv_.notify_one();
-      }
-    }
-  }
-
-  std::vector<std::thread> workers_;
-  std::mutex mutex_;
-  std::condition_variable start_cv_, done_cv_;
-  uint64_t generation_ = 0;
-  int pending_ = 0;
-  bool stop_ = false;
-  void (*fn_)(void*, int) = nullptr;
-  void* context_ = nullptr;
-};
 
 // One cast ray of the kernels without a lane setup: set up once per frame (phase 1) and walked
 // by every slab owner (phase 2); also the scalar fallbacks' form of a lane's ray.
