@@ -3,9 +3,9 @@
 // one per thread; each block's result depends on its rows only, so outputs are the same bytes at
 // any thread count.
 //
-// Why parked threads and not a thread per call: on this project's virtual machines, a thread
-// that ends returns its stack's pages (glibc madvise), which flushes the TLB of every core that
-// runs the process; a 2-thread extraction of the fusion grid took 10-12 ms instead of 2.5-3 ms in
+// Why parked threads and not a thread per call: a thread that ends returns its stack's pages
+// (glibc madvise), which flushes the TLB of every core that runs the process; on this project's
+// virtual machines a 2-thread extraction of the fusion grid took 10-12 ms instead of ~1 ms in
 // most runs when its helper thread ended while the caller was still reading the grid.
 #pragma once
 
