@@ -69,16 +69,17 @@ namespace parallel_internal {
 
 bool RunOnSharedPool(int threads, void (*fn)(void*, int), void* context) {
   // One pool per thread count up to kMaxShared, made on first use and kept until the process
-  // ends (its workers park on a condition variable: no cost while idle). Larger counts are rare
-  // (the tools run 1-16 threads) and get threads of their own.
+  // ends (its workers park on a condition variable: no cost while idle). Never destroyed: at
+  // exit another thread may still be in a job. Larger counts are rare (the tools run 1-16
+  // threads) and get threads of their own.
   constexpr int kMaxShared = 64;
   struct Slot {
     std::mutex busy;
     std::unique_ptr<WorkerPool> pool;
   };
-  static std::array<Slot, kMaxShared + 1> slots;
+  static auto* const slots = new std::array<Slot, kMaxShared + 1>;
   if (threads < 2 || threads > kMaxShared) return false;
-  Slot& slot = slots[threads];
+  Slot& slot = (*slots)[threads];
   std::unique_lock<std::mutex> busy(slot.busy, std::try_to_lock);
   if (!busy.owns_lock()) return false;
   if (slot.pool == nullptr) slot.pool = std::make_unique<WorkerPool>(threads);
