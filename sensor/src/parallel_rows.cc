@@ -18,7 +18,7 @@ WorkerPool::~WorkerPool() {
   for (std::thread& w : workers_) w.join();
 }
 
-void WorkerPool::RunImpl(void (*fn)(void*, int), void* context) {
+void WorkerPool::Run(void (*fn)(void*, int), void* context) {
   if (workers_.empty()) {
     fn(context, 0);
     return;
@@ -70,8 +70,7 @@ namespace parallel_internal {
 bool RunOnSharedPool(int threads, void (*fn)(void*, int), void* context) {
   // One pool per thread count up to kMaxShared, made on first use and kept until the process
   // ends (its workers park on a condition variable: no cost while idle). Never destroyed: at
-  // exit another thread may still be in a job. Larger counts are rare (the tools run 1-16
-  // threads) and get threads of their own.
+  // exit another thread may still be in a job. Larger counts get threads of their own.
   constexpr int kMaxShared = 64;
   struct Slot {
     std::mutex busy;
@@ -83,8 +82,7 @@ bool RunOnSharedPool(int threads, void (*fn)(void*, int), void* context) {
   std::unique_lock<std::mutex> busy(slot.busy, std::try_to_lock);
   if (!busy.owns_lock()) return false;
   if (slot.pool == nullptr) slot.pool = std::make_unique<WorkerPool>(threads);
-  auto job = [fn, context](int t) { fn(context, t); };
-  slot.pool->Run(job);
+  slot.pool->Run(fn, context);
   return true;
 }
 

@@ -33,15 +33,16 @@ class WorkerPool {
   // callers on several threads must not share a pool. Allocates nothing.
   template <class F>
   void Run(F& f) {
-    RunImpl(&Trampoline<F>, &f);
+    Run(&Trampoline<F>, &f);
   }
+  // The same for fn(context, t).
+  void Run(void (*fn)(void*, int), void* context);
 
  private:
   template <class F>
   static void Trampoline(void* context, int thread) {
     (*static_cast<F*>(context))(thread);
   }
-  void RunImpl(void (*fn)(void*, int), void* context);
   void WorkerLoop(int thread);
 
   std::vector<std::thread> workers_;
