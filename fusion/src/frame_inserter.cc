@@ -32,9 +32,6 @@ constexpr Vote kVoteMin = -kVoteMax;  // symmetric saturation
 // the same columns, so a tile's columns stay in cache (pixel-row order revisits a column only
 // 640 rays later). Not part of the semantics (voting_grid.h: the order of rays does not matter).
 constexpr int kInsertionTilePx = 32;
-// At most this many lines of votes are prefetched per tile (~2.5 k in the benchmark; a tile seen
-// at a grazing angle could reach much of the grid, where a hint would only evict lines in use).
-constexpr size_t kMaxTileLines = 8192;
 
 // One cast ray of the kernels without a lane setup: set up once per frame (phase 1) and walked
 // by every slab owner (phase 2); also the scalar fallbacks' form of a lane's ray.
@@ -340,7 +337,6 @@ struct FrameInserter::Workspace {
   std::vector<std::vector<HitRecord>> hits;  // per thread: room for the frame's hits in its rows
 #if defined(__x86_64__)
   std::vector<std::unique_ptr<avx512::TileRays>> tile_rays;  // per thread: its tile (AVX-512 setup)
-  std::vector<std::vector<const Vote*>> ahead;  // per thread: the next tile's lines to prefetch (TileLines)
 #endif
   std::vector<size_t> chunk_begin;     // chunk c's first ray slot (its first pixel)
   std::vector<std::vector<size_t>> tile_end;  // per chunk: each tile's end in its rays
@@ -374,7 +370,6 @@ FrameInserter::FrameInserter(VotingGrid* grid, const InserterOptions& options)
 #if defined(__x86_64__)
   if (LaneSetup(kernel_, grid->nz())) {
     for (int t = 0; t < options.threads; ++t) ws_->tile_rays.push_back(std::make_unique<avx512::TileRays>());
-    ws_->ahead.assign(options.threads, std::vector<const Vote*>(kMaxTileLines));
   }
 #endif
 }
@@ -464,18 +459,20 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
       SegmentBounds* widened = thread == 0 ? &bounds : &unbounded;
       uint32_t* weight = thread == 0 && threads > 1 ? ws.row_weight.data() : nullptr;
       WalkContext context = make_context(thread, ws.slab[thread], ws.slab[thread + 1]);
-      std::vector<const Vote*>& ahead = ws.ahead[thread];
+      avx512::TileAhead ahead;  // the next tile's lines
       auto tiles = [&](auto all_rows) {
         for (int tv = 0; tv < height; tv += kTile) {
           for (int tu = 0; tu < width; tu += kTile) {
             const int nu = tu + kTile < width ? tu + kTile : 0, nv = tu + kTile < width ? tv : tv + kTile;
-            const size_t lines =
-                nv < height ? avx512::TileLines(setup_frame, depth_m, nu, std::min(nu + kTile, width), nv,
-                                                std::min(nv + kTile, height), context.ya, context.yb, context.votes, ahead)
-                            : 0;
+            if (nv < height) {
+              avx512::TileLines(setup_frame, depth_m, nu, std::min(nu + kTile, width), nv, std::min(nv + kTile, height),
+                                context.ya, context.yb, context.votes, &ahead);
+            } else {
+              ahead.Clear();
+            }
             avx512::InsertTile<all_rows()>(setup_frame, depth_m, tu, std::min(tu + kTile, width), tv,
                                            std::min(tv + kTile, height), ws.tile_rays[thread].get(), &context, counts,
-                                           widened, weight, std::span(ahead.data(), lines));
+                                           widened, weight, &ahead);
           }
         }
       };
