@@ -338,7 +338,6 @@ struct FrameInserter::Workspace {
   // zeroed, so only the pages its hits reach are resident (a vector made all of them so: 2.5 MB
   // per thread at 640 x 480, of which the benchmark's frames use ~0.9).
   std::vector<std::unique_ptr<HitRecord[]>> hits;
-  std::vector<size_t> hits_room;
 #if defined(__x86_64__)
   std::vector<std::unique_ptr<avx512::TileRays>> tile_rays;  // per thread: its tile (AVX-512 setup)
 #endif
@@ -366,7 +365,6 @@ FrameInserter::FrameInserter(VotingGrid* grid, const InserterOptions& options)
   ws_ = std::make_unique<Workspace>(options.threads);
   ws_->chunk_begin.assign(options.threads, 0);
   ws_->hits.resize(options.threads);
-  ws_->hits_room.assign(options.threads, 0);
   ws_->tile_end.resize(options.threads);
   ws_->chunk_stats.assign(options.threads, InsertStats{});
   ws_->chunk_bounds.assign(options.threads, SegmentBounds{});
@@ -399,6 +397,7 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
       ws.rays.reset(static_cast<RaySetup*>(std::malloc(slots * sizeof(RaySetup))));
       if (ws.rays == nullptr) throw std::bad_alloc();
     }
+    for (auto& hits : ws.hits) hits.reset(new HitRecord[pixels + kHitSlack]);  // one hit per pixel at most
     for (int v = 0; v < height; ++v) {
       for (int u = 0; u < width; ++u) {
         const Eigen::Vector3d r = camera.Ray(Eigen::Vector2d(u, v));
@@ -422,10 +421,6 @@ void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, co
 
   VotingGrid* mutable_grid = grid_;
   auto make_context = [&](int thread, int ya, int yb) {
-    if (ws.hits_room[thread] < pixels + kHitSlack) {  // one hit per pixel at most
-      ws.hits[thread].reset(new HitRecord[pixels + kHitSlack]);
-      ws.hits_room[thread] = pixels + kHitSlack;
-    }
     return WalkContext{o_g[0], o_g[1], o_g[2], n[0], n[1], n[2], ya, yb, mutable_grid->mutable_column(0),
                        ws.hits[thread].get(), 0, 0};
   };
