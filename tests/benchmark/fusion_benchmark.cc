@@ -12,6 +12,7 @@
 // Times: wall and process CPU time per frame, medians. The machine is shared: say its load when
 // quoting numbers. Memory: growth of resident memory while the method's state is alive (the
 // pre-rendered frames are excluded), and the state's own size where the library reports it.
+#include <malloc.h>
 #include <time.h>
 
 #include <algorithm>
@@ -101,6 +102,14 @@ const Workload& GetWorkload() {
   return *workload;
 }
 
+// Resident memory before a method's state exists, with the memory that earlier rows freed handed
+// back first: the allocator keeps freed chunks resident, and a row's allocations reusing them
+// would go uncounted (the 1-thread paged-in row's ray table and hit lists did: 7 MB).
+double BaselineRssMb() {
+  malloc_trim(0);
+  return CurrentRssMb();
+}
+
 struct Row {
   std::string method;
   int frames = 0;
@@ -119,7 +128,7 @@ Row RunOurs(int threads, bool paged_in) {
   Row row;
   row.method = "romunect voting grid, " + std::to_string(threads) + " thread" + (threads > 1 ? "s" : "") +
                (paged_in ? ", paged in" : "");
-  const double rss0 = CurrentRssMb();
+  const double rss0 = BaselineRssMb();
   GridOptions options = w.grid;
   options.prefault = paged_in;
   VotingGrid grid(options);
@@ -160,7 +169,7 @@ Row RunReference() {
   const Workload& w = GetWorkload();
   Row row;
   row.method = "plain reference (3D walk, dense)";
-  const double rss0 = CurrentRssMb();
+  const double rss0 = BaselineRssMb();
   const Eigen::Vector3i n = w.grid.Dims();
   reference::ReferenceGrid ref(w.grid.min_W, w.grid.voxel_m, n.x(), n.y(), n.z());
   reference::ReferenceCounts counts;
@@ -205,7 +214,7 @@ Row RunOpen3d() {
   row.method = "Open3D ScalableTSDFVolume";
   const double sdf_trunc_m = 4 * w.grid.voxel_m;  // 1 mm: ten times the depth noise
   row.note = "sdf_trunc 1 mm, no colour, height = highest extracted point per cell";
-  const double rss0 = CurrentRssMb();
+  const double rss0 = BaselineRssMb();
   o3d::pipelines::integration::ScalableTSDFVolume volume(w.grid.voxel_m, sdf_trunc_m,
                                                         o3d::pipelines::integration::TSDFVolumeColorType::NoColor);
   const CameraModel& c = w.bin.camera();
@@ -239,7 +248,7 @@ Row RunOctomap(double budget_s) {
   const Workload& w = GetWorkload();
   Row row;
   row.method = "OctoMap OcTree";
-  const double rss0 = CurrentRssMb();
+  const double rss0 = BaselineRssMb();
   octomap::OcTree tree(w.grid.voxel_m);
   std::vector<double> wall, cpu;
   const double start = WallMs();
