@@ -1,21 +1,55 @@
 #include "romunect/sensor/cpu_features.h"
 
+#include <algorithm>
+
 namespace romunect {
 
-bool CpuHasAvx2() {
-#if defined(__x86_64__)
-  return __builtin_cpu_supports("avx2");
-#else
-  return false;
-#endif
+const char* ToString(Isa isa) {
+  switch (isa) {
+    case Isa::kAuto: return "auto";
+    case Isa::kScalar: return "scalar";
+    case Isa::kSse2: return "sse2";
+    case Isa::kAvx2: return "avx2";
+    case Isa::kAvx512: return "avx512";
+  }
+  return "?";
 }
 
-bool CpuHasAvx512() {
+std::optional<Isa> ParseIsa(std::string_view name) {
+  for (Isa isa : {Isa::kAuto, Isa::kScalar, Isa::kSse2, Isa::kAvx2, Isa::kAvx512}) {
+    if (name == ToString(isa)) return isa;
+  }
+  return std::nullopt;
+}
+
+bool CpuSupports(Isa isa) {
+  switch (isa) {
+    case Isa::kAuto:
+    case Isa::kScalar: return true;
 #if defined(__x86_64__)
-  return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("avx512dq");
+    case Isa::kSse2: return true;
+    case Isa::kAvx2: return __builtin_cpu_supports("avx2");
+    case Isa::kAvx512:
+      return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
+             __builtin_cpu_supports("avx512dq");
 #else
-  return false;
+    default: return false;
 #endif
+  }
+  return false;
+}
+
+std::optional<Isa> ResolveIsa(Isa requested, std::initializer_list<Isa> implements) {
+  if (requested != Isa::kAuto) {
+    const bool implemented = std::find(implements.begin(), implements.end(), requested) != implements.end();
+    if (implemented && CpuSupports(requested)) return requested;
+    return std::nullopt;
+  }
+  std::optional<Isa> best;
+  for (Isa isa : implements) {
+    if (isa != Isa::kAuto && CpuSupports(isa) && (!best || static_cast<int>(isa) > static_cast<int>(*best))) best = isa;
+  }
+  return best;
 }
 
 }  // namespace romunect

@@ -1,13 +1,36 @@
-// What the CPU running the program supports, for choosing SIMD kernels at run time: the build
-// never assumes an instruction set beyond x86-64's SSE2, so one binary runs everywhere and takes
-// the widest kernel the machine has.
+// The instruction sets that SIMD kernels are built for, and what the CPU running the program
+// supports. The build never assumes an instruction set beyond x86-64's SSE2, so one binary runs
+// everywhere and each kernel family takes the widest implementation the machine has.
+//
+// One idiom for every kernel family (renderer, IR synthesis, depth engine, fusion insertion and
+// extraction): the family's options hold an `Isa` (kAuto by default); the family implements a
+// fixed set of instruction sets, one translation unit each (<family>_<isa>.cc, compiled under
+// `#pragma GCC target`), and picks its function with ResolveIsa(). docs/design.md, "SIMD kernels".
 #pragma once
+
+#include <initializer_list>
+#include <optional>
+#include <string_view>
 
 namespace romunect {
 
-bool CpuHasAvx2();
-// AVX-512 F, BW and DQ: what every AVX-512 kernel of the project uses (all AVX-512 server and
-// desktop CPUs have the three).
-bool CpuHasAvx512();
+// Narrowest first; kAuto asks for the widest the family implements and the CPU supports.
+enum class Isa { kAuto, kScalar, kSse2, kAvx2, kAvx512 };
+
+const char* ToString(Isa isa);  // "auto", "scalar", "sse2", "avx2", "avx512"
+std::optional<Isa> ParseIsa(std::string_view name);  // the inverse of ToString; nullopt if unknown
+
+// Whether this CPU runs code built for `isa` (kAuto, kScalar: always; kSse2: on x86-64).
+// kAvx512 means AVX-512 F, BW and DQ: what every AVX-512 kernel of the project uses.
+bool CpuSupports(Isa isa);
+
+// The instruction set a kernel family runs for `requested`, given the ones it `implements`:
+// kAuto gives the widest implemented one the CPU supports; a named one is returned when it is
+// implemented and supported, nullopt otherwise (the caller reports it as bad input).
+std::optional<Isa> ResolveIsa(Isa requested, std::initializer_list<Isa> implements);
+
+// Kept for callers that only ask the CPU.
+inline bool CpuHasAvx2() { return CpuSupports(Isa::kAvx2); }
+inline bool CpuHasAvx512() { return CpuSupports(Isa::kAvx512); }
 
 }  // namespace romunect
