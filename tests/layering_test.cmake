@@ -1,4 +1,4 @@
-# Fails when a module includes what its layer must not see (DESIGN.md, "Dependencies flow one
+# Fails when a module includes what its layer must not see (docs/design.md, "Layers": dependencies flow one
 # way"). Run by CTest as: cmake -DSOURCE_DIR=<repo> -P layering_test.cmake
 set(failures "")
 

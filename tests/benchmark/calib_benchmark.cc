@@ -1,4 +1,4 @@
-// calib's accuracy table (issue 6) over seeded synthetic trials, median / p95 / max, against
+// calib's accuracy table (docs/calibrate.md) over seeded synthetic trials, median / p95 / max, against
 // OpenCV 4.6 alone, then the goal table of the whole chain IN THE LOOP with the simulated rig
 // (sim/calibration_rig.h; 20 views, 15 stations, 12 planes) over seeded trials, with its
 // compute time, then Google Benchmark timings of each step.
@@ -214,7 +214,7 @@ void BM_ProjectorHomographyStep(benchmark::State& state) {
 BENCHMARK(BM_ProjectorHomographyStep)->Unit(benchmark::kMillisecond);
 
 #ifdef ROMUNECT_CALIB_LOOP
-// The chain in the loop with the default simulated rig, seeds 1..N: every goal of the issue.
+// The chain in the loop with the default simulated rig, seeds 1..N: every goal in docs/calibrate.md's accuracy table.
 void LoopTable() {
   std::vector<double> mapping, he_deg, he_mm, known_deg, known_mm, sight_deg, homography, captures, depth, affine, compute, hardware;
   std::vector<std::string> failed;

@@ -1,4 +1,4 @@
-// Fusion benchmark (issue 3): the analytic bin workload (50 frames of 640 x 480, seed 1) fused at
+// Fusion benchmark (docs/performance.md): the analytic bin workload (50 frames of 640 x 480, seed 1) fused at
 // 0.25 mm over 150 x 80 x 64 mm with our grid (1 and 2 threads; pages on first touch, as fuse
 // runs it, and paged in before the loop, as scan runs it), the plain reference of
 // tests/fusion, and, when built with ROMUNECT_BENCH_PEERS, Open3D's ScalableTSDFVolume and

@@ -1,4 +1,4 @@
-// Render benchmark (issue 4, speed table): the Embree renderer on a procedural 300k-triangle
+// Render benchmark (docs/performance.md): the Embree renderer on a procedural 300k-triangle
 // bin at 640 x 480 (the `romunect` rig preset: camera at 200 mm above the bin floor), at 1 and
 // 2 threads and 1 and 4 samples per pixel (samples -4: the adaptive quality mode, 4 samples at
 // edges only), and with each kernel of its own per-ray work; the one-off static BVH build; a per-frame pose

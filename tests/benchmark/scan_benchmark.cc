@@ -1,4 +1,4 @@
-// The default scan's wall time (issue 5, "Speed"): settle a pile (range(0) objects), plan the
+// The default scan's wall time (docs/performance.md): settle a pile (range(0) objects), plan the
 // approach, then per 30 Hz frame advance the physics, update the instances, render at the
 // romunect rig's full resolution, and (range(1) = 1) image it: IR synthesis, depth engine and
 // ground-truth depth correction (SensorImager). range(2) = 1 also fuses every frame (insert

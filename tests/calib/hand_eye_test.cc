@@ -15,7 +15,7 @@ using testing::TruthCamera;
 
 constexpr double kDeg = M_PI / 180.0;
 constexpr double kNoisePx = 0.2;  // corner noise, as in the intrinsics tests
-// The issue's hand-eye goal (15 stations, intrinsics known): 0.02 deg and 0.15 mm.
+// The hand-eye goal (15 stations, intrinsics known): 0.02 deg and 0.15 mm.
 constexpr double kGoalAngleRad = 0.02 * kDeg;
 constexpr double kGoalTranslationM = 0.15e-3;
 // A failed solve is off by degrees; a working initial estimate is within a few tenths.
@@ -50,7 +50,7 @@ TEST(HandEyeTest, RefinementIsMoreAccurateThanOpenCvAlone) {
     opencv_sum += ComparePoses(OpenCvHandEye(rig.stations, camera, Board(), HandEyeInitialMethod::kTsai), rig.T_H_C)
                       .translation_m;
   }
-  // The issue measured 4-8x; ask for 2x on three seeds so the test is not a coin toss.
+  // The refinement is typically 4-8x better; ask for 2x on three seeds so the test is not a coin toss.
   EXPECT_LT(2.0 * refined_sum, opencv_sum);
 }
 

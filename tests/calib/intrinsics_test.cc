@@ -19,7 +19,7 @@ using testing::TruthCamera;
 
 // Corner noise of the synthetic views: typical sub-pixel detection on a sharp IR image.
 constexpr double kNoisePx = 0.2;
-// The goal for 20 planned views: full-image mapping error vs truth.
+// The calibration goal for 20 planned views: full-image mapping error vs truth.
 constexpr double kMappingGoalPx = 0.25;
 // Detection on a clean rendered image (bilinear warp, no noise): cornerSubPix is within this.
 constexpr double kDetectionTolerancePx = 0.1;

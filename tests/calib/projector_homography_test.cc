@@ -12,7 +12,7 @@
 namespace romunect::calib {
 namespace {
 
-// The goal: homography residual within 0.1 px after at most 5 captures.
+// The calibration goal (docs/calibrate.md): homography residual within 0.1 px after at most 5 captures.
 constexpr double kGoalPx = 0.1;
 constexpr int kGoalCaptures = 5;
 constexpr double kDetectionNoisePx = 0.2;  // projected dots detected like board corners

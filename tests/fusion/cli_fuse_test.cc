@@ -1,5 +1,5 @@
 // `romunect fuse` run as a user would: a good run against ground truth, and every kind of bad
-// input the issue lists (clear message, non-zero exit; per-pixel junk counted).
+// input docs/fuse.md lists (clear message, non-zero exit; per-pixel junk counted).
 #include <cmath>
 #include <limits>
 

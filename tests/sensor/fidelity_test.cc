@@ -1,4 +1,4 @@
-// Fidelity of the sensor model (issue 4, F1-F8): the simulated device must show the physics and
+// Fidelity of the sensor model (F1-F8, docs/sensor-model.md): the simulated device must show the physics and
 // the failures of the real one. Geometry comes from the exact analytic back end, so each check
 // compares against exact ground truth. Every tolerance is named, with its reason.
 #include <algorithm>
@@ -77,7 +77,7 @@ double StepPerRawM(const Shot& s, double z0_m, double band_m) {
 TEST(FidelityTest, F1_RomunectQuantizationStepIsZSquaredOver8fb) {
   Device& d = Romunect();
   const double fb = d.rig.camera.fx * d.rig.T_C_P.translation().x();
-  // The issue's figure: within 5 %.
+  // Within 5 % of the theoretical step Z^2 / (8 f b).
   constexpr double kStepRelTolerance = 0.05;
   for (double z0 : {0.19, 0.20, 0.21}) {
     const Shot s = d.Capture(AnalyticScene::TiltedPlane(z0, 0.15), 100 + static_cast<int>(z0 * 1000));
@@ -93,7 +93,7 @@ TEST(FidelityTest, F1_RomunectQuantizationStepIsZSquaredOver8fb) {
 
 TEST(FidelityTest, F2_KinectStepPerRawUnitAndElevenBitRaw) {
   Device& d = Kinect();
-  // The Kinect literature's figures; the issue allows 10 %.
+  // The Kinect literature's figures; within 10 %.
   constexpr double kStepRelTolerance = 0.10;
   const std::map<double, double> published_step_m = {{0.5, 0.77e-3}, {1.0, 3.1e-3}, {2.0, 12.3e-3}};
   for (const auto& [z0, published] : published_step_m) {
@@ -120,8 +120,8 @@ TEST(FidelityTest, F2_KinectStepPerRawUnitAndElevenBitRaw) {
 
 TEST(FidelityTest, F3_KinectNoiseGrowsWithDistanceLikeNguyen2012) {
   Device& d = Kinect();
-  // Nguyen, Izadi, Lovell 2012, axial noise of a plane (about 1.2, 1.9, 6.1, 14 mm); the issue
-  // allows 30 %.
+  // Nguyen, Izadi, Lovell 2012, axial noise of a plane (about 1.2, 1.9, 6.1, 14 mm); within
+  // 30 %.
   constexpr double kNoiseRelTolerance = 0.30;
   constexpr double kMaxGrossFraction = 0.01;  // the Kinect has almost no gross outliers
   const std::map<double, double> nguyen_m = {{0.5, 1.2e-3}, {1.0, 1.9e-3}, {2.0, 6.1e-3}, {3.0, 14e-3}};
@@ -171,7 +171,7 @@ TEST(FidelityTest, F4_ProjectorShadowBehindAStepIsAsWideAsTheGeometry) {
   }
   std::nth_element(widths.begin(), widths.begin() + widths.size() / 2, widths.end());
   const int median = widths[widths.size() / 2];
-  // The issue: within 1 px.
+  // Within 1 px of the geometric width.
   constexpr double kShadowWidthTolerancePx = 1.0;
   EXPECT_NEAR(median, expected_px, kShadowWidthTolerancePx);
   // On the side away from the projector: the band lies left of the edge.

@@ -24,7 +24,7 @@ constexpr double kPointTolM = 2e-6;
 // Unit normals computed in float from float vertices.
 constexpr double kNormalTol = 1e-5;
 // The projector shadow behind a step must be as wide as the geometry predicts, within 1 px
-// (the F4 criterion, here for the ground-truth lit mask).
+// (fidelity check F4 of docs/sensor-model.md, here for the ground-truth lit mask).
 constexpr double kShadowWidthTolPx = 1.0;
 
 const Pose kIdentity = Pose::Identity();

@@ -13,7 +13,7 @@ namespace {
 
 // The plan's own poses are exact up to IK's convergence tolerance (1e-6 m).
 constexpr double kPlanToleranceM = 1e-5;
-// The measured peak tracking error of a DLS-driven position servo is about 3 mm; we
+// A DLS-driven position servo tracks with a peak error of about 3 mm; we
 // allow 5 mm at 0.3 m/s with lateral passes.
 constexpr double kMaxTrackingErrorM = 5e-3;
 // After the hold at the end, the servo has converged: below the sensor's 0.1 mm accuracy.

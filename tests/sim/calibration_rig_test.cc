@@ -25,7 +25,7 @@ constexpr double kMappingTolPx = 0.5;
 constexpr double kLineOfSightTolRad = 0.02 * kDeg;
 constexpr double kHandEyeTolM = 0.3e-3;
 constexpr double kHandEyeRotationTolRad = 0.25 * kDeg;
-// the same 8 stations with the TRUE camera (the "intrinsics known" condition): the
+// the same 8 stations with the TRUE camera (the hand-eye goal's "intrinsics known" condition): the
 // goal for 15 stations (0.02 deg, 0.15 mm); 8 stations get the same, measured 0.003 deg.
 constexpr double kKnownIntrinsicsRotationTolRad = 0.02 * kDeg;
 constexpr double kKnownIntrinsicsTolM = 0.15e-3;

@@ -9,7 +9,7 @@
 namespace romunect::sim {
 namespace {
 
-// The acceptance: IK reaches goals within 0.1 mm and 0.05 degrees.
+// IK must reach goals within 0.1 mm and 0.05 degrees.
 constexpr double kIkToleranceM = 1e-4;
 constexpr double kIkToleranceRad = 0.05 * 3.14159265358979323846 / 180.0;
 

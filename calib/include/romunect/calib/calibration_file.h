@@ -1,4 +1,4 @@
-// The one calibration file (DESIGN.md, "Formats"): a cv::FileStorage YAML that plain OpenCV
+// The one calibration file (docs/design.md, "Formats"; keys in docs/calibrate.md): a cv::FileStorage YAML that plain OpenCV
 // reads without romunect. Keys:
 //   format: "romunect-calibration", version: 1, date: ISO 8601 UTC
 //   image_width, image_height, camera_matrix, distortion_coefficients  (OpenCV's names)

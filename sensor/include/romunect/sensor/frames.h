@@ -1,4 +1,4 @@
-// Frames, units and conventions of romunect, in one place (DESIGN.md, "Conventions").
+// Frames, units and conventions of romunect, in one place (docs/design.md, "Frames and poses" and "Units").
 //
 // Frames (one capital letter each; names carry them: p_C is a point in C, T_W_C a pose):
 //   W  world, z up.
