@@ -161,7 +161,7 @@ Row RunOurs(int threads, bool paged_in) {
   row.memory_mb = CurrentRssMb() - rss0;
   row.state_mb = grid.memory_bytes() / 1e6;
   row.metrics = CompareHeightMaps(height, w.gt);
-  row.note = std::string("kernel ") + InsertKernelName(inserter.kernel()) + "; " + stats.BriefReport();
+  row.note = std::string("isa ") + ToString(inserter.isa()) + "; " + stats.BriefReport();
   return row;
 }
 
