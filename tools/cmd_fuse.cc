@@ -370,7 +370,7 @@ void RunFuse(const FuseArguments& args) {
   }
 
   const double t0 = NowMs();
-  const cv::Mat height = fusion::ExtractHeightMap(grid, fusion::ExtractKernel::kAuto, args.threads);
+  const cv::Mat height = fusion::ExtractHeightMap(grid, Isa::kAuto, args.threads);
   report.extract_ms = NowMs() - t0;
   report.completeness = fusion::Completeness(height);
   report.skipped_pixels = directory != nullptr ? directory->skipped_pixels() : 0;

@@ -246,7 +246,7 @@ void RunScan(const ScanArguments& args) {
   writer.Finish();
 
   auto t = std::chrono::steady_clock::now();
-  report.height_m = fusion::ExtractHeightMap(grid, fusion::ExtractKernel::kAuto, args.threads);
+  report.height_m = fusion::ExtractHeightMap(grid, Isa::kAuto, args.threads);
   report.fusion.extract_ms = 1e3 * Seconds(t);
   report.fusion.input = "simulation (" + args.rig + " rig, seed " + std::to_string(args.seed) + ")";
   report.fusion.geometry = grid.geometry();

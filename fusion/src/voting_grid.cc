@@ -8,12 +8,10 @@
 #include <cstdlib>
 #include <cstring>
 #include <limits>
+#include <optional>
 #include <sstream>
 
-#if defined(__x86_64__)
-#include <immintrin.h>
-#endif
-
+#include "extract_kernel.h"
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/cpu_features.h"
 #include "romunect/sensor/errors.h"
@@ -38,96 +36,47 @@ size_t PhysicalMemoryBytes() {
   return static_cast<size_t>(pages) * static_cast<size_t>(page);
 }
 
-// The highest vote in votes[lo..hi] (lo <= hi) and the highest k holding it; 8 lanes at a time
-// (the last block may overlap the previous one, which a maximum does not mind).
-void MaxVoteSse2(const Vote* votes, int lo, int hi, int* best, int* best_k) {
-  int k = lo;
-  int m = std::numeric_limits<Vote>::min();
-#if defined(__SSE2__)
-  if (hi - lo + 1 >= 8) {
-    __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(votes + lo));
-    for (k = lo + 8; k + 8 <= hi + 1; k += 8) {
-      v = _mm_max_epi16(v, _mm_loadu_si128(reinterpret_cast<const __m128i*>(votes + k)));
-    }
-    if (k <= hi) v = _mm_max_epi16(v, _mm_loadu_si128(reinterpret_cast<const __m128i*>(votes + hi - 7)));
-    v = _mm_max_epi16(v, _mm_srli_si128(v, 8));
-    v = _mm_max_epi16(v, _mm_srli_si128(v, 4));
-    v = _mm_max_epi16(v, _mm_srli_si128(v, 2));
-    m = static_cast<int16_t>(_mm_cvtsi128_si32(v) & 0xffff);
-    k = hi + 1;
-  }
+using extract_internal::AnyPositiveFn;
+using extract_internal::MaxVoteFn;
+
+// The instruction set extraction runs for `requested`, among those this build implements.
+std::optional<Isa> ResolveExtractIsa(Isa requested) {
+  return ResolveIsa(requested, {
+                                   Isa::kScalar,
+#if ROMUNECT_FUSION_EXTRACT_SSE2
+                                   Isa::kSse2,
 #endif
-  for (; k <= hi; ++k) m = std::max(m, int{votes[k]});
-  *best = m;
-  int top = hi;
-  while (votes[top] != m) --top;
-  *best_k = top;
-}
-
-// Whether votes[lo..hi] hold a positive vote, from the top down: a filled column's winner lies
-// near its highest hit, so the search stops early.
-bool AnyPositive(const Vote* votes, int lo, int hi) {
-  for (int k = hi; k >= lo; --k) {
-    if (votes[k] > 0) return true;
-  }
-  return false;
-}
-
-#if defined(__x86_64__)
-#pragma GCC push_options
-#pragma GCC target("avx2")
-// AnyPositive, 16 lanes at a time from the top (loads start at lo or later, as MaxVoteAvx2's).
-bool AnyPositiveAvx2(const Vote* votes, int lo, int hi) {
-  const __m256i lane = _mm256_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-  for (int top = hi; top >= lo; top -= 16) {
-    const int start = std::max(lo, top - 15);
-    const __m256i v = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(votes + start));
-    const __m256i in_range = _mm256_cmpgt_epi16(_mm256_set1_epi16(static_cast<int16_t>(top - start + 1)), lane);
-    if (!_mm256_testz_si256(_mm256_and_si256(_mm256_cmpgt_epi16(v, _mm256_setzero_si256()), in_range), in_range)) {
-      return true;
-    }
-  }
-  return false;
-}
-
-// MaxVoteSse2 with 16 lanes and masked ends: loads start at lo or later and may read up to 15
-// votes past hi (MappedBytes leaves room after the last column), never before lo.
-void MaxVoteAvx2(const Vote* votes, int lo, int hi, int* best, int* best_k) {
-  const __m256i lane = _mm256_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-  const __m256i lowest = _mm256_set1_epi16(std::numeric_limits<Vote>::min());
-  auto load = [&](int start, int count) {  // votes [start, start + count), the rest lowest
-    const __m256i v = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(votes + start));
-    return _mm256_blendv_epi8(lowest, v, _mm256_cmpgt_epi16(_mm256_set1_epi16(static_cast<int16_t>(count)), lane));
-  };
-  __m256i m = lowest;
-  for (int k = lo; k <= hi; k += 16) m = _mm256_max_epi16(m, load(k, std::min(16, hi - k + 1)));
-  __m128i h = _mm_max_epi16(_mm256_castsi256_si128(m), _mm256_extracti128_si256(m, 1));
-  h = _mm_max_epi16(h, _mm_srli_si128(h, 8));
-  h = _mm_max_epi16(h, _mm_srli_si128(h, 4));
-  h = _mm_max_epi16(h, _mm_srli_si128(h, 2));
-  const int16_t found = static_cast<int16_t>(_mm_cvtsi128_si32(h) & 0xffff);
-  *best = found;
-  const __m256i target = _mm256_set1_epi16(found);
-  for (int top = hi;; top -= 16) {  // from the top: the highest k holding the maximum
-    const int start = std::max(lo, top - 15);
-    const __m256i v = load(start, top - start + 1);
-    const uint32_t equal = static_cast<uint32_t>(_mm256_movemask_epi8(_mm256_cmpeq_epi16(v, target)));
-    if (equal != 0) {
-      *best_k = start + (31 - __builtin_clz(equal)) / 2;
-      return;
-    }
-  }
-}
-#pragma GCC pop_options
+#if ROMUNECT_FUSION_EXTRACT_AVX2
+                                   Isa::kAvx2,
 #endif
+                               });
+}
+
+// The column kernels of `isa` (resolved): SSE2 has no search of its own for a positive vote.
+struct ColumnKernels {
+  MaxVoteFn max_vote = &extract_internal::MaxVoteScalar;
+  AnyPositiveFn any_positive = &extract_internal::AnyPositiveScalar;
+};
+ColumnKernels ColumnKernelsFor(Isa isa) {
+  ColumnKernels k;
+#if ROMUNECT_FUSION_EXTRACT_SSE2
+  if (isa == Isa::kSse2) k.max_vote = &extract_internal::MaxVoteSse2;
+#endif
+#if ROMUNECT_FUSION_EXTRACT_AVX2
+  if (isa == Isa::kAvx2) k = ColumnKernels{&extract_internal::MaxVoteAvx2, &extract_internal::AnyPositiveAvx2};
+#endif
+  (void)isa;
+  return k;
+}
 
 // The mapping of `bytes` of votes: 64 bytes more, so that a 16-lane load at the last column's top
-// (MaxVoteAvx2, AnyPositiveAvx2: up to 15 votes past the hit range) stays inside it.
+// (the AVX2 column kernels of extraction: up to 15 votes past the hit range) stays inside it.
 size_t MappedBytes(size_t bytes) { return bytes + 64; }
+static_assert(extract_internal::kAvx2ReadPastHi * sizeof(Vote) <= 64);
 
 // Zeroed memory for the votes, paged in on first touch (parts no ray reaches cost no memory) or,
-// with `prefault`, all at once. Huge pages were measured too: no faster at one thread (the
-// tile order keeps the TLB's working set small), 18 % faster at two, but +12 MB resident on the
+// with `prefault`, all at once. Huge pages would be no faster at one thread (the tile order
+// keeps the TLB's working set small) and 18 % faster at two, but cost +12 MB resident on the
 // benchmark (the whole grid at 2 MB granularity), so the grid stays on normal pages.
 Vote* MapVotes(size_t bytes, bool prefault) {
   void* p = mmap(nullptr, MappedBytes(bytes), PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
@@ -229,13 +178,16 @@ void VotingGrid::Clear() {
   std::fill(hit_hi_, hit_hi_ + columns, uint16_t{0});
 }
 
-cv::Mat ExtractHeightMap(const VotingGrid& grid, ExtractKernel kernel, int threads) {
+cv::Mat ExtractHeightMap(const VotingGrid& grid, Isa isa, int threads) {
   ROMUNECT_CHECK(threads >= 1);
+  const std::optional<Isa> resolved = ResolveExtractIsa(isa);
+  if (!resolved) {
+    throw InputError("fusion extraction", "isa",
+                     std::string(ToString(isa)) + (CpuSupports(isa) ? ": no extraction kernel for it in this build"
+                                                                    : ": this CPU does not support it"));
+  }
+  const MaxVoteFn max_vote = ColumnKernelsFor(*resolved).max_vote;
   constexpr int kPrefetchColumns = 16;
-  void (*max_vote)(const Vote*, int, int, int*, int*) = &MaxVoteSse2;
-#if defined(__x86_64__)
-  if (kernel == ExtractKernel::kAuto && CpuHasAvx2()) max_vote = &MaxVoteAvx2;
-#endif
   cv::Mat height(grid.ny(), grid.nx(), CV_32F);
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const double z0 = grid.options().min_W.z(), voxel = grid.voxel_m();
@@ -270,7 +222,7 @@ CompletenessTracker::CompletenessTracker(const VotingGrid& grid)
 
 double CompletenessTracker::Update(const cv::Rect& changed_columns) {
   ROMUNECT_CHECK((changed_columns & cv::Rect(0, 0, grid_.nx(), grid_.ny())) == changed_columns);
-  const bool avx2 = CpuHasAvx2();
+  const AnyPositiveFn any_positive = ColumnKernelsFor(*ResolveExtractIsa(Isa::kAuto)).any_positive;
   // The search starts at a column's highest hit, a column's length (nz votes) from the last one: a
   // stride the caches do not fetch ahead by themselves, so it is fetched 8 columns ahead.
   constexpr int kAhead = 8;
@@ -283,8 +235,7 @@ double CompletenessTracker::Update(const cv::Rect& changed_columns) {
       }
       const size_t c = grid_.ColumnIndex(ix, iy);
       const int lo = grid_.hit_lo(c), hi = grid_.hit_hi(c);
-      const bool now = lo <= hi && (avx2 ? AnyPositiveAvx2(grid_.column(ix, iy), lo, hi)
-                                         : AnyPositive(grid_.column(ix, iy), lo, hi));
+      const bool now = lo <= hi && any_positive(grid_.column(ix, iy), lo, hi);
       filled_count_ += static_cast<size_t>(now) - filled_[c];
       filled_[c] = now;
     }

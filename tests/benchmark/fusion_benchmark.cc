@@ -149,7 +149,7 @@ Row RunOurs(int threads, bool paged_in) {
   cv::Mat height;
   for (int r = 0; r < 15; ++r) {
     const double t0 = WallMs();
-    height = ExtractHeightMap(grid, ExtractKernel::kAuto, threads);
+    height = ExtractHeightMap(grid, Isa::kAuto, threads);
     extract.push_back(WallMs() - t0);
   }
   row.frames = static_cast<int>(w.frames.size());
@@ -161,7 +161,7 @@ Row RunOurs(int threads, bool paged_in) {
   row.memory_mb = CurrentRssMb() - rss0;
   row.state_mb = grid.memory_bytes() / 1e6;
   row.metrics = CompareHeightMaps(height, w.gt);
-  row.note = std::string("kernel ") + InsertKernelName(inserter.kernel()) + "; " + stats.BriefReport();
+  row.note = std::string("isa ") + ToString(inserter.isa()) + "; " + stats.BriefReport();
   return row;
 }
 
@@ -371,7 +371,7 @@ void BM_ExtractAfterAllFrames(benchmark::State& state) {
   FrameInserter inserter(&grid, InserterOptions{2});
   for (const Frame& f : w.frames) inserter.Insert(w.bin.camera(), f.depth_m, *f.T_W_C, nullptr);
   const int threads = static_cast<int>(state.range(0));
-  for (auto _ : state) benchmark::DoNotOptimize(ExtractHeightMap(grid, ExtractKernel::kAuto, threads));
+  for (auto _ : state) benchmark::DoNotOptimize(ExtractHeightMap(grid, Isa::kAuto, threads));
 }
 BENCHMARK(BM_ExtractAfterAllFrames)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 

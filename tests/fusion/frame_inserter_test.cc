@@ -56,19 +56,19 @@ ReferenceGrid MakeReference(const VotingGrid& grid) {
 // give the reference's votes.
 struct Config {
   int threads;
-  InsertKernel kernel;
+  Isa isa;
 };
 std::vector<Config> AllConfigs(std::vector<int> thread_counts = {1, 2, 3}) {
   std::vector<Config> configs;
-  for (const InsertKernel kernel : {InsertKernel::kAvx512, InsertKernel::kAvx2, InsertKernel::kSse2, InsertKernel::kScalar}) {
-    const InserterOptions options{1, kernel};
+  for (const Isa isa : {Isa::kAvx512, Isa::kAvx2, Isa::kSse2, Isa::kScalar}) {
+    const InserterOptions options{1, isa};
     if (!options.Problem().empty()) continue;
-    for (const int threads : thread_counts) configs.push_back({threads, kernel});
+    for (const int threads : thread_counts) configs.push_back({threads, isa});
   }
   return configs;
 }
 std::string Describe(const Config& c) {
-  return std::string("kernel ") + InsertKernelName(c.kernel) + ", threads " + std::to_string(c.threads);
+  return std::string("isa ") + ToString(c.isa) + ", threads " + std::to_string(c.threads);
 }
 
 // One fast grid per configuration, fed the same frames.
@@ -76,7 +76,7 @@ struct FastGrids {
   FastGrids(const GridOptions& options, const std::vector<Config>& all) : configs(all) {
     for (const Config& c : configs) {
       grids.push_back(std::make_unique<VotingGrid>(options));
-      inserters.push_back(std::make_unique<FrameInserter>(grids.back().get(), InserterOptions{c.threads, c.kernel}));
+      inserters.push_back(std::make_unique<FrameInserter>(grids.back().get(), InserterOptions{c.threads, c.isa}));
       stats.emplace_back();
     }
   }
@@ -90,27 +90,25 @@ struct FastGrids {
 };
 
 TEST(FrameInserterTest, KernelsAreOfferedAsTheCpuAllows) {
-  const InserterOptions scalar{1, InsertKernel::kScalar}, automatic{1, InsertKernel::kAuto};
-  const InserterOptions avx2{1, InsertKernel::kAvx2}, avx512{1, InsertKernel::kAvx512};
+  const InserterOptions scalar{1, Isa::kScalar}, automatic{1, Isa::kAuto};
+  const InserterOptions avx2{1, Isa::kAvx2}, avx512{1, Isa::kAvx512};
   EXPECT_EQ(scalar.Problem(), "");
   EXPECT_EQ(automatic.Problem(), "");
   GridOptions options;
   options.voxel_m = 0.004;
   VotingGrid grid(options);
-  EXPECT_NE(FrameInserter(&grid, InserterOptions{}).kernel(), InsertKernel::kAuto);  // resolved
-  EXPECT_EQ(FrameInserter(&grid, scalar).kernel(), InsertKernel::kScalar);
+  EXPECT_NE(FrameInserter(&grid, InserterOptions{}).isa(), Isa::kAuto);  // resolved
+  EXPECT_EQ(FrameInserter(&grid, scalar).isa(), Isa::kScalar);
   const bool has_avx512 = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
                           __builtin_cpu_supports("avx512dq");
   if (!has_avx512) {
-    EXPECT_THAT(avx512.Problem(), ::testing::HasSubstr("kernel = avx512"));
+    EXPECT_THAT(avx512.Problem(), ::testing::HasSubstr("isa = avx512"));
   }
   if (!__builtin_cpu_supports("avx2")) {
-    EXPECT_THAT(avx2.Problem(), ::testing::HasSubstr("kernel = avx2"));
+    EXPECT_THAT(avx2.Problem(), ::testing::HasSubstr("isa = avx2"));
   }
-  const InsertKernel best = has_avx512                           ? InsertKernel::kAvx512
-                            : __builtin_cpu_supports("avx2") ? InsertKernel::kAvx2
-                                                             : InsertKernel::kSse2;
-  EXPECT_EQ(FrameInserter(&grid, InserterOptions{}).kernel(), best);
+  const Isa best = has_avx512 ? Isa::kAvx512 : __builtin_cpu_supports("avx2") ? Isa::kAvx2 : Isa::kSse2;
+  EXPECT_EQ(FrameInserter(&grid, InserterOptions{}).isa(), best);
 }
 
 // A 1-pixel camera looking straight down at depth d: the column under it gets misses from the
@@ -335,7 +333,7 @@ TEST(FrameInserterTest, ChangedColumnsBoundWhatAFrameChanges) {
   for (const Config& config : AllConfigs()) {
     SCOPED_TRACE(Describe(config));
     VotingGrid grid(options);
-    FrameInserter inserter(&grid, InserterOptions{config.threads, config.kernel});
+    FrameInserter inserter(&grid, InserterOptions{config.threads, config.isa});
     EXPECT_TRUE(inserter.changed_columns().empty());
     CompletenessTracker completeness(grid);
     bool some_frame_sees_part = false;
@@ -483,7 +481,7 @@ TEST(FrameInserterTest, AppliesAFramesMissesBeforeItsHits) {
       VotingGrid grid(options);
       ReferenceGrid ref = MakeReference(grid);
       ReferenceCounts counts;
-      FrameInserter inserter(&grid, InserterOptions{config.threads, config.kernel});
+      FrameInserter inserter(&grid, InserterOptions{config.threads, config.isa});
       const cv::Mat saturate(camera.height, camera.width, CV_32F, cv::Scalar(hit_depth));
       for (int frame = 0; frame * camera.width * camera.height < 32767; ++frame) {
         inserter.Insert(camera, saturate, T_W_C, nullptr);

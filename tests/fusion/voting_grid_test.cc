@@ -90,9 +90,22 @@ TEST(VotingGridTest, ExtractionKeepsHighestPositiveVoteAndBreaksTiesUpward) {
   EXPECT_TRUE(std::isnan(ExtractHeightMap(grid).at<float>(0, 0)));
 }
 
-// Extraction (16- and 8-lane maximum, then the highest z holding it) against the reference's
-// obvious full-column loop, on random small votes (many ties) in columns of 1 to 70 voxels whose
-// hit range spans from one voxel to the whole column.
+// Extraction has no AVX-512 search: asking for one is bad input, named as such.
+TEST(VotingGridTest, ExtractionRefusesAnInstructionSetItLacks) {
+  GridOptions options;
+  options.voxel_m = 0.004;
+  VotingGrid grid(options);
+  try {
+    ExtractHeightMap(grid, Isa::kAvx512);
+    ADD_FAILURE() << "no InputError";
+  } catch (const InputError& e) {
+    EXPECT_THAT(e.what(), HasSubstr("isa: avx512"));
+  }
+}
+
+// Extraction (16- and 8-lane maximum or a plain loop, then the highest z holding it) against the
+// reference's obvious full-column loop, on random small votes (many ties) in columns of 1 to 70
+// voxels whose hit range spans from one voxel to the whole column.
 TEST(VotingGridTest, ExtractionMatchesReferenceOnRandomVotes) {
   std::mt19937 rng(3);
   for (const int nz : {1, 7, 8, 9, 16, 17, 23, 40, 70}) {
@@ -121,9 +134,13 @@ TEST(VotingGridTest, ExtractionMatchesReferenceOnRandomVotes) {
     }
     const cv::Mat expected = reference::ReferenceExtract(ref);
     EXPECT_TRUE(testing::ImagesBitEqual(ExtractHeightMap(grid), expected)) << "nz " << nz;
-    EXPECT_TRUE(testing::ImagesBitEqual(ExtractHeightMap(grid, ExtractKernel::kSse2), expected)) << "nz " << nz;
+    for (const Isa isa : {Isa::kScalar, Isa::kSse2, Isa::kAvx2}) {
+      if (!CpuSupports(isa)) continue;
+      EXPECT_TRUE(testing::ImagesBitEqual(ExtractHeightMap(grid, isa), expected))
+          << "nz " << nz << ", " << ToString(isa);
+    }
     for (const int threads : {2, 3, 64}) {  // bands of rows; 64 > ny: one row per thread at most
-      EXPECT_TRUE(testing::ImagesBitEqual(ExtractHeightMap(grid, ExtractKernel::kAuto, threads), expected))
+      EXPECT_TRUE(testing::ImagesBitEqual(ExtractHeightMap(grid, Isa::kAuto, threads), expected))
           << "nz " << nz << ", " << threads << " threads";
     }
   }

@@ -14,7 +14,8 @@
 // in cache. Threads own disjoint slabs of rows (y), balanced on the rays' positions, and each
 // applies the hits in its rows after its misses: the votes do not depend on the thread count or
 // the kernel. With AVX-512 every thread sets the whole frame up (a tenth of the work) and walks
-// what touches its slab; the other kernels share one set-up frame.
+// what touches its slab; the other kernels share one set-up frame. Each instruction set's walk
+// is a translation unit of its own (fusion/src/insert_kernel.h).
 #pragma once
 
 #include <cstddef>
@@ -25,6 +26,7 @@
 
 #include "romunect/fusion/voting_grid.h"
 #include "romunect/sensor/camera_model.h"
+#include "romunect/sensor/cpu_features.h"
 #include "romunect/sensor/pose.h"
 
 namespace romunect::fusion {
@@ -48,15 +50,12 @@ struct InsertStats {
   std::string BriefReport() const;
 };
 
-// The SIMD kernel of the walk. Every kernel gives the same votes bit for bit (tests/fusion
-// compares them); kAuto takes AVX-512 (F, BW, DQ) where the CPU has it, else AVX2 (checked at run
-// time, the build never assumes either), else SSE2 (x86-64), else scalar.
-enum class InsertKernel { kAuto, kAvx512, kAvx2, kSse2, kScalar };
-const char* InsertKernelName(InsertKernel kernel);
-
 struct InserterOptions {
   int threads = 1;  // worker threads including the caller, 1..256
-  InsertKernel kernel = InsertKernel::kAuto;
+  // The instruction set of the walk (cpu_features.h). Every one gives the same votes bit for bit
+  // (tests/fusion compares them); kAuto takes AVX-512 (F, BW, DQ) where the CPU has it, else AVX2
+  // (checked at run time, the build never assumes either), else SSE2 (x86-64), else scalar.
+  Isa isa = Isa::kAuto;
   // Names the field when unusable, e.g. kAvx2 on a CPU without AVX2.
   std::string Problem() const;
 };
@@ -82,15 +81,15 @@ class FrameInserter {
   const cv::Rect& changed_columns() const { return changed_columns_; }
 
   int threads() const { return options_.threads; }
-  // The kernel in use (kAuto resolved). Where a column holds fewer votes than its block (nz < 32
-  // for AVX-512, 16 for AVX2, 8 for SSE2), the walk takes the next narrower kernel.
-  InsertKernel kernel() const { return kernel_; }
+  // The instruction set in use (kAuto resolved). Where a column holds fewer votes than its block
+  // (nz < 32 for AVX-512, 16 for AVX2, 8 for SSE2), the walk takes the next narrower kernel.
+  Isa isa() const { return isa_; }
 
  private:
   struct Workspace;
   VotingGrid* grid_;
   InserterOptions options_;
-  InsertKernel kernel_ = InsertKernel::kScalar;
+  Isa isa_ = Isa::kScalar;
   cv::Rect changed_columns_;
   std::unique_ptr<Workspace> ws_;
 };

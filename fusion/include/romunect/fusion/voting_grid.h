@@ -36,6 +36,7 @@
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
 
+#include "romunect/sensor/cpu_features.h"
 #include "romunect/sensor/height_map.h"
 
 namespace romunect::fusion {
@@ -109,16 +110,16 @@ class VotingGrid {
   uint16_t* hit_hi_ = nullptr;  // nx*ny
 };
 
-// The SIMD width of extraction: kAuto takes 16 lanes (AVX2) where the CPU has them, else 8
-// (SSE2); kSse2 forces the latter (tests compare both with the reference).
-enum class ExtractKernel { kAuto, kSse2 };
-
 // The fused height map: CV_32F, ny rows x nx columns, world z (m) of the winning voxel centre,
 // NaN where no voxel of the column has a positive vote. Winner: highest vote, ties the higher z.
-// Callable at any time between insertions. `threads` (>= 1) extract bands of rows at once: the
-// same map at any count (each column is read one after the other, so the memory's latency bounds
-// one thread).
-cv::Mat ExtractHeightMap(const VotingGrid& grid, ExtractKernel kernel = ExtractKernel::kAuto, int threads = 1);
+// Callable at any time between insertions. `isa` (cpu_features.h): the instruction set of the
+// search in each column, the same map with every one (tests compare them with the reference);
+// kAuto takes 16 lanes (AVX2) where the CPU has them, else 8 (SSE2), else scalar. There is no
+// AVX-512 search (the latency of the grid's memory, not the search, bounds extraction): asking
+// for it, or for an instruction set the CPU lacks, throws InputError. `threads` (>= 1) extract
+// bands of rows at once: the same map at any count (each column is read one after the other, so
+// the memory's latency bounds one thread).
+cv::Mat ExtractHeightMap(const VotingGrid& grid, Isa isa = Isa::kAuto, int threads = 1);
 
 // The completeness of the height map (the share of its cells with a value) frame after frame,
 // without extracting it: after each insertion, Update(FrameInserter::changed_columns()) looks

@@ -1,21 +1,56 @@
-// The column walk of ray_walk.inc for eight rays at once in AVX-512 double lanes: included into
-// frame_inserter.cc's avx512 namespace, after ray_walk.inc (it uses its SettleLastZ, ApplyMisses
-// and WalkRay). Not a header: no include guard on purpose.
+// The insertion kernel on AVX-512 (F, BW, DQ): a block is 32 votes, one 64-byte register, and
+// each thread sets a frame's rays up itself, eight at a time in double lanes, tile by tile, and
+// walks the rays that go down eight at a time. Compiled for AVX-512 under a pragma, not a build
+// flag, and called only where the CPU reports it (frame_inserter.cc). Standard headers, OpenCV and
+// insert_kernel.h come before the pragma so that their inline functions stay baseline code.
 //
 // Why lanes: one ray's walk is a chain of dependent steps (the next crossing decides the axis,
 // which decides the next crossing), about 20 cycles each; eight independent rays fill the core.
-// Each lane evaluates the exact double expressions of WalkRayT<-1, kAllRows> (crossing times, the
-// z at a column's exit, its floor and the near-plane test; no FMA, so every lane rounds as the
-// scalar code does) and steps x or y under a mask instead of a branch. A group of eight
-// neighbouring rays (their walks are about as long) runs until its last ray ends; a ray's last
-// column is a column like the others, at t_exit, with its hit stored by compression into the
+// Each lane evaluates the exact double expressions of WalkRayT<-1, kAllRows> (ray_walk.inc:
+// crossing times, the z at a column's exit, its floor and the near-plane test; no FMA, so every
+// lane rounds as the scalar code does) and steps x or y under a mask instead of a branch. A group
+// of eight neighbouring rays (their walks are about as long) runs until its last ray ends; a ray's
+// last column is a column like the others, at t_exit, with its hit stored by compression into the
 // thread's hit list. Votes are applied as they are found, a masked 32-vote block per lane and
 // column (masked lanes are neither read nor written, so a block may reach past its column): a
 // frame's misses commute (voting_grid.h), so interleaving rays changes nothing. Rare cases go to
 // the scalar code: a lane near a z plane (SettleLastZ), a run longer than one block.
+#include <algorithm>
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+#include <limits>
 
-constexpr int kGroupLanes = 8;
-constexpr int kBlockVotes = 32;  // votes in one masked block
+#include <opencv2/core.hpp>
+
+#include "insert_kernel.h"
+
+#if ROMUNECT_FUSION_KERNEL_AVX512
+#include <immintrin.h>
+
+#pragma GCC push_options
+#pragma GCC target("avx2,avx512f,avx512bw,avx512dq")
+// GCC 12 warns inside its own AVX-512 headers (their _mm512_undefined_* placeholders).
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+
+namespace romunect::fusion::insert_internal {
+namespace {
+
+// The block operations of ray_walk.inc (insert_kernel_sse2.cc), on 32 votes.
+using Block = __m512i;
+inline Block LoadBlock(const Vote* p) { return _mm512_loadu_si512(p); }
+inline void StoreBlock(Vote* p, Block v) { _mm512_storeu_si512(p, v); }
+inline Block AndBlocks(Block a, Block b) { return _mm512_and_si512(a, b); }
+inline Block AddMiss(Block v, Block mask) {
+  return _mm512_max_epi16(_mm512_add_epi16(v, mask), _mm512_set1_epi16(kVoteMin));
+}
+#include "ray_walk.inc"
+static_assert(kLanes == kAvx512BlockVotes);
+
+constexpr int kGroupLanes = kLaneGroup;
+constexpr int kBlockVotes = kAvx512BlockVotes;  // votes in one masked block
 
 // One group's per-lane start: the start of WalkRayT<-1, kAllRows> for each ray (StartWalk).
 struct alignas(64) LaneGroup {
@@ -146,18 +181,24 @@ inline void WalkGroup(const LaneGroup& g, __mmask8 lanes, WalkContext* c) {
   c->misses += static_cast<size_t>(_mm512_reduce_add_epi64(misses));
 }
 
-// The rays of one tile that enter the box going down, set up eight at a time (SetUpTile), as
-// structure of arrays: each ray's StartWalk (frame_inserter.cc), its t_exit and column.
-struct alignas(64) TileRays {
-  static constexpr int kSlots = kInsertionTilePx * kInsertionTilePx + kGroupLanes;
-  // The tile's valid pixels (index into the ray table) and depths, padded; InsertTile stores
-  // them 16 at a time from before the last one kept, so within the tile's pixels.
-  int32_t pixel[kSlots];
-  float depth[kSlots];
-  double tx[kSlots], ty[kSlots], px[kSlots], py[kSlots], sx[kSlots], sy[kSlots], inv_x[kSlots], inv_y[kSlots],
-      dz[kSlots], t_exit[kSlots], iz[kSlots], inv_z[kSlots];
-  int64_t column[kSlots], ends_inside[kSlots];
-};
+// Walks the rays of the lanes `walk` one after the other with WalkRay: their points, their
+// segments' part in the box [t0, t1), and whether each point is in the grid (lane bits).
+template <bool kAllRows>
+inline void WalkLanes(__mmask8 walk, const __m512d p_g[3], __m512d t0, __m512d t1, __mmask8 inside, WalkContext* c) {
+  alignas(64) double a_p[3][8], a_t0[8], a_t1[8];
+  for (int a = 0; a < 3; ++a) _mm512_store_pd(a_p[a], p_g[a]);
+  _mm512_store_pd(a_t0, t0);
+  _mm512_store_pd(a_t1, t1);
+  for (unsigned m = walk; m != 0; m &= m - 1) {
+    const int l = __builtin_ctz(m);
+    RaySetup ray{};
+    for (int a = 0; a < 3; ++a) ray.p_g[a] = a_p[a][l];
+    ray.t_enter = a_t0[l];
+    ray.t_exit = a_t1[l];
+    ray.ends_inside = (inside >> l) & 1;
+    WalkRay<kAllRows>(ray, c);
+  }
+}
 
 // clamp(floor(x), 0, n - 1): StartIndex in lanes (as a double; its int is the same).
 inline __m512d StartIndexLanes(__m512d x, int n) {
@@ -165,9 +206,9 @@ inline __m512d StartIndexLanes(__m512d x, int n) {
   return _mm512_min_pd(_mm512_max_pd(floor, _mm512_setzero_pd()), _mm512_set1_pd(n - 1.0));
 }
 
-// The setup of frame_inserter.cc (direction, point, clip to the box) and StartWalk's start
-// state for the tile's valid pixels, eight at a time with the same double expressions in each
-// lane (no FMA). Rays that enter the box going down are kept in *t (returns how many); others
+// The setup of frame_inserter.cc (SetUpRay: direction, point, clip to the box) and StartWalk's
+// start state for the tile's valid pixels, eight at a time with the same double expressions in
+// each lane (no FMA). Rays that enter the box going down are kept in *t (returns how many); others
 // that enter are walked by WalkRay at once. Counts the rays that miss the box or end outside it,
 // and widens *bounds by the segments of those that enter.
 // Needs count + 8 slots of t->pixel and t->depth, the last 8 zero. Without kAllRows only the
@@ -246,19 +287,7 @@ inline size_t SetUpTile(const SetupFrame& f, int count, TileRays* t, WalkContext
     }
     const __mmask8 down = _mm512_mask_cmp_pd_mask(mine, dg[2], zero, _CMP_LT_OQ);
     if (const __mmask8 other = mine & ~down; other != 0) [[unlikely]] {
-      alignas(64) double a_p[3][8], a_t0[8], a_t1[8];
-      for (int a = 0; a < 3; ++a) _mm512_store_pd(a_p[a], p_g[a]);
-      _mm512_store_pd(a_t0, t0);
-      _mm512_store_pd(a_t1, t1);
-      for (unsigned m = other; m != 0; m &= m - 1) {
-        const int l = __builtin_ctz(m);
-        RaySetup ray{};
-        for (int a = 0; a < 3; ++a) ray.p_g[a] = a_p[a][l];
-        ray.t_enter = a_t0[l];
-        ray.t_exit = a_t1[l];
-        ray.ends_inside = (inside >> l) & 1;
-        WalkRay<kAllRows>(ray, c);
-      }
+      WalkLanes<kAllRows>(other, p_g, t0, t1, inside, c);
     }
     // StartWalk's state.
     const __m512d x0 = StartIndexLanes(x_a, f.n[0]);
@@ -302,7 +331,7 @@ inline __mmask16 FirstLanes16(int n) { return static_cast<__mmask16>(n >= 16 ? 0
 
 // Lines to prefetch, as rectangles: box b holds rows x cols lines at base + r row_bytes +
 // c col_bytes, and Prefetch(n) issues the next n of them in order. As fast as a list of the
-// lines' pointers (measured), without its 64 KB per thread to write and read back each tile.
+// lines' pointers, without its 64 KB per thread to write and read back each tile.
 class TileAhead {
  public:
   void Clear() { boxes_ = 0, total_ = 0, box_ = 0, col_ = 0; }
@@ -353,7 +382,7 @@ class TileAhead {
 
 // The lines of votes that the rays of tile [u0, u1) x [v0, v1) may reach in rows [ya, yb), to be
 // prefetched while the tile before it is walked: a tile's lines are seldom those of the tile
-// before, and the frame's 12.5 MB of them no longer fit a small machine's L3 (~4-8 MB) by the next frame,
+// before, and the frame's 12.5 MB of them have left an L3 of ~4-8 MB by the next frame,
 // so each tile otherwise waits for ~650 of them from DRAM (~150 ns each, of which the walk's
 // out-of-order window overlaps only a few). Per level of kLevelVotes votes, the (x, y) box of
 // the tile's corner pixels' rays between the level's planes, from the box's top (or the camera)
@@ -496,3 +525,42 @@ inline void InsertTile(const SetupFrame& f, const cv::Mat& depth_m, int u0, int 
     WalkGroup<kAllRows>(group, lanes, c);
   }
 }
+
+// InsertSlabAvx512: the tiles in row order, the next tile's lines prefetched while one is walked.
+template <bool kAllRows>
+void InsertTiles(const SetupFrame& f, const cv::Mat& depth_m, TileRays* tile, WalkContext* c, InsertStats* counts,
+                 SegmentBounds* bounds, uint32_t* weight) {
+  constexpr int kTile = kInsertionTilePx;
+  const int width = depth_m.cols, height = depth_m.rows;
+  TileAhead ahead;  // the next tile's lines
+  for (int tv = 0; tv < height; tv += kTile) {
+    for (int tu = 0; tu < width; tu += kTile) {
+      const int nu = tu + kTile < width ? tu + kTile : 0, nv = tu + kTile < width ? tv : tv + kTile;
+      if (nv < height) {
+        TileLines(f, depth_m, nu, std::min(nu + kTile, width), nv, std::min(nv + kTile, height), c->ya, c->yb, c->votes,
+                  &ahead);
+      } else {
+        ahead.Clear();
+      }
+      InsertTile<kAllRows>(f, depth_m, tu, std::min(tu + kTile, width), tv, std::min(tv + kTile, height), tile, c,
+                           counts, bounds, weight, &ahead);
+    }
+  }
+}
+
+}  // namespace
+
+void InsertSlabAvx512(const SetupFrame& f, const cv::Mat& depth_m, TileRays* tile, WalkContext* c,
+                      InsertStats* counts, SegmentBounds* bounds, uint32_t* weight) {
+  if (c->ya == 0 && c->yb == c->ny) {
+    InsertTiles<true>(f, depth_m, tile, c, counts, bounds, weight);
+  } else {
+    InsertTiles<false>(f, depth_m, tile, c, counts, bounds, weight);
+  }
+}
+
+}  // namespace romunect::fusion::insert_internal
+
+#pragma GCC diagnostic pop
+#pragma GCC pop_options
+#endif  // ROMUNECT_FUSION_KERNEL_AVX512
