@@ -378,7 +378,8 @@ void MeasureDepthEngineMatches(CalibrationHardware* hw, const Eigen::Matrix3d& H
   result->times.hardware_s += hardware.seconds();
   say(result->homography.BriefReport());
   char line[200];
-  std::snprintf(line, sizeof line, "  depth engine matches: %.1f %% unwarped, %.1f %% nominal pre-warp, %.1f %% calibrated",
+  std::snprintf(line, sizeof line,
+                "  depth engine matches: %.1f %% unwarped, %.1f %% nominal pre-warp, %.1f %% calibrated",
                 100 * result->raw_valid_fraction_unwarped, 100 * result->raw_valid_fraction_initial,
                 100 * result->raw_valid_fraction_final);
   say(line);

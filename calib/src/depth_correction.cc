@@ -122,7 +122,9 @@ std::vector<cv::Mat> ChipDepths(const std::vector<PlaneCapture>& captures, const
     for (int r = 0; r < raw_image.rows; ++r) {
       const uint16_t* raw = raw_image.ptr<uint16_t>(r);
       float* out = chip_depth[i].ptr<float>(r);
-      for (int c = 0; c < raw_image.cols; ++c) out[c] = raw[c] <= kRawInvalid ? static_cast<float>(chip_lut[raw[c]]) : 0.0f;
+      for (int c = 0; c < raw_image.cols; ++c) {
+        out[c] = raw[c] <= kRawInvalid ? static_cast<float>(chip_lut[raw[c]]) : 0.0f;
+      }
     }
   }
   return chip_depth;
