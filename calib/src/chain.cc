@@ -1,9 +1,8 @@
 #include "romunect/calib/chain.h"
 
 #include <algorithm>
-#include <chrono>
-#include <ctime>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <sstream>
 #include <type_traits>
@@ -12,6 +11,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "romunect/sensor/check.h"
+#include "romunect/sensor/clock.h"
 #include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/pattern.h"
@@ -20,28 +20,18 @@ namespace romunect::calib {
 namespace {
 
 constexpr const char* kSource = "calibration chain";
-using Clock = std::chrono::steady_clock;
 
-double Since(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
-
-// CPU time of the process (all threads), seconds: compute is timed in CPU time because the
-// machines this runs on are shared (wall time would count other people's work).
-double CpuSeconds() {
-  timespec t{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
-  return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
-}
-
-// Times a call into *seconds (accumulated CPU time).
+// Times a call into *seconds (accumulated CPU time of the process): compute is timed in CPU
+// time because the machines this runs on are shared (wall time would count other people's work).
 template <typename F>
 auto Timed(double* seconds, F&& f) {
-  const double start = CpuSeconds();
+  const double start = ProcessCpuSeconds();
   if constexpr (std::is_void_v<decltype(f())>) {
     f();
-    *seconds += CpuSeconds() - start;
+    *seconds += ProcessCpuSeconds() - start;
   } else {
     auto result = f();
-    *seconds += CpuSeconds() - start;
+    *seconds += ProcessCpuSeconds() - start;
     return result;
   }
 }
@@ -90,11 +80,11 @@ BoardCaptures CaptureBoardViews(CalibrationHardware* hw, const ChainOptions& opt
   BoardCaptures out;
   for (size_t i = 0; i < plan.size(); ++i) {
     const std::string name = "view " + std::to_string(i);
-    const auto hw_start = Clock::now();
+    const Stopwatch hardware;
     const std::optional<Pose> T_B_H = hw->MoveHand(setup.T_B_K_nominal * plan[i] * setup.T_H_C_nominal.inverse());
     cv::Mat ir;
     if (T_B_H) ir = hw->CaptureLampIr();
-    times->hardware_s += Since(hw_start);
+    times->hardware_s += hardware.seconds();
     if (!T_B_H) {
       out.rejected.emplace_back(name, "out of the robot's reach");
       if (say) say("  " + name + ": out of reach");
@@ -253,218 +243,274 @@ std::vector<cv::Point2f> DetectProjectedDots(const cv::Mat& ir, const std::vecto
   return out;
 }
 
-ChainResult RunCalibrationChain(CalibrationHardware* hardware, const ChainOptions& options,
-                                const ChainProgress& progress) {
-  ROMUNECT_CHECK(hardware != nullptr);
-  if (const std::string p = options.Problem(); !p.empty()) throw InputError(kSource, "options", p);
-  CalibrationHardware& hw = *hardware;
-  const CalibrationSetup& setup = hw.setup();
-  if (const std::string p = setup.nominal_rig.Problem(); !p.empty()) throw InputError(kSource, "nominal_rig", p);
-  if (const std::string p = setup.board.Problem(); !p.empty()) throw InputError(kSource, "board", p);
-  auto say = [&](const std::string& line) {
-    if (progress) progress(line);
-  };
-  ChainResult result;
-  ChainTimes& times = result.times;
-  const cv::Size image_size(setup.nominal_rig.camera.width, setup.nominal_rig.camera.height);
+namespace {
 
-  // ---- 1. intrinsics (Zhang): planned views of the board, lamp on, projector off
-  say("intrinsics: " + std::to_string(std::max(options.views, options.stations)) + " planned views");
-  BoardCaptures board = CaptureBoardViews(&hw, options, say, &times);
-  result.rejected = board.rejected;
-  std::vector<BoardView> intrinsics_views;
+// ---- 1. intrinsics (Zhang) on the first options.views planned views that were captured
+void IntrinsicsStep(const BoardCaptures& board, const CalibrationSetup& setup, const ChainOptions& options,
+                    const cv::Size& image_size, const ChainProgress& say, ChainResult* result) {
+  std::vector<BoardView> views;
   for (size_t i = 0; i < board.views.size(); ++i) {
     if (board.planned_index[i] < options.views) {
-      intrinsics_views.push_back(board.views[i]);
-      result.view_names.push_back(board.views[i].name);
-      result.view_T_B_H.push_back(board.T_B_H[i]);
+      views.push_back(board.views[i]);
+      result->view_names.push_back(board.views[i].name);
+      result->view_T_B_H.push_back(board.T_B_H[i]);
     }
   }
   double zhang_s = 0.0;
-  result.intrinsics = Timed(&zhang_s, [&] {
-    return CalibrateIntrinsics(intrinsics_views, setup.board, image_size, options.intrinsics);
-  });
-  times.intrinsics_s += zhang_s;
-  const CameraModel& camera = result.intrinsics.camera;
-  say(result.intrinsics.BriefReport() + " (" + std::to_string(static_cast<int>(1e3 * zhang_s)) + " ms CPU)");
+  result->intrinsics =
+      Timed(&zhang_s, [&] { return CalibrateIntrinsics(views, setup.board, image_size, options.intrinsics); });
+  result->times.intrinsics_s += zhang_s;
+  say(result->intrinsics.BriefReport() + " (" + std::to_string(static_cast<int>(1e3 * zhang_s)) + " ms CPU)");
+}
 
-  // ---- 2. projector homography (eq. 1), hardware in the loop over the reference area
-  say("projector homography: feature grid on the reference area");
-  const Pose T_K_C_homography =
-      LookingAt(setup.reference_centre_K, Eigen::Matrix3d::Identity(), options.homography_distance_m);
-  {
-    const auto start = Clock::now();
-    const bool reached = hw.MoveHand(setup.T_B_K_nominal * T_K_C_homography * setup.T_H_C_nominal.inverse()).has_value();
-    times.hardware_s += Since(start);
-    if (!reached) {
-      throw InputError(kSource, "homography station", "the pose over the plate's reference area is out of reach; "
-                                                      "move the plate closer to the robot");
-    }
-  }
-  const ChipGeometry& chip = setup.nominal_rig.depth_engine.chip;
+// ---- 2. projector homography (eq. 1), hardware in the loop over the reference area
+
+// Eq. 1's points: the feature-grid points whose place in the chip's reference lies on the image,
+// a dot's size inside its border (elsewhere there is nothing to line up).
+void ChooseHomographyPoints(const ChipGeometry& chip, const ChainOptions& options, const cv::Size& image_size,
+                            ChainResult* result) {
   const double dot_margin_px = 2.0 * options.feature_pattern.pitch_px / 6.0 + 4.0;
   for (const Eigen::Vector2d& x : PatternFeaturePoints(options.feature_pattern)) {
     const Eigen::Vector2d target = ChipReferencePx(chip, x);
     if (target.x() < dot_margin_px || target.y() < dot_margin_px || target.x() > image_size.width - 1 - dot_margin_px ||
         target.y() > image_size.height - 1 - dot_margin_px) {
-      continue;  // the chip's reference has it off the image: nothing to line up
+      continue;
     }
-    result.homography_pattern.push_back(x);
-    result.homography_target.push_back(target);
+    result->homography_pattern.push_back(x);
+    result->homography_target.push_back(target);
   }
-  const std::vector<Eigen::Vector2d>& pattern_P = result.homography_pattern;
-  const Eigen::Matrix3d H_initial = IdealPrewarp(setup.nominal_rig, options.homography_distance_m);
-  // The first prediction comes from nominal geometry; later ones from the fitted F_img.
-  std::vector<cv::Point2d> shown_all, seen_all;
-  double hardware_cpu_s = 0.0;  // the simulated projector's CPU inside the loop (not compute)
-  cv::Mat F_fit;
-  const Pose T_C_K_nominal = T_K_C_homography.inverse();
-  auto observe = [&](const Eigen::Matrix3d& H) {
-    std::vector<Eigen::Vector2d> predicted(pattern_P.size(),
+}
+
+// The loop's observation: shows the pattern warped by H, finds each dot where the current model
+// predicts it, and refits F_img (shown projector pixel -> ideal camera pixel) from every dot seen
+// so far. The first prediction comes from nominal geometry; later ones from the fitted F_img.
+class HomographyObserver {
+ public:
+  HomographyObserver(CalibrationHardware* hw, const ChainOptions& options, const CameraModel& camera,
+                     const std::vector<Eigen::Vector2d>& pattern_P, const Pose& T_C_K_nominal,
+                     const ChainProgress& say, ChainTimes* times)
+      : hw_(*hw), options_(options), camera_(camera), pattern_P_(pattern_P), T_C_K_nominal_(T_C_K_nominal),
+        say_(say), times_(*times) {}
+
+  std::vector<cv::Point2f> operator()(const Eigen::Matrix3d& H) {
+    const std::vector<Eigen::Vector2d> predicted = Predict(H);
+    const double spacing_px = DotSpacingPx(predicted);
+    const Stopwatch wall;
+    const double cpu_start = ProcessCpuSeconds();
+    const cv::Mat ir = hw_.CaptureProjectedIr(options_.feature_pattern, H);
+    hardware_cpu_s_ += ProcessCpuSeconds() - cpu_start;
+    times_.hardware_s += wall.seconds();
+    std::vector<cv::Point2f> dots = DetectProjectedDots(ir, predicted, spacing_px / 6.0, 0.35 * spacing_px);
+    Refit(H, dots);
+    say_("  capture: " + std::to_string(std::count_if(dots.begin(), dots.end(), [](const cv::Point2f& d) {
+           return std::isfinite(d.x);
+         })) + " of " + std::to_string(dots.size()) + " features found");
+    return dots;
+  }
+
+  // The simulated projector's CPU inside the loop (not the calibration's compute).
+  double hardware_cpu_s() const { return hardware_cpu_s_; }
+
+ private:
+  std::vector<Eigen::Vector2d> Predict(const Eigen::Matrix3d& H) const {
+    std::vector<Eigen::Vector2d> predicted(pattern_P_.size(),
                                            Eigen::Vector2d::Constant(std::numeric_limits<double>::quiet_NaN()));
-    for (size_t i = 0; i < pattern_P.size(); ++i) {
-      const Eigen::Vector2d q = MapH(H, pattern_P[i]);
-      if (F_fit.empty()) {
+    const CalibrationSetup& setup = hw_.setup();
+    for (size_t i = 0; i < pattern_P_.size(); ++i) {
+      const Eigen::Vector2d q = MapH(H, pattern_P_[i]);
+      if (F_fit_.empty()) {
         // the datasheet camera: robust even where few views left Zhang's estimate poor
-        if (auto u = ProjectorPixelToCamera(setup.nominal_rig, setup.nominal_rig.camera, T_C_K_nominal, q)) {
+        if (auto u = ProjectorPixelToCamera(setup.nominal_rig, setup.nominal_rig.camera, T_C_K_nominal_, q)) {
           predicted[i] = *u;
         }
       } else {
         std::vector<cv::Point2d> in{{q.x(), q.y()}}, ideal;
-        cv::perspectiveTransform(in, ideal, F_fit);
-        const Eigen::Vector3d ray((ideal[0].x - camera.cx) / camera.fx, (ideal[0].y - camera.cy) / camera.fy, 1.0);
-        if (auto u = camera.Project(ray)) predicted[i] = *u;
+        cv::perspectiveTransform(in, ideal, F_fit_);
+        const Eigen::Vector3d ray((ideal[0].x - camera_.cx) / camera_.fx, (ideal[0].y - camera_.cy) / camera_.fy, 1.0);
+        if (auto u = camera_.Project(ray)) predicted[i] = *u;
       }
     }
-    // dot size and spacing in the camera from two predicted neighbours
-    double spacing_px = options.feature_pattern.pitch_px;
-    for (size_t i = 0; i + 1 < predicted.size(); ++i) {
-      if (predicted[i].allFinite() && predicted[i + 1].allFinite() && pattern_P[i + 1].y() == pattern_P[i].y()) {
-        spacing_px = (predicted[i + 1] - predicted[i]).norm() * options.feature_pattern.pitch_px /
-                     (pattern_P[i + 1].x() - pattern_P[i].x());
-        break;
-      }
-    }
-    const auto start = Clock::now();
-    const double cpu_start = CpuSeconds();
-    const cv::Mat ir = hw.CaptureProjectedIr(options.feature_pattern, H);
-    hardware_cpu_s += CpuSeconds() - cpu_start;
-    times.hardware_s += Since(start);
-    std::vector<cv::Point2f> dots = DetectProjectedDots(ir, predicted, spacing_px / 6.0, 0.35 * spacing_px);
-    // F_img for the next prediction: shown projector pixel -> ideal camera pixel
-    for (size_t i = 0; i < dots.size(); ++i) {
-      if (!std::isfinite(dots[i].x)) continue;
-      const Eigen::Vector2d q = MapH(H, pattern_P[i]);
-      const Eigen::Vector2d ideal = camera.UndistortPixel(Eigen::Vector2d(dots[i].x, dots[i].y));
-      shown_all.emplace_back(q.x(), q.y());
-      seen_all.emplace_back(ideal.x(), ideal.y());
-    }
-    if (shown_all.size() >= 8) F_fit = cv::findHomography(shown_all, seen_all, cv::RANSAC, 2.0);
-    say("  capture: " + std::to_string(std::count_if(dots.begin(), dots.end(), [](const cv::Point2f& d) {
-          return std::isfinite(d.x);
-        })) + " of " + std::to_string(dots.size()) + " features found");
-    return dots;
-  };
-  {
-    const double start = CpuSeconds();
-    hardware_cpu_s = 0.0;
-    result.homography = CalibrateProjectorHomography(pattern_P, result.homography_target, camera, H_initial, observe,
-                                                     options.homography);
-    times.homography_s += CpuSeconds() - start - hardware_cpu_s;
-  }
-  // what the depth engine makes of the default pattern, before and after
-  {
-    const auto start = Clock::now();
-    result.raw_valid_fraction_unwarped = ValidFraction(hw.CaptureRaw(Eigen::Matrix3d::Identity()));
-    result.raw_valid_fraction_initial = ValidFraction(hw.CaptureRaw(H_initial));
-    result.raw_valid_fraction_final = ValidFraction(hw.CaptureRaw(result.homography.H_P_rec));
-    times.hardware_s += Since(start);
-  }
-  say(result.homography.BriefReport());
-  {
-    char line[200];
-    std::snprintf(line, sizeof line, "  depth engine matches: %.1f %% unwarped, %.1f %% nominal pre-warp, %.1f %% calibrated",
-                  100 * result.raw_valid_fraction_unwarped, 100 * result.raw_valid_fraction_initial,
-                  100 * result.raw_valid_fraction_final);
-    say(line);
+    return predicted;
   }
 
-  // ---- 3. hand-eye (Tsai/Park initial estimate, Ceres refinement) from the same views
+  // Dot spacing in the camera from two predicted neighbours (dot size and search radius follow).
+  double DotSpacingPx(const std::vector<Eigen::Vector2d>& predicted) const {
+    const double pitch_px = options_.feature_pattern.pitch_px;
+    for (size_t i = 0; i + 1 < predicted.size(); ++i) {
+      if (predicted[i].allFinite() && predicted[i + 1].allFinite() && pattern_P_[i + 1].y() == pattern_P_[i].y()) {
+        return (predicted[i + 1] - predicted[i]).norm() * pitch_px / (pattern_P_[i + 1].x() - pattern_P_[i].x());
+      }
+    }
+    return pitch_px;
+  }
+
+  void Refit(const Eigen::Matrix3d& H, const std::vector<cv::Point2f>& dots) {
+    for (size_t i = 0; i < dots.size(); ++i) {
+      if (!std::isfinite(dots[i].x)) continue;
+      const Eigen::Vector2d q = MapH(H, pattern_P_[i]);
+      const Eigen::Vector2d ideal = camera_.UndistortPixel(Eigen::Vector2d(dots[i].x, dots[i].y));
+      shown_all_.emplace_back(q.x(), q.y());
+      seen_all_.emplace_back(ideal.x(), ideal.y());
+    }
+    if (shown_all_.size() >= 8) F_fit_ = cv::findHomography(shown_all_, seen_all_, cv::RANSAC, 2.0);
+  }
+
+  CalibrationHardware& hw_;
+  const ChainOptions& options_;
+  const CameraModel& camera_;
+  const std::vector<Eigen::Vector2d>& pattern_P_;
+  const Pose T_C_K_nominal_;
+  const ChainProgress& say_;
+  ChainTimes& times_;
+  std::vector<cv::Point2d> shown_all_, seen_all_;
+  cv::Mat F_fit_;
+  double hardware_cpu_s_ = 0.0;
+};
+
+// What the depth engine makes of the default pattern: unwarped, with the nominal pre-warp and
+// with the calibrated one.
+void MeasureDepthEngineMatches(CalibrationHardware* hw, const Eigen::Matrix3d& H_initial, const ChainProgress& say,
+                               ChainResult* result) {
+  const Stopwatch hardware;
+  result->raw_valid_fraction_unwarped = ValidFraction(hw->CaptureRaw(Eigen::Matrix3d::Identity()));
+  result->raw_valid_fraction_initial = ValidFraction(hw->CaptureRaw(H_initial));
+  result->raw_valid_fraction_final = ValidFraction(hw->CaptureRaw(result->homography.H_P_rec));
+  result->times.hardware_s += hardware.seconds();
+  say(result->homography.BriefReport());
+  char line[200];
+  std::snprintf(line, sizeof line,
+                "  depth engine matches: %.1f %% unwarped, %.1f %% nominal pre-warp, %.1f %% calibrated",
+                100 * result->raw_valid_fraction_unwarped, 100 * result->raw_valid_fraction_initial,
+                100 * result->raw_valid_fraction_final);
+  say(line);
+}
+
+void HomographyStep(CalibrationHardware* hw, const ChainOptions& options, const cv::Size& image_size,
+                    const ChainProgress& say, ChainResult* result) {
+  const CalibrationSetup& setup = hw->setup();
+  say("projector homography: feature grid on the reference area");
+  const Pose T_K_C = LookingAt(setup.reference_centre_K, Eigen::Matrix3d::Identity(), options.homography_distance_m);
+  const Stopwatch move;
+  const bool reached = hw->MoveHand(setup.T_B_K_nominal * T_K_C * setup.T_H_C_nominal.inverse()).has_value();
+  result->times.hardware_s += move.seconds();
+  if (!reached) {
+    throw InputError(kSource, "homography station", "the pose over the plate's reference area is out of reach; "
+                                                    "move the plate closer to the robot");
+  }
+  ChooseHomographyPoints(setup.nominal_rig.depth_engine.chip, options, image_size, result);
+  const Eigen::Matrix3d H_initial = IdealPrewarp(setup.nominal_rig, options.homography_distance_m);
+  HomographyObserver observer(hw, options, result->intrinsics.camera, result->homography_pattern, T_K_C.inverse(),
+                              say, &result->times);
+  const double start = ProcessCpuSeconds();
+  result->homography = CalibrateProjectorHomography(
+      result->homography_pattern, result->homography_target, result->intrinsics.camera, H_initial,
+      [&observer](const Eigen::Matrix3d& H) { return observer(H); }, options.homography);
+  result->times.homography_s += ProcessCpuSeconds() - start - observer.hardware_cpu_s();
+  MeasureDepthEngineMatches(hw, H_initial, say, result);
+}
+
+// ---- 3. hand-eye (Tsai/Park initial estimate, Ceres refinement) from the same views
+
+// The board corners' reprojection RMS (px) of each station through the hand-eye fit; a corner
+// behind the camera counts 1000 px.
+std::vector<double> StationRmsPx(const std::vector<HandEyeStation>& stations, const HandEyeResult& fit,
+                                 const BoardSpec& board) {
+  std::vector<double> rms(stations.size());
+  const std::vector<Eigen::Vector3d> corners_K = board.CornersK();
+  for (size_t s = 0; s < stations.size(); ++s) {
+    const Pose T_C_K = (stations[s].T_B_H * fit.T_H_C).inverse() * fit.T_B_K;
+    double sum = 0.0;
+    for (size_t i = 0; i < corners_K.size(); ++i) {
+      const auto u = fit.camera.Project(T_C_K * corners_K[i]);
+      const cv::Point2f& d = stations[s].view.corners_px[i];
+      sum += u ? (*u - Eigen::Vector2d(d.x, d.y)).squaredNorm() : 1e6;
+    }
+    rms[s] = std::sqrt(sum / corners_K.size());
+  }
+  return rms;
+}
+
+// Stations the fit cannot explain (a corner order flipped, a pose reported wrong): drops those
+// far above the median and fits again, once, when enough stations remain.
+void DropHandEyeOutliers(const CalibrationSetup& setup, const ChainOptions& options, const ChainProgress& say,
+                         std::vector<HandEyeStation>* stations, ChainResult* result) {
+  const std::vector<double> rms = StationRmsPx(*stations, result->hand_eye, setup.board);
+  std::vector<double> sorted = rms;
+  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+  const double limit = 3.0 * sorted[sorted.size() / 2];
+  std::vector<HandEyeStation> kept;
+  for (size_t s = 0; s < stations->size(); ++s) {
+    const HandEyeStation& station = (*stations)[s];
+    if (rms[s] <= limit) {
+      kept.push_back(station);
+    } else {
+      result->rejected.emplace_back(station.view.name, "hand-eye outlier (" + std::to_string(rms[s]) + " px)");
+      say("  dropped " + station.view.name + ": " + std::to_string(rms[s]) + " px against the fit");
+    }
+  }
+  if (kept.size() < stations->size() && static_cast<int>(kept.size()) >= options.hand_eye.min_stations) {
+    *stations = std::move(kept);
+    result->stations_used = static_cast<int>(stations->size());
+    result->hand_eye = Timed(&result->times.hand_eye_s, [&] {
+      return CalibrateHandEye(*stations, result->intrinsics.camera, setup.board, options.hand_eye);
+    });
+    say(result->hand_eye.BriefReport());
+  }
+}
+
+void HandEyeStep(const BoardCaptures& board, const CalibrationSetup& setup, const ChainOptions& options,
+                 const ChainProgress& say, ChainResult* result) {
   std::vector<HandEyeStation> stations;
   for (size_t i = 0; i < board.views.size(); ++i) {
     if (board.planned_index[i] < options.stations) stations.push_back({board.T_B_H[i], board.views[i]});
   }
-  result.stations_used = static_cast<int>(stations.size());
+  result->stations_used = static_cast<int>(stations.size());
   say("hand-eye: " + std::to_string(stations.size()) + " stations");
-  result.hand_eye = Timed(&times.hand_eye_s, [&] { return CalibrateHandEye(stations, camera, setup.board, options.hand_eye); });
-  say(result.hand_eye.BriefReport());
-  // stations the fit cannot explain (a corner order flipped, a pose reported wrong): drop
-  // those far above the median and fit again, once
-  if (result.hand_eye.rms_px > std::max(1.0, 5.0 * result.intrinsics.rms_px)) {
-    std::vector<double> rms(stations.size());
-    const std::vector<Eigen::Vector3d> corners_K = setup.board.CornersK();
-    for (size_t s = 0; s < stations.size(); ++s) {
-      const Pose T_C_K = (stations[s].T_B_H * result.hand_eye.T_H_C).inverse() * result.hand_eye.T_B_K;
-      double sum = 0.0;
-      for (size_t i = 0; i < corners_K.size(); ++i) {
-        const auto u = result.hand_eye.camera.Project(T_C_K * corners_K[i]);
-        const cv::Point2f& d = stations[s].view.corners_px[i];
-        sum += u ? (*u - Eigen::Vector2d(d.x, d.y)).squaredNorm() : 1e6;
-      }
-      rms[s] = std::sqrt(sum / corners_K.size());
-    }
-    std::vector<double> sorted = rms;
-    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
-    const double limit = 3.0 * sorted[sorted.size() / 2];
-    std::vector<HandEyeStation> kept;
-    for (size_t s = 0; s < stations.size(); ++s) {
-      if (rms[s] <= limit) {
-        kept.push_back(stations[s]);
-      } else {
-        result.rejected.emplace_back(stations[s].view.name, "hand-eye outlier (" + std::to_string(rms[s]) + " px)");
-        say("  dropped " + stations[s].view.name + ": " + std::to_string(rms[s]) + " px against the fit");
-      }
-    }
-    if (kept.size() < stations.size() && static_cast<int>(kept.size()) >= options.hand_eye.min_stations) {
-      stations = std::move(kept);
-      result.stations_used = static_cast<int>(stations.size());
-      result.hand_eye =
-          Timed(&times.hand_eye_s, [&] { return CalibrateHandEye(stations, camera, setup.board, options.hand_eye); });
-      say(result.hand_eye.BriefReport());
-    }
-  }
+  result->hand_eye = Timed(&result->times.hand_eye_s, [&] {
+    return CalibrateHandEye(stations, result->intrinsics.camera, setup.board, options.hand_eye);
+  });
+  say(result->hand_eye.BriefReport());
   // the same corners fit the camera alone to intrinsics.rms_px: far more here means stations
-  // whose poses and images disagree (a corner order flipped, a pose reported wrong)
-  if (result.hand_eye.rms_px > std::max(1.0, 5.0 * result.intrinsics.rms_px)) {
+  // whose poses and images disagree
+  const double limit_px = std::max(1.0, 5.0 * result->intrinsics.rms_px);
+  if (result->hand_eye.rms_px > limit_px) DropHandEyeOutliers(setup, options, say, &stations, result);
+  if (result->hand_eye.rms_px > limit_px) {
     throw InputError(kSource, "hand-eye", "the stations do not agree (reprojection RMS " +
-                                              std::to_string(result.hand_eye.rms_px) + " px against " +
-                                              std::to_string(result.intrinsics.rms_px) +
+                                              std::to_string(result->hand_eye.rms_px) + " px against " +
+                                              std::to_string(result->intrinsics.rms_px) +
                                               " px for the views alone): check the reported hand poses and "
                                               "the board's corner order");
   }
-  result.hand_eye_stations = stations;
-  // from here on the camera refined with the robot's motion (when the options ask for it)
-  const CameraModel& refined = result.hand_eye.camera;
-  // ---- 4. per-pixel depth correction (eqs. 2-3): planes placed with the calibrated hand-eye
+  result->hand_eye_stations = stations;
+}
+
+// ---- 4. per-pixel depth correction (eqs. 2-3): planes placed with the calibrated hand-eye
+
+// The camera over the reference area for plane i of the depth step: distances spread over
+// [near, far], tilts turned by the golden angle so the planes cross each pixel at varied depths.
+Pose DepthPlaneT_K_C(const CalibrationSetup& setup, const ChainOptions& options, int i) {
+  const double distance_m =
+      options.depth_near_m + (options.depth_far_m - options.depth_near_m) * i / (options.depth_planes - 1);
+  const double phi = 2.39996 * i;
+  const double tilt = options.depth_max_tilt_rad * (i % 2 == 0 ? 1.0 : 0.5);
+  const Eigen::Matrix3d R_K_C = (Eigen::AngleAxisd(tilt * std::cos(phi), Eigen::Vector3d::UnitX()) *
+                                 Eigen::AngleAxisd(tilt * std::sin(phi), Eigen::Vector3d::UnitY()))
+                                    .toRotationMatrix();
+  return LookingAt(setup.reference_centre_K, R_K_C, distance_m);
+}
+
+void DepthStep(CalibrationHardware* hw, const ChainOptions& options, const ChainProgress& say, ChainResult* result) {
+  const CalibrationSetup& setup = hw->setup();
   say("depth: " + std::to_string(options.depth_planes) + " reference-plane captures");
-  const Pose& T_H_C = result.hand_eye.T_H_C;
-  const Pose& T_B_K = result.hand_eye.T_B_K;
+  const Pose& T_H_C = result->hand_eye.T_H_C;
+  const Pose& T_B_K = result->hand_eye.T_B_K;
   std::vector<PlaneCapture> captures;
   for (int i = 0; i < options.depth_planes; ++i) {
-    const double distance_m =
-        options.depth_near_m + (options.depth_far_m - options.depth_near_m) * i / (options.depth_planes - 1);
-    // tilts turn by the golden angle so the planes cross each pixel at varied depths
-    const double phi = 2.39996 * i;
-    const double tilt = options.depth_max_tilt_rad * (i % 2 == 0 ? 1.0 : 0.5);
-    const Eigen::Matrix3d R_K_C = (Eigen::AngleAxisd(tilt * std::cos(phi), Eigen::Vector3d::UnitX()) *
-                                   Eigen::AngleAxisd(tilt * std::sin(phi), Eigen::Vector3d::UnitY()))
-                                      .toRotationMatrix();
-    const Pose T_K_C = LookingAt(setup.reference_centre_K, R_K_C, distance_m);
-    const auto start = Clock::now();
-    const std::optional<Pose> T_B_H = hw.MoveHand(T_B_K * T_K_C * T_H_C.inverse());
+    const Stopwatch hardware;
+    const std::optional<Pose> T_B_H = hw->MoveHand(T_B_K * DepthPlaneT_K_C(setup, options, i) * T_H_C.inverse());
     cv::Mat raw;
-    if (T_B_H) raw = hw.CaptureRaw(result.homography.H_P_rec);
-    times.hardware_s += Since(start);
+    if (T_B_H) raw = hw->CaptureRaw(result->homography.H_P_rec);
+    result->times.hardware_s += hardware.seconds();
     if (!T_B_H) {
       say("  plane " + std::to_string(i) + ": out of reach");
       continue;
@@ -472,17 +518,22 @@ ChainResult RunCalibrationChain(CalibrationHardware* hardware, const ChainOption
     // eq. 2's ground truth comes from the EXECUTED pose and the calibrated hand-eye
     captures.push_back({raw, (*T_B_H * T_H_C).inverse() * T_B_K});
   }
-  result.planes_used = static_cast<int>(captures.size());
+  result->planes_used = static_cast<int>(captures.size());
   DepthCorrectionOptions depth_options = options.depth;
-  depth_options.chip = chip;
-  result.depth = Timed(&times.depth_s, [&] { return FitDepthCorrection(refined, captures, depth_options); });
-  say(result.depth.BriefReport());
+  depth_options.chip = setup.nominal_rig.depth_engine.chip;
+  // the camera refined with the robot's motion (when the options ask for it)
+  result->depth = Timed(&result->times.depth_s,
+                        [&] { return FitDepthCorrection(result->hand_eye.camera, captures, depth_options); });
+  say(result->depth.BriefReport());
+}
 
-  Calibration& c = result.calibration;
-  c.camera = refined;
+// The calibration file's content: the hand-eye step's camera, the exact depth model.
+Calibration MakeCalibration(const ChainResult& result, const ChipGeometry& chip) {
+  Calibration c;
+  c.camera = result.hand_eye.camera;
   c.H_P_rec = result.homography.H_P_rec;
-  c.T_H_C = T_H_C;
-  c.T_B_K = T_B_K;
+  c.T_H_C = result.hand_eye.T_H_C;
+  c.T_B_K = result.hand_eye.T_B_K;
   c.depth = result.depth.inverse;
   c.chip = chip;
   c.residuals.intrinsics_rms_px = result.intrinsics.rms_px;
@@ -490,6 +541,33 @@ ChainResult RunCalibrationChain(CalibrationHardware* hardware, const ChainOption
   c.residuals.hand_eye_rms_px = result.hand_eye.rms_px;
   c.residuals.homography_rms_px = result.homography.predicted_rms_px;
   c.residuals.depth_rms_m = result.depth.inverse_rms_m;
+  return c;
+}
+
+}  // namespace
+
+ChainResult RunCalibrationChain(CalibrationHardware* hardware, const ChainOptions& options,
+                                const ChainProgress& progress) {
+  ROMUNECT_CHECK(hardware != nullptr);
+  if (const std::string p = options.Problem(); !p.empty()) throw InputError(kSource, "options", p);
+  const CalibrationSetup& setup = hardware->setup();
+  if (const std::string p = setup.nominal_rig.Problem(); !p.empty()) throw InputError(kSource, "nominal_rig", p);
+  if (const std::string p = setup.board.Problem(); !p.empty()) throw InputError(kSource, "board", p);
+  const ChainProgress say = [&](const std::string& line) {
+    if (progress) progress(line);
+  };
+  ChainResult result;
+  const cv::Size image_size(setup.nominal_rig.camera.width, setup.nominal_rig.camera.height);
+
+  // Board views, lamp on and projector off: the intrinsics' views and the hand-eye's stations.
+  say("intrinsics: " + std::to_string(std::max(options.views, options.stations)) + " planned views");
+  const BoardCaptures board = CaptureBoardViews(hardware, options, say, &result.times);
+  result.rejected = board.rejected;
+  IntrinsicsStep(board, setup, options, image_size, say, &result);
+  HomographyStep(hardware, options, image_size, say, &result);
+  HandEyeStep(board, setup, options, say, &result);
+  DepthStep(hardware, options, say, &result);
+  result.calibration = MakeCalibration(result, setup.nominal_rig.depth_engine.chip);
   return result;
 }
 

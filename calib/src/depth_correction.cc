@@ -72,16 +72,12 @@ cv::Mat PlaneDepth(const CameraModel& camera, const Pose& T_C_K) {
   return PlaneDepthFromRays(camera.RayTable(), T_C_K);
 }
 
-DepthCorrectionResult FitDepthCorrection(const CameraModel& camera, const std::vector<PlaneCapture>& captures,
-                                         const DepthCorrectionOptions& options) {
-  if (const std::string p = options.Problem(); !p.empty()) throw InputError(kSource, "options", p);
-  if (const std::string p = camera.Problem(); !p.empty()) throw InputError(kSource, "camera", p);
-  if (static_cast<int>(captures.size()) < options.min_planes) {
-    throw InputError(kSource, "captures",
-                     std::to_string(captures.size()) + " plane captures; need at least " +
-                         std::to_string(options.min_planes) +
-                         " at different distances over the measuring range");
-  }
+namespace {
+
+// The ground truth depth of every capture's plane, after checking that each capture fits the
+// camera and covers enough of the image with valid depth.
+std::vector<cv::Mat> TruthDepths(const CameraModel& camera, const std::vector<PlaneCapture>& captures,
+                                 const DepthCorrectionOptions& options) {
   const int w = camera.width, h = camera.height;
   const size_t n_px = static_cast<size_t>(w) * h;
   std::vector<cv::Mat> truth(captures.size());
@@ -112,49 +108,64 @@ DepthCorrectionResult FitDepthCorrection(const CameraModel& camera, const std::v
       throw InputError(kSource, field, text);
     }
   }
+  return truth;
+}
 
-  // The chip's depth of every raw value, once per capture (the affine model's input).
+// The chip's depth of every raw value, once per capture (the affine model's input).
+std::vector<cv::Mat> ChipDepths(const std::vector<PlaneCapture>& captures, const ChipGeometry& chip) {
   std::vector<double> chip_lut(kRawInvalid + 1);
-  for (int v = 0; v <= kRawInvalid; ++v) chip_lut[v] = ChipDepthM(options.chip, v);
-  std::vector<cv::Mat> raws(captures.size()), chip_depth(captures.size());
+  for (int v = 0; v <= kRawInvalid; ++v) chip_lut[v] = ChipDepthM(chip, v);
+  std::vector<cv::Mat> chip_depth(captures.size());
   for (size_t i = 0; i < captures.size(); ++i) {
-    raws[i] = captures[i].raw;
-    chip_depth[i] = cv::Mat(h, w, CV_32FC1);
-    for (int r = 0; r < h; ++r) {
-      const uint16_t* raw = captures[i].raw.ptr<uint16_t>(r);
+    const cv::Mat& raw_image = captures[i].raw;
+    chip_depth[i] = cv::Mat(raw_image.rows, raw_image.cols, CV_32FC1);
+    for (int r = 0; r < raw_image.rows; ++r) {
+      const uint16_t* raw = raw_image.ptr<uint16_t>(r);
       float* out = chip_depth[i].ptr<float>(r);
-      for (int c = 0; c < w; ++c) out[c] = raw[c] <= kRawInvalid ? static_cast<float>(chip_lut[raw[c]]) : 0.0f;
+      for (int c = 0; c < raw_image.cols; ++c) {
+        out[c] = raw[c] <= kRawInvalid ? static_cast<float>(chip_lut[raw[c]]) : 0.0f;
+      }
     }
   }
+  return chip_depth;
+}
 
-  // The sensor model's one per-pixel fit, once per model.
+// Both models through the sensor model's one per-pixel fit, rounded to float as a file stores
+// them; a pixel is fitted in both models or in neither.
+void FitBothModels(const std::vector<PlaneCapture>& captures, const std::vector<cv::Mat>& chip_depth,
+                   const std::vector<cv::Mat>& truth, const DepthCorrectionOptions& options,
+                   DepthCorrectionResult* result) {
+  std::vector<cv::Mat> raws(captures.size());
+  for (size_t i = 0; i < captures.size(); ++i) raws[i] = captures[i].raw;
   DepthFitOptions fit;
   fit.min_samples = options.min_planes;
   fit.min_depth_spread_m = options.min_depth_spread_m;
-  DepthCorrectionResult result;
-  result.inverse = FitDepthCorrection(DepthCorrectionModel::kInverseAffineInRaw, raws, chip_depth, truth, fit);
-  result.affine = FitDepthCorrection(DepthCorrectionModel::kAffineInChipDepth, raws, chip_depth, truth, fit);
-  for (DepthCorrection* m : {&result.inverse, &result.affine}) {
+  result->inverse = FitDepthCorrection(DepthCorrectionModel::kInverseAffineInRaw, raws, chip_depth, truth, fit);
+  result->affine = FitDepthCorrection(DepthCorrectionModel::kAffineInChipDepth, raws, chip_depth, truth, fit);
+  for (DepthCorrection* m : {&result->inverse, &result->affine}) {
     m->a = RoundToFloat(m->a);
     m->b = RoundToFloat(m->b);
   }
-  // A pixel is fitted in both models or in neither.
-  for (int r = 0; r < h; ++r) {
-    for (int c = 0; c < w; ++c) {
-      double& ia = result.inverse.a.at<double>(r, c);
-      double& aa = result.affine.a.at<double>(r, c);
+  for (int r = 0; r < result->inverse.a.rows; ++r) {
+    for (int c = 0; c < result->inverse.a.cols; ++c) {
+      double& ia = result->inverse.a.at<double>(r, c);
+      double& aa = result->affine.a.at<double>(r, c);
       if (std::isfinite(ia) && std::isfinite(aa)) {
-        ++result.fitted_pixels;
+        ++result->fitted_pixels;
         continue;
       }
-      ++result.unfitted_pixels;
-      ia = result.inverse.b.at<double>(r, c) = kNaN;
-      aa = result.affine.b.at<double>(r, c) = kNaN;
+      ++result->unfitted_pixels;
+      ia = result->inverse.b.at<double>(r, c) = kNaN;
+      aa = result->affine.b.at<double>(r, c) = kNaN;
     }
   }
+}
 
-  // Residuals of both models in depth, over every fitted sample, after float rounding of the
-  // maps (what a loaded file gives).
+// Residuals of both models in depth, over every fitted sample, after float rounding of the maps
+// (what a loaded file gives): overall RMS and maximum, and per pixel RMS.
+void ComputeResiduals(const std::vector<PlaneCapture>& captures, const std::vector<cv::Mat>& chip_depth,
+                      const std::vector<cv::Mat>& truth, int w, int h, DepthCorrectionResult* result) {
+  const size_t n_px = static_cast<size_t>(w) * h;
   std::vector<double> sq_inverse(n_px, 0.0), sq_affine(n_px, 0.0);
   std::vector<int> count(n_px, 0);
   double sum_inverse = 0.0, sum_affine = 0.0;
@@ -164,37 +175,56 @@ DepthCorrectionResult FitDepthCorrection(const CameraModel& camera, const std::v
       const uint16_t* raw = captures[i].raw.ptr<uint16_t>(r);
       const float* z = truth[i].ptr<float>(r);
       const float* chip = chip_depth[i].ptr<float>(r);
-      const double* fitted = result.inverse.a.ptr<double>(r);
+      const double* fitted = result->inverse.a.ptr<double>(r);
       for (int c = 0; c < w; ++c) {
         const size_t k = static_cast<size_t>(r) * w + c;
         if (!std::isfinite(fitted[c]) || !(z[c] > 0.0f) || raw[c] == kRawInvalid || !(chip[c] > 0.0f)) continue;
-        const double e1 = ApplyDepthCorrectionPixel(result.inverse, r, c, raw[c], chip[c]) - z[c];
-        const double e2 = ApplyDepthCorrectionPixel(result.affine, r, c, raw[c], chip[c]) - z[c];
+        const double e1 = ApplyDepthCorrectionPixel(result->inverse, r, c, raw[c], chip[c]) - z[c];
+        const double e2 = ApplyDepthCorrectionPixel(result->affine, r, c, raw[c], chip[c]) - z[c];
         sq_inverse[k] += e1 * e1;
         sq_affine[k] += e2 * e2;
         sum_inverse += e1 * e1;
         sum_affine += e2 * e2;
-        result.inverse_max_m = std::max(result.inverse_max_m, std::abs(e1));
-        result.affine_max_m = std::max(result.affine_max_m, std::abs(e2));
+        result->inverse_max_m = std::max(result->inverse_max_m, std::abs(e1));
+        result->affine_max_m = std::max(result->affine_max_m, std::abs(e2));
         ++count[k];
         ++samples;
       }
     }
   }
   if (samples > 0) {
-    result.inverse_rms_m = std::sqrt(sum_inverse / samples);
-    result.affine_rms_m = std::sqrt(sum_affine / samples);
+    result->inverse_rms_m = std::sqrt(sum_inverse / samples);
+    result->affine_rms_m = std::sqrt(sum_affine / samples);
   }
-  result.inverse_residual_rms_m = cv::Mat(h, w, CV_32FC1, kNaN);
-  result.affine_residual_rms_m = cv::Mat(h, w, CV_32FC1, kNaN);
+  result->inverse_residual_rms_m = cv::Mat(h, w, CV_32FC1, kNaN);
+  result->affine_residual_rms_m = cv::Mat(h, w, CV_32FC1, kNaN);
   for (int r = 0; r < h; ++r) {
     for (int c = 0; c < w; ++c) {
       const size_t k = static_cast<size_t>(r) * w + c;
       if (count[k] == 0) continue;
-      result.inverse_residual_rms_m.at<float>(r, c) = static_cast<float>(std::sqrt(sq_inverse[k] / count[k]));
-      result.affine_residual_rms_m.at<float>(r, c) = static_cast<float>(std::sqrt(sq_affine[k] / count[k]));
+      result->inverse_residual_rms_m.at<float>(r, c) = static_cast<float>(std::sqrt(sq_inverse[k] / count[k]));
+      result->affine_residual_rms_m.at<float>(r, c) = static_cast<float>(std::sqrt(sq_affine[k] / count[k]));
     }
   }
+}
+
+}  // namespace
+
+DepthCorrectionResult FitDepthCorrection(const CameraModel& camera, const std::vector<PlaneCapture>& captures,
+                                         const DepthCorrectionOptions& options) {
+  if (const std::string p = options.Problem(); !p.empty()) throw InputError(kSource, "options", p);
+  if (const std::string p = camera.Problem(); !p.empty()) throw InputError(kSource, "camera", p);
+  if (static_cast<int>(captures.size()) < options.min_planes) {
+    throw InputError(kSource, "captures",
+                     std::to_string(captures.size()) + " plane captures; need at least " +
+                         std::to_string(options.min_planes) +
+                         " at different distances over the measuring range");
+  }
+  const std::vector<cv::Mat> truth = TruthDepths(camera, captures, options);
+  const std::vector<cv::Mat> chip_depth = ChipDepths(captures, options.chip);
+  DepthCorrectionResult result;
+  FitBothModels(captures, chip_depth, truth, options, &result);
+  ComputeResiduals(captures, chip_depth, truth, camera.width, camera.height, &result);
   if (result.fitted_pixels == 0) {
     throw InputError(kSource, "captures",
                      "no pixel has " + std::to_string(options.min_planes) + " valid samples spread over " +

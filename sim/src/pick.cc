@@ -1,6 +1,5 @@
 #include "romunect/sim/pick.h"
 
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <functional>
@@ -8,6 +7,7 @@
 #include <Eigen/Dense>
 
 #include "romunect/sensor/check.h"
+#include "romunect/sensor/clock.h"
 
 namespace romunect::sim {
 namespace {
@@ -138,12 +138,12 @@ std::string PickResult::BriefReport() const {
 PickResult Pick(World* world, const cv::Mat& height_m, const HeightMapGeometry& geometry, const PickOptions& options,
                 const IkOptions& ik) {
   ROMUNECT_CHECK(world != nullptr);
-  const auto wall_start = std::chrono::steady_clock::now();
+  const Stopwatch wall;
   const double t0 = world->time_s();
   PickResult result;
   auto finish = [&]() {
     result.simulated_s = world->time_s() - t0;
-    result.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+    result.wall_s = wall.seconds();
     return result;
   };
   const std::optional<GraspPoint> grasp = ChooseGraspPoint(height_m, geometry, options);

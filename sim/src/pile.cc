@@ -1,7 +1,6 @@
 #include "romunect/sim/pile.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -10,6 +9,7 @@
 #include <nlohmann/json.hpp>
 
 #include "romunect/sensor/check.h"
+#include "romunect/sensor/clock.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/image_io.h"
 #include "world_impl.h"
@@ -148,7 +148,7 @@ bool ObjectInBin(const World& world, int object) {
 SettleSummary DropAndSettle(World* world, const PileOptions& options) {
   ROMUNECT_CHECK(world != nullptr);
   ROMUNECT_CHECK_MSG(options.Problem().empty(), options.Problem().c_str());
-  const auto wall_start = std::chrono::steady_clock::now();
+  const Stopwatch wall;
   World::Impl& w = world->impl();
   world->SetPileFrozen(false);
   world->Release();
@@ -214,7 +214,7 @@ SettleSummary DropAndSettle(World* world, const PileOptions& options) {
   world->SetObjectQpos(world->ObjectQpos());
   summary.simulated_s = step * dt;
   for (int i = 0; i < n; ++i) summary.objects_in_bin += ObjectInBin(*world, i) ? 1 : 0;
-  summary.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+  summary.wall_s = wall.seconds();
   return summary;
 }
 

@@ -215,6 +215,139 @@ double MeshGeomRadius(const mjModel* m, int geom) {
   return radius;
 }
 
+namespace {
+
+// The scene file with the objects inserted before its closing tag.
+std::string ComposeSceneXml(const std::filesystem::path& scene, const std::vector<ObjectSpec>& objects) {
+  std::string xml = ReadFileText(scene);
+  const size_t close = xml.rfind("</mujoco>");
+  if (close == std::string::npos) throw InputError(scene.string(), "<mujoco>", "not an MJCF file (no </mujoco>)");
+  xml.insert(close, ObjectsXml(objects));
+  return xml;
+}
+
+// Compiles the composed text from a virtual file in the scene's folder, so its includes and mesh
+// paths resolve as they would from the scene file itself.
+MjModelPtr LoadComposedScene(const std::filesystem::path& scene, const std::string& xml) {
+  mjVFS vfs;
+  mj_defaultVFS(&vfs);
+  const std::string virtual_name = (scene.parent_path() / ("__romunect_" + scene.filename().string())).string();
+  ROMUNECT_CHECK(mj_makeEmptyFileVFS(&vfs, virtual_name.c_str(), static_cast<int>(xml.size())) == 0);
+  const int file = mj_findFileVFS(&vfs, virtual_name.c_str());
+  ROMUNECT_CHECK(file >= 0);
+  std::memcpy(vfs.filedata[file], xml.data(), xml.size());
+  char error[1024] = "";
+  MjModelPtr model(mj_loadXML(virtual_name.c_str(), &vfs, error, sizeof error));
+  mj_deleteVFS(&vfs);
+  if (!model) throw InputError(scene.string(), "MJCF", std::string("MuJoCo cannot load the scene: ") + error);
+  return model;
+}
+
+// The arm's joints and actuators, its bodies and sensor sites, and the suction cup's geoms.
+void FindArm(const mjModel* m, const std::string& source, World::Impl* w) {
+  for (int j = 0; j < World::kArmDof; ++j) {
+    const int joint = RequireId(m, mjOBJ_JOINT, kArmJoints[j], source, "arm joint");
+    w->arm_qpos_adr[j] = m->jnt_qposadr[joint];
+    w->arm_dof_adr[j] = m->jnt_dofadr[joint];
+    w->arm_actuator[j] = RequireId(m, mjOBJ_ACTUATOR, kArmActuators[j], source, "arm actuator");
+  }
+  w->base_body = RequireId(m, mjOBJ_BODY, "base", source, "body");
+  w->hand_body = RequireId(m, mjOBJ_BODY, "hand", source, "body");
+  w->suction_body = RequireId(m, mjOBJ_BODY, "suction", source, "body");
+  w->bin_body = RequireId(m, mjOBJ_BODY, "bin", source, "body");
+  w->camera_site = RequireId(m, mjOBJ_SITE, "camera", source, "site");
+  w->projector_site = RequireId(m, mjOBJ_SITE, "projector", source, "site");
+  w->suction_tip_site = RequireId(m, mjOBJ_SITE, "suction_tip", source, "site");
+  if (m->site_bodyid[w->camera_site] != w->hand_body || m->site_bodyid[w->projector_site] != w->hand_body) {
+    throw InputError(source, "camera", "the sites 'camera' and 'projector' must be on the body 'hand'");
+  }
+  for (int g = 0; g < m->ngeom; ++g) {
+    if (m->geom_bodyid[g] != w->suction_body) continue;
+    w->suction_geoms.push_back(g);
+    w->suction_contype.push_back(m->geom_contype[g]);
+    w->suction_conaffinity.push_back(m->geom_conaffinity[g]);
+  }
+}
+
+// The bin's walls: boxes (seen, collide by default) and planes (settling aids, off).
+void FindBinWalls(const mjModel* m, World::Impl* w) {
+  for (int g = 0; g < m->ngeom; ++g) {
+    if (m->geom_bodyid[g] != w->bin_body) continue;
+    if (m->geom_type[g] == mjGEOM_BOX) {
+      // The floor (thin in z) is left to the floor plane, always.
+      const mjtNum* size = m->geom_size + 3 * g;
+      if (size[2] < size[0] && size[2] < size[1]) continue;
+      w->bin_boxes.push_back(g);
+      w->bin_box_conaffinity.push_back(m->geom_conaffinity[g]);
+    } else if (m->geom_type[g] == mjGEOM_PLANE) {
+      mjtNum normal[3], z[3] = {0, 0, 1};
+      mju_rotVecQuat(normal, z, m->geom_quat + 4 * g);
+      if (std::abs(normal[2]) < 0.5) {
+        w->bin_wall_planes.push_back(g);
+        w->bin_wall_plane_contype.push_back(m->geom_contype[g]);
+        w->bin_wall_plane_conaffinity.push_back(m->geom_conaffinity[g]);
+      }
+    }
+  }
+}
+
+// Each object's body, joint addresses, grip weld and geoms.
+void FindObjects(const mjModel* m, size_t count, const std::string& source, World::Impl* w) {
+  for (size_t i = 0; i < count; ++i) {
+    ObjectIds ids;
+    const std::string name = "obj_" + std::to_string(i);
+    ids.body = RequireId(m, mjOBJ_BODY, name.c_str(), source, "object body");
+    const int joint = m->body_jntadr[ids.body];
+    ids.qpos_adr = m->jnt_qposadr[joint];
+    ids.dof_adr = m->jnt_dofadr[joint];
+    ids.weld = RequireId(m, mjOBJ_EQUALITY, ("grip_" + std::to_string(i)).c_str(), source, "weld");
+    for (int g = 0; g < m->ngeom; ++g) {
+      if (m->geom_bodyid[g] == ids.body) ids.geoms.push_back(g);
+    }
+    w->objects.push_back(ids);
+  }
+}
+
+// A user mesh must be able to lie in the bin: not wider than its inner diagonal (too small a
+// mesh is refused by MakeUserMeshObject).
+void CheckUserMeshesFit(const mjModel* m, const World::Impl& w, const Eigen::Vector3d& bin_inner_m) {
+  for (size_t i = 0; i < w.options.objects.size(); ++i) {
+    const ObjectSpec& o = w.options.objects[i];
+    if (o.kind != ObjectKind::kUserMesh) continue;
+    const double across_m = 2.0 * MeshGeomRadius(m, w.objects[i].geoms.at(0));
+    const double diagonal_m = std::hypot(bin_inner_m.x(), bin_inner_m.y());
+    if (!(across_m <= diagonal_m)) {
+      char why[200];
+      std::snprintf(why, sizeof why, "%.4g mm across at %g m per file unit: wider than the bin's inner diagonal, "
+                    "%.0f mm", across_m * 1e3, o.mesh_scale, diagonal_m * 1e3);
+      throw InputError(o.mesh_file.string(), "size", why);
+    }
+  }
+}
+
+// Geometry for renderers: every visible geom with triangles, tagged arm, moving or object.
+void CollectRenderGeoms(const mjModel* m, World::Impl* w) {
+  for (int g = 0; g < m->ngeom; ++g) {
+    if (m->geom_rgba[4 * g + 3] <= 0.0f && m->geom_matid[g] < 0) continue;
+    GeomInfo info;
+    const char* name = mj_id2name(m, mjOBJ_GEOM, g);
+    info.name = name ? name : "geom_" + std::to_string(g);
+    const int body = m->geom_bodyid[g];
+    info.moving = m->body_weldid[body] != 0;
+    info.arm = m->body_rootid[body] == w->base_body;
+    for (size_t i = 0; i < w->objects.size(); ++i) {
+      if (w->objects[i].body == body) info.object = static_cast<int>(i);
+    }
+    info.mesh_G = TessellateGeom(m, g);
+    info.material = MaterialOfGeom(m, g);
+    if (info.mesh_G.triangles.empty()) continue;
+    w->geoms.push_back(std::move(info));
+    w->geom_ids.push_back(g);
+  }
+}
+
+}  // namespace
+
 World::World(const WorldOptions& options) : impl_(std::make_unique<Impl>()) {
   static const bool handler_installed = [] {
     mju_user_warning = WarnToStderr;
@@ -234,70 +367,11 @@ World::World(const WorldOptions& options) : impl_(std::make_unique<Impl>()) {
                  "T_H_P");
   }
 
-  // Compose: the scene file with the objects inserted before its closing tag. The text is
-  // compiled from a virtual file in the scene's folder, so its includes and mesh paths resolve
-  // as they would from the scene file itself.
-  std::string xml = ReadFileText(scene);
-  const size_t close = xml.rfind("</mujoco>");
-  if (close == std::string::npos) throw InputError(source, "<mujoco>", "not an MJCF file (no </mujoco>)");
-  xml.insert(close, ObjectsXml(options.objects));
-  w.composed_xml = xml;
-
-  mjVFS vfs;
-  mj_defaultVFS(&vfs);
-  const std::string virtual_name = (scene.parent_path() / ("__romunect_" + scene.filename().string())).string();
-  ROMUNECT_CHECK(mj_makeEmptyFileVFS(&vfs, virtual_name.c_str(), static_cast<int>(xml.size())) == 0);
-  const int file = mj_findFileVFS(&vfs, virtual_name.c_str());
-  ROMUNECT_CHECK(file >= 0);
-  std::memcpy(vfs.filedata[file], xml.data(), xml.size());
-  char error[1024] = "";
-  w.model.reset(mj_loadXML(virtual_name.c_str(), &vfs, error, sizeof error));
-  mj_deleteVFS(&vfs);
-  if (!w.model) throw InputError(source, "MJCF", std::string("MuJoCo cannot load the scene: ") + error);
+  w.composed_xml = ComposeSceneXml(scene, options.objects);
+  w.model = LoadComposedScene(scene, w.composed_xml);
   mjModel* m = w.model.get();
-
-  for (int j = 0; j < kArmDof; ++j) {
-    const int joint = RequireId(m, mjOBJ_JOINT, kArmJoints[j], source, "arm joint");
-    w.arm_qpos_adr[j] = m->jnt_qposadr[joint];
-    w.arm_dof_adr[j] = m->jnt_dofadr[joint];
-    w.arm_actuator[j] = RequireId(m, mjOBJ_ACTUATOR, kArmActuators[j], source, "arm actuator");
-  }
-  w.base_body = RequireId(m, mjOBJ_BODY, "base", source, "body");
-  w.hand_body = RequireId(m, mjOBJ_BODY, "hand", source, "body");
-  w.suction_body = RequireId(m, mjOBJ_BODY, "suction", source, "body");
-  w.bin_body = RequireId(m, mjOBJ_BODY, "bin", source, "body");
-  w.camera_site = RequireId(m, mjOBJ_SITE, "camera", source, "site");
-  w.projector_site = RequireId(m, mjOBJ_SITE, "projector", source, "site");
-  w.suction_tip_site = RequireId(m, mjOBJ_SITE, "suction_tip", source, "site");
-  if (m->site_bodyid[w.camera_site] != w.hand_body || m->site_bodyid[w.projector_site] != w.hand_body) {
-    throw InputError(source, "camera", "the sites 'camera' and 'projector' must be on the body 'hand'");
-  }
-  for (int g = 0; g < m->ngeom; ++g) {
-    if (m->geom_bodyid[g] != w.suction_body) continue;
-    w.suction_geoms.push_back(g);
-    w.suction_contype.push_back(m->geom_contype[g]);
-    w.suction_conaffinity.push_back(m->geom_conaffinity[g]);
-  }
-
-  // The bin's walls: boxes (seen, collide by default) and planes (settling aids, off).
-  for (int g = 0; g < m->ngeom; ++g) {
-    if (m->geom_bodyid[g] != w.bin_body) continue;
-    if (m->geom_type[g] == mjGEOM_BOX) {
-      // The floor (thin in z) is left to the floor plane, always.
-      const mjtNum* size = m->geom_size + 3 * g;
-      if (size[2] < size[0] && size[2] < size[1]) continue;
-      w.bin_boxes.push_back(g);
-      w.bin_box_conaffinity.push_back(m->geom_conaffinity[g]);
-    } else if (m->geom_type[g] == mjGEOM_PLANE) {
-      mjtNum normal[3], z[3] = {0, 0, 1};
-      mju_rotVecQuat(normal, z, m->geom_quat + 4 * g);
-      if (std::abs(normal[2]) < 0.5) {
-        w.bin_wall_planes.push_back(g);
-        w.bin_wall_plane_contype.push_back(m->geom_contype[g]);
-        w.bin_wall_plane_conaffinity.push_back(m->geom_conaffinity[g]);
-      }
-    }
-  }
+  FindArm(m, source, &w);
+  FindBinWalls(m, &w);
   w.settling_walls = true;
   SetSettlingWalls(false);
 
@@ -315,37 +389,10 @@ World::World(const WorldOptions& options) : impl_(std::make_unique<Impl>()) {
   w.data.reset(mj_makeData(m));
   w.scratch.reset(mj_makeData(m));
   ROMUNECT_CHECK(w.data && w.scratch);
+  FindObjects(m, options.objects.size(), source, &w);
+  CheckUserMeshesFit(m, w, bin_inner_size_m());
 
-  for (size_t i = 0; i < options.objects.size(); ++i) {
-    ObjectIds ids;
-    const std::string name = "obj_" + std::to_string(i);
-    ids.body = RequireId(m, mjOBJ_BODY, name.c_str(), source, "object body");
-    const int joint = m->body_jntadr[ids.body];
-    ids.qpos_adr = m->jnt_qposadr[joint];
-    ids.dof_adr = m->jnt_dofadr[joint];
-    ids.weld = RequireId(m, mjOBJ_EQUALITY, ("grip_" + std::to_string(i)).c_str(), source, "weld");
-    for (int g = 0; g < m->ngeom; ++g) {
-      if (m->geom_bodyid[g] == ids.body) ids.geoms.push_back(g);
-    }
-    w.objects.push_back(ids);
-  }
-  // A user mesh must be able to lie in the bin: not wider than its inner diagonal (too small a
-  // mesh is refused by MakeUserMeshObject).
-  const Eigen::Vector3d inner = bin_inner_size_m();
-  for (size_t i = 0; i < options.objects.size(); ++i) {
-    const ObjectSpec& o = options.objects[i];
-    if (o.kind != ObjectKind::kUserMesh) continue;
-    const double across_m = 2.0 * MeshGeomRadius(m, w.objects[i].geoms.at(0));
-    const double diagonal_m = std::hypot(inner.x(), inner.y());
-    if (!(across_m <= diagonal_m)) {
-      char why[200];
-      std::snprintf(why, sizeof why, "%.4g mm across at %g m per file unit: wider than the bin's inner diagonal, "
-                    "%.0f mm", across_m * 1e3, o.mesh_scale, diagonal_m * 1e3);
-      throw InputError(o.mesh_file.string(), "size", why);
-    }
-  }
-
-  // The arm starts at its zero configuration, held there.
+  // The arm starts at its zero configuration, held there; the objects wait parked above the bin.
   for (int j = 0; j < kArmDof; ++j) w.data->ctrl[w.arm_actuator[j]] = w.data->qpos[w.arm_qpos_adr[j]];
   mj_forward(m, w.data.get());
   const Pose T_W_Bin_now = T_W_Bin();
@@ -355,25 +402,7 @@ World::World(const WorldOptions& options) : impl_(std::make_unique<Impl>()) {
     SetObjectPose(i, T);
   }
   mju_copy(w.scratch->qpos, w.data->qpos, m->nq);
-
-  // Geometry for renderers.
-  for (int g = 0; g < m->ngeom; ++g) {
-    if (m->geom_rgba[4 * g + 3] <= 0.0f && m->geom_matid[g] < 0) continue;
-    GeomInfo info;
-    const char* name = mj_id2name(m, mjOBJ_GEOM, g);
-    info.name = name ? name : "geom_" + std::to_string(g);
-    const int body = m->geom_bodyid[g];
-    info.moving = m->body_weldid[body] != 0;
-    info.arm = m->body_rootid[body] == w.base_body;
-    for (size_t i = 0; i < w.objects.size(); ++i) {
-      if (w.objects[i].body == body) info.object = static_cast<int>(i);
-    }
-    info.mesh_G = TessellateGeom(m, g);
-    info.material = MaterialOfGeom(m, g);
-    if (info.mesh_G.triangles.empty()) continue;
-    w.geoms.push_back(std::move(info));
-    w.geom_ids.push_back(g);
-  }
+  CollectRenderGeoms(m, &w);
 }
 
 World::~World() = default;
