@@ -208,6 +208,45 @@ TEST(VirtualDevice, RealtimePaceDeliversMatchingFramesAndCountsDrops) {
   EXPECT_EQ(frames.back().index, 3);  // the last frame is never lost: nothing replaces it
 }
 
+// loop=1: a short directory plays over and over as an endless device. Whatever a loaded machine
+// lets through must be exact: each frame is the directory's frame at its position modulo the
+// directory's length, and times go on at the directory's rate (a pass follows the last one by
+// one frame interval).
+TEST(VirtualDevice, LoopedDirectoryRepeatsWithTimesGoingOn) {
+  ScratchDir dir("frames");
+  constexpr int kShortFrames = 3;
+  constexpr int kRead = 3 * kShortFrames + 1;
+  constexpr double kPeriodS = 1.0 / 30.0;  // the sample frames' interval
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), kShortFrames, 18);
+  VirtualDeviceOptions device;
+  device.loop = true;
+  OpenNI2SourceOptions options;
+  options.uri = VirtualDeviceUri(dir.path(), device);
+  options.max_frames = kRead;
+  OpenNI2Source source(options);
+  EXPECT_EQ(source.Describe().find(" frames"), std::string::npos) << source.Describe();  // endless
+  const std::vector<Frame> frames = ReadAll(source);
+  ASSERT_EQ(frames.size(), static_cast<size_t>(kRead));
+  FrameDirectorySource truth(dir.path());
+  std::vector<cv::Mat> expected_depth;
+  for (int i = 0; i < kShortFrames; ++i) {
+    expected_depth.push_back(ExpectedDepth(LoadFrame(dir.path(), truth.manifest(), i).depth_m, DepthUnit::k100um));
+  }
+  // The first frame read may be any of the directory's (a frame lost at the start).
+  int first = -1;
+  for (int i = 0; i < kShortFrames && first < 0; ++i) {
+    if (ImagesBitEqual(frames[0].depth_m, expected_depth[i])) first = i;
+  }
+  ASSERT_GE(first, 0);
+  for (const Frame& f : frames) {
+    SCOPED_TRACE("frame " + std::to_string(f.index));
+    EXPECT_TRUE(ImagesBitEqual(f.depth_m, expected_depth[(first + f.index) % kShortFrames]));
+    // Timestamps are whole microseconds, each rounded on its own.
+    EXPECT_NEAR(f.time_s, f.index * kPeriodS, 1.01e-6);
+  }
+  EXPECT_EQ(frames.back().index, kRead - 1 + source.stats().dropped_frames);
+}
+
 // Records the virtual device playing the frame directory `dir` into `oni`; returns the frames
 // it delivered meanwhile.
 std::vector<Frame> RecordVirtualDevice(const std::filesystem::path& dir, const std::filesystem::path& oni) {
