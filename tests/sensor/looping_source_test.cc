@@ -74,7 +74,8 @@ TEST(LoopingSource, TimesAndIndicesGoOnAcrossPasses) {
 }
 
 TEST(LoopingSource, BadFramesPassThroughAndLoopingGoesOn) {
-  LoopingSource source(Scripted({{FrameStatus::kBadFrame}, {FrameStatus::kOk, 1, 0.5}, {FrameStatus::kOk, 2, 1.0}}), 0.25);
+  LoopingSource source(
+      Scripted({{FrameStatus::kBadFrame}, {FrameStatus::kOk, 1, 0.5}, {FrameStatus::kOk, 2, 1.0}}), 0.25);
   Frame f;
   std::string error;
   std::vector<FrameStatus> statuses;

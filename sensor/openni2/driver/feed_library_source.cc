@@ -10,7 +10,8 @@ namespace romunect::openni2 {
 std::string DefaultFeedLibrary() {
   Dl_info info{};
   if (dladdr(reinterpret_cast<void*>(&DefaultFeedLibrary), &info) == 0 || info.dli_fname == nullptr) return "";
-  return (std::filesystem::path(info.dli_fname).parent_path().parent_path().parent_path() / "libRomunectSimFeed.so").string();
+  const std::filesystem::path drivers = std::filesystem::path(info.dli_fname).parent_path();
+  return (drivers.parent_path().parent_path() / "libRomunectSimFeed.so").string();
 }
 
 FeedLibrarySource::FeedLibrarySource(const std::string& library, const std::string& query)
