@@ -3,8 +3,6 @@
 // quantization, IR and microsecond timestamps exactly).
 #include "romunect/openni2/openni2_source.h"
 
-#include <time.h>
-
 #include <chrono>
 #include <cmath>
 #include <fstream>
@@ -14,6 +12,7 @@
 
 #include "romunect/openni2/depth_units.h"
 #include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/clock.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/testing/test_support.h"
@@ -284,13 +283,6 @@ TEST(OniRecording, RecordsTheVirtualDeviceAndPlaysBackThroughTheFileDriver) {
   EXPECT_EQ(playback.stats().dropped_frames, 0);
 }
 
-// CPU seconds of the whole process (every thread, libOpenNI2's included).
-double ProcessCpuSeconds() {
-  timespec t{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
-  return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
-}
-
 // Once a recording has been played to its end, OpenNI2's player thread (PlayerDevice::MainLoop)
 // reads on at the end of the file without pausing while a stream runs, which kept a core busy
 // for as long as the source lived (through a fusion's extraction or a calibration's solve). The
@@ -309,10 +301,11 @@ TEST(OniRecording, AFinishedPlaybackLeavesNoThreadSpinning) {
   Frame f;
   std::string error;
   ASSERT_EQ(playback.Next(&f, &error), FrameStatus::kEndOfStream);  // asking again changes nothing
+  // CPU time of the whole process: every thread, libOpenNI2's included.
   const double cpu0 = ProcessCpuSeconds();
-  const auto wall0 = std::chrono::steady_clock::now();
+  const Stopwatch wall;
   std::this_thread::sleep_for(std::chrono::milliseconds(400));
-  const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+  const double wall_s = wall.seconds();
   // A spinning thread takes about a core (1 s of CPU per s); a sleeping one almost nothing. On a
   // loaded machine the spinner gets less than a core, so the bound is generous.
   EXPECT_LT(ProcessCpuSeconds() - cpu0, 0.25 * wall_s);
@@ -388,7 +381,7 @@ TEST(VirtualDevice, StalledDeviceGivesAClearErrorWithinTheTimeoutAndKeepsEarlier
   kept.push_back(f);
   ASSERT_EQ(source.Next(&f, &error), FrameStatus::kOk) << error;
   kept.push_back(f);
-  const auto t0 = std::chrono::steady_clock::now();
+  const Stopwatch stall;
   try {
     source.Next(&f, &error);
     FAIL() << "a stalled device must throw";
@@ -398,7 +391,7 @@ TEST(VirtualDevice, StalledDeviceGivesAClearErrorWithinTheTimeoutAndKeepsEarlier
     EXPECT_NE(message.find("no frame for 0.5 s (device unplugged or stalled); 2 frames were delivered before, the last at index 1"),
               std::string::npos) << message;
   }
-  const double elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const double elapsed_s = stall.seconds();
   EXPECT_GE(elapsed_s, 0.5);
   EXPECT_LT(elapsed_s, 0.5 + kStallReportSlackS);
   // What came before the stall is intact.
