@@ -207,6 +207,26 @@ TEST(VirtualDevice, RealtimePaceDeliversMatchingFramesAndCountsDrops) {
   EXPECT_EQ(frames.back().index, 3);  // the last frame is never lost: nothing replaces it
 }
 
+// A frame whose image cannot be read is a frame the device never sent: its number is skipped,
+// so the reader sees a dropped frame, and the stream goes on.
+TEST(VirtualDevice, AnUnreadableFrameIsADroppedFrame) {
+  ScratchDir dir("frames");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), kFrames, 19);
+  {
+    FrameDirectorySource truth(dir.path());
+    std::filesystem::remove(dir.path() / truth.manifest().frames[2].depth);
+  }
+  OpenNI2SourceOptions options;
+  options.uri = VirtualDeviceUri(dir.path(), Step());
+  OpenNI2Source source(options);
+  const std::vector<Frame> frames = ReadAll(source);
+  ASSERT_EQ(frames.size(), static_cast<size_t>(kFrames - 1));
+  EXPECT_EQ(frames[1].index, 1);
+  EXPECT_EQ(frames[2].index, 3);
+  ExpectMatchesDirectory(frames, dir.path(), DepthUnit::k100um, kFrames - 1);
+  EXPECT_EQ(source.stats().dropped_frames, 1);
+}
+
 // loop=1: a short directory plays over and over as an endless device. Whatever a loaded machine
 // lets through must be exact: each frame is the directory's frame at its position modulo the
 // directory's length, and times go on at the directory's rate (a pass follows the last one by

@@ -11,15 +11,11 @@
 
 namespace romunect::openni2 {
 
-// The simulator's feed library: libRomunectSimFeed.so in <build>/lib, two folders above the
-// driver folder this plug-in was loaded from (CMake builds both there).
-std::string DefaultFeedLibrary();
-
 class FeedLibrarySource : public FrameSource {
  public:
-  // Loads `library` (empty: DefaultFeedLibrary()) and creates its feed from `query`. Throws
-  // std::runtime_error naming the library when it does not load, lacks the ABI's functions,
-  // refuses the query or announces an unusable feed.
+  // Loads `library` (empty: the simulator's, libRomunectSimFeed.so two folders above the driver
+  // folder) and creates its feed from `query`. Throws std::runtime_error naming the library when
+  // it does not load, lacks the ABI's functions, refuses the query or announces an unusable feed.
   FeedLibrarySource(const std::string& library, const std::string& query);
   ~FeedLibrarySource() override;
   FeedLibrarySource(const FeedLibrarySource&) = delete;
