@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <set>
 #include <sstream>
+#include <utility>
 
 #include "json_fields.h"
 #include "romunect/sensor/check.h"
@@ -309,6 +310,10 @@ void FrameDirectoryWriter::Finish() {
 
 FrameDirectorySource::FrameDirectorySource(const fs::path& dir, InvalidDepthPolicy policy)
     : dir_(dir), manifest_(ReadFrameDirectoryManifest(dir)), policy_(policy) {}
+
+FrameDirectorySource::FrameDirectorySource(const fs::path& dir, FrameDirectoryManifest manifest,
+                                           InvalidDepthPolicy policy)
+    : dir_(dir), manifest_(std::move(manifest)), policy_(policy) {}
 
 std::string FrameDirectorySource::Describe() const {
   return "frame directory " + dir_.string() + ", " + std::to_string(manifest_.frames.size()) + " frames";

@@ -3,8 +3,6 @@
 // quantization, IR and microsecond timestamps exactly).
 #include "romunect/openni2/openni2_source.h"
 
-#include <time.h>
-
 #include <chrono>
 #include <cmath>
 #include <fstream>
@@ -14,6 +12,7 @@
 
 #include "romunect/openni2/depth_units.h"
 #include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/clock.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/testing/test_support.h"
@@ -208,6 +207,65 @@ TEST(VirtualDevice, RealtimePaceDeliversMatchingFramesAndCountsDrops) {
   EXPECT_EQ(frames.back().index, 3);  // the last frame is never lost: nothing replaces it
 }
 
+// A frame whose image cannot be read is a frame the device never sent: its number is skipped,
+// so the reader sees a dropped frame, and the stream goes on.
+TEST(VirtualDevice, AnUnreadableFrameIsADroppedFrame) {
+  ScratchDir dir("frames");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), kFrames, 19);
+  {
+    FrameDirectorySource truth(dir.path());
+    std::filesystem::remove(dir.path() / truth.manifest().frames[2].depth);
+  }
+  OpenNI2SourceOptions options;
+  options.uri = VirtualDeviceUri(dir.path(), Step());
+  OpenNI2Source source(options);
+  const std::vector<Frame> frames = ReadAll(source);
+  ASSERT_EQ(frames.size(), static_cast<size_t>(kFrames - 1));
+  EXPECT_EQ(frames[1].index, 1);
+  EXPECT_EQ(frames[2].index, 3);
+  ExpectMatchesDirectory(frames, dir.path(), DepthUnit::k100um, kFrames - 1);
+  EXPECT_EQ(source.stats().dropped_frames, 1);
+}
+
+// loop=1: a short directory plays over and over as an endless device. Whatever a loaded machine
+// lets through must be exact: each frame is the directory's frame at its position modulo the
+// directory's length, and times go on at the directory's rate (a pass follows the last one by
+// one frame interval).
+TEST(VirtualDevice, LoopedDirectoryRepeatsWithTimesGoingOn) {
+  ScratchDir dir("frames");
+  constexpr int kShortFrames = 3;
+  constexpr int kRead = 3 * kShortFrames + 1;
+  constexpr double kPeriodS = 1.0 / 30.0;  // the sample frames' interval
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), kShortFrames, 18);
+  VirtualDeviceOptions device;
+  device.loop = true;
+  OpenNI2SourceOptions options;
+  options.uri = VirtualDeviceUri(dir.path(), device);
+  options.max_frames = kRead;
+  OpenNI2Source source(options);
+  EXPECT_EQ(source.Describe().find(" frames"), std::string::npos) << source.Describe();  // endless
+  const std::vector<Frame> frames = ReadAll(source);
+  ASSERT_EQ(frames.size(), static_cast<size_t>(kRead));
+  FrameDirectorySource truth(dir.path());
+  std::vector<cv::Mat> expected_depth;
+  for (int i = 0; i < kShortFrames; ++i) {
+    expected_depth.push_back(ExpectedDepth(LoadFrame(dir.path(), truth.manifest(), i).depth_m, DepthUnit::k100um));
+  }
+  // The first frame read may be any of the directory's (a frame lost at the start).
+  int first = -1;
+  for (int i = 0; i < kShortFrames && first < 0; ++i) {
+    if (ImagesBitEqual(frames[0].depth_m, expected_depth[i])) first = i;
+  }
+  ASSERT_GE(first, 0);
+  for (const Frame& f : frames) {
+    SCOPED_TRACE("frame " + std::to_string(f.index));
+    EXPECT_TRUE(ImagesBitEqual(f.depth_m, expected_depth[(first + f.index) % kShortFrames]));
+    // Timestamps are whole microseconds, each rounded on its own.
+    EXPECT_NEAR(f.time_s, f.index * kPeriodS, 1.01e-6);
+  }
+  EXPECT_EQ(frames.back().index, kRead - 1 + source.stats().dropped_frames);
+}
+
 // Records the virtual device playing the frame directory `dir` into `oni`; returns the frames
 // it delivered meanwhile.
 std::vector<Frame> RecordVirtualDevice(const std::filesystem::path& dir, const std::filesystem::path& oni) {
@@ -245,13 +303,6 @@ TEST(OniRecording, RecordsTheVirtualDeviceAndPlaysBackThroughTheFileDriver) {
   EXPECT_EQ(playback.stats().dropped_frames, 0);
 }
 
-// CPU seconds of the whole process (every thread, libOpenNI2's included).
-double ProcessCpuSeconds() {
-  timespec t{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
-  return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
-}
-
 // Once a recording has been played to its end, OpenNI2's player thread (PlayerDevice::MainLoop)
 // reads on at the end of the file without pausing while a stream runs, which kept a core busy
 // for as long as the source lived (through a fusion's extraction or a calibration's solve). The
@@ -270,10 +321,11 @@ TEST(OniRecording, AFinishedPlaybackLeavesNoThreadSpinning) {
   Frame f;
   std::string error;
   ASSERT_EQ(playback.Next(&f, &error), FrameStatus::kEndOfStream);  // asking again changes nothing
+  // CPU time of the whole process: every thread, libOpenNI2's included.
   const double cpu0 = ProcessCpuSeconds();
-  const auto wall0 = std::chrono::steady_clock::now();
+  const Stopwatch wall;
   std::this_thread::sleep_for(std::chrono::milliseconds(400));
-  const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+  const double wall_s = wall.seconds();
   // A spinning thread takes about a core (1 s of CPU per s); a sleeping one almost nothing. On a
   // loaded machine the spinner gets less than a core, so the bound is generous.
   EXPECT_LT(ProcessCpuSeconds() - cpu0, 0.25 * wall_s);
@@ -349,7 +401,7 @@ TEST(VirtualDevice, StalledDeviceGivesAClearErrorWithinTheTimeoutAndKeepsEarlier
   kept.push_back(f);
   ASSERT_EQ(source.Next(&f, &error), FrameStatus::kOk) << error;
   kept.push_back(f);
-  const auto t0 = std::chrono::steady_clock::now();
+  const Stopwatch stall;
   try {
     source.Next(&f, &error);
     FAIL() << "a stalled device must throw";
@@ -359,7 +411,7 @@ TEST(VirtualDevice, StalledDeviceGivesAClearErrorWithinTheTimeoutAndKeepsEarlier
     EXPECT_NE(message.find("no frame for 0.5 s (device unplugged or stalled); 2 frames were delivered before, the last at index 1"),
               std::string::npos) << message;
   }
-  const double elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const double elapsed_s = stall.seconds();
   EXPECT_GE(elapsed_s, 0.5);
   EXPECT_LT(elapsed_s, 0.5 + kStallReportSlackS);
   // What came before the stall is intact.

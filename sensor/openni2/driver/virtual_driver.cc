@@ -1,12 +1,10 @@
-// libRomunectVirtual.so.0: an OpenNI2 driver plug-in that presents a frame directory, or the
-// frames of a feed library (feed_abi.h, e.g. the live simulator), as a PS1080-like device
-// (romunect/openni2/virtual_device.h documents URIs and behaviour).
+// libRomunectVirtual.so.0: an OpenNI2 driver plug-in that presents a FrameSource as a PS1080-like
+// device: a frame directory, or the frames of a feed library (feed_abi.h, e.g. the live
+// simulator) (device_content.h; romunect/openni2/virtual_device.h documents URIs and behaviour).
 //
 // Threads: OpenNI2 calls in from the application's threads; in realtime pace one producer thread
 // per device sends frames. One mutex per device guards the streams and the frame cursor and is
 // held while a frame is handed to OpenNI2, so a stream is never destroyed mid-delivery.
-#include <dlfcn.h>
-
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -15,12 +13,11 @@
 #include <cstdlib>
 #include <cstring>
 #include <exception>
-#include <map>
+#include <filesystem>
 #include <memory>
 #include <mutex>
 #include <optional>
 #include <set>
-#include <stdexcept>
 #include <string>
 #include <thread>
 #include <vector>
@@ -34,18 +31,15 @@
 #include <PS1080.h>
 
 #include "romunect/openni2/depth_units.h"
-#include "romunect/openni2/feed_abi.h"
 #include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/clock.h"
 #include "romunect/sensor/depth_engine.h"
-#include "romunect/sensor/errors.h"
-#include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/rig.h"
+#include "device_content.h"
 #include "virtual_device_uri.h"
 
 namespace romunect::openni2 {
 namespace {
-
-using Clock = std::chrono::steady_clock;
 
 // The PS1080 geometry the chip reports, in its own units. Defaults follow the twin's stock chip
 // (RigPreset("kinect-v1")): ZPD is the PS1080's fixed 120 mm, ZPPS the pixel size there for the
@@ -91,179 +85,6 @@ ChipParameters ReadChipParameters(const std::string& extra_json) {
   return p;
 }
 
-// Where a device's frames come from. Next() is called with the device mutex held.
-class FrameFeed {
- public:
-  enum class Status { kFrame, kEnd, kBroken };
-  virtual ~FrameFeed() = default;
-  virtual const CameraModel& camera() const = 0;
-  virtual bool has_depth() const = 0;
-  virtual bool has_ir() const = 0;
-  virtual bool has_raw() const { return false; }  // the chip's raw shifts (Frame::raw)
-  virtual int frame_count() const = 0;   // frames it will deliver; 0 = endless
-  virtual double fps() const = 0;        // 0 = unknown
-  virtual std::string extra_json() const { return ""; }
-  // The next frame: depth_m and/or ir, time_s since the first frame. kBroken: that frame is
-  // lost (a gap in the frame numbers), *error says why; the feed goes on.
-  virtual Status Next(Frame* frame, std::string* error) = 0;
-};
-
-// A frame directory, optionally looped.
-class DirectoryFeed : public FrameFeed {
- public:
-  DirectoryFeed(const std::filesystem::path& dir, bool loop) : dir_(dir), loop_(loop) {
-    manifest_ = ReadFrameDirectoryManifest(dir_);  // throws InputError
-    for (FrameRecord& r : manifest_.frames) r.gt_depth.clear();  // no device sends ground truth
-
-    const auto& frames = manifest_.frames;
-    // A device without frames would open with no sensor at all and be reported as one lacking a
-    // depth sensor.
-    if (frames.empty()) {
-      throw InputError((dir_ / "frames.json").string(), "frames", "is empty: a virtual device needs at least one frame");
-    }
-    has_depth_ = std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.depth.empty(); });
-    has_ir_ = std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.ir.empty(); });
-    has_raw_ = std::all_of(frames.begin(), frames.end(), [](const FrameRecord& r) { return !r.raw.empty(); });
-    if (frames.size() >= 2) {
-      std::vector<double> dt;
-      for (size_t i = 1; i < frames.size(); ++i) dt.push_back(frames[i].time_s - frames[i - 1].time_s);
-      std::nth_element(dt.begin(), dt.begin() + dt.size() / 2, dt.end());
-      if (dt[dt.size() / 2] > 0.0) fps_ = 1.0 / dt[dt.size() / 2];
-    }
-  }
-  const CameraModel& camera() const override { return manifest_.camera; }
-  bool has_depth() const override { return has_depth_; }
-  bool has_ir() const override { return has_ir_; }
-  bool has_raw() const override { return has_raw_; }
-  int frame_count() const override { return loop_ ? 0 : static_cast<int>(manifest_.frames.size()); }
-  double fps() const override { return fps_; }
-  std::string extra_json() const override { return manifest_.extra_json; }
-
-  Status Next(Frame* frame, std::string* error) override {
-    const auto& frames = manifest_.frames;
-    if (next_ >= frames.size()) {
-      if (!loop_ || frames.empty()) return Status::kEnd;
-      loop_offset_s_ += frames.back().time_s - frames.front().time_s + 1.0 / (fps_ > 0.0 ? fps_ : 30.0);
-      next_ = 0;
-    }
-    const size_t k = next_++;
-    try {
-      *frame = LoadFrame(dir_, manifest_, k);
-    } catch (const std::exception& e) {
-      *error = "frame " + std::to_string(k) + ": " + e.what();
-      return Status::kBroken;  // a broken frame is a frame the device never sent
-    }
-    frame->time_s = frames[k].time_s - frames.front().time_s + loop_offset_s_;
-    return Status::kFrame;
-  }
-
- private:
-  std::filesystem::path dir_;
-  bool loop_;
-  FrameDirectoryManifest manifest_;
-  bool has_depth_ = false, has_ir_ = false, has_raw_ = false;
-  double fps_ = 0.0;
-  size_t next_ = 0;
-  double loop_offset_s_ = 0.0;  // time added on each pass when looping
-};
-
-// The simulator's feed library: libRomunectSimFeed.so in <build>/lib, two folders above the
-// driver folder this plug-in was loaded from (CMake builds both there).
-std::string DefaultFeedLibrary() {
-  Dl_info info{};
-  if (dladdr(reinterpret_cast<void*>(&DefaultFeedLibrary), &info) == 0 || info.dli_fname == nullptr) return "";
-  return (std::filesystem::path(info.dli_fname).parent_path().parent_path().parent_path() / "libRomunectSimFeed.so").string();
-}
-
-// A feed library loaded through the C ABI of feed_abi.h.
-class LibraryFeed : public FrameFeed {
- public:
-  LibraryFeed(const std::string& library, const std::string& query) {
-    const std::string path = library.empty() ? DefaultFeedLibrary() : library;
-    // Never unloaded (NODELETE): its renderer's and physics' threads and statics may outlive the feed.
-    handle_ = dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL | RTLD_NODELETE);
-    if (handle_ == nullptr) throw std::runtime_error("cannot load the feed library " + path + ": " + dlerror());
-    create_ = reinterpret_cast<RomunectFeedCreateFn>(dlsym(handle_, ROMUNECT_FEED_CREATE_SYMBOL));
-    next_ = reinterpret_cast<RomunectFeedNextFn>(dlsym(handle_, ROMUNECT_FEED_NEXT_SYMBOL));
-    destroy_ = reinterpret_cast<RomunectFeedDestroyFn>(dlsym(handle_, ROMUNECT_FEED_DESTROY_SYMBOL));
-    if (create_ == nullptr || next_ == nullptr || destroy_ == nullptr) {
-      dlclose(handle_);
-      throw std::runtime_error(path + " is not a romunect feed library (it lacks romunect_feed_create/next/destroy)");
-    }
-    char error[1024] = "";
-    RomunectFeedInfo info{};
-    feed_ = create_(query.c_str(), &info, error, sizeof(error));
-    if (feed_ == nullptr) {
-      dlclose(handle_);
-      throw std::runtime_error(path + ": " + error);
-    }
-    if (info.abi_version != ROMUNECT_FEED_ABI_VERSION || info.width <= 0 || info.height <= 0 ||
-        !(info.fx > 0.0 && info.fy > 0.0)) {
-      destroy_(feed_);
-      dlclose(handle_);
-      throw std::runtime_error(path + ": unsupported feed (ABI version " + std::to_string(info.abi_version) +
-                               ", size " + std::to_string(info.width) + "x" + std::to_string(info.height) + ")");
-    }
-    info_ = info;
-    camera_.width = info.width;
-    camera_.height = info.height;
-    camera_.fx = info.fx;
-    camera_.fy = info.fy;
-    camera_.cx = info.cx;
-    camera_.cy = info.cy;
-  }
-  ~LibraryFeed() override {
-    destroy_(feed_);
-    dlclose(handle_);
-  }
-  LibraryFeed(const LibraryFeed&) = delete;
-  LibraryFeed& operator=(const LibraryFeed&) = delete;
-
-  const CameraModel& camera() const override { return camera_; }
-  bool has_depth() const override { return info_.has_depth != 0; }
-  bool has_ir() const override { return info_.has_ir != 0; }
-  int frame_count() const override { return info_.frame_count; }
-  double fps() const override { return info_.fps; }
-
-  Status Next(Frame* frame, std::string* error) override {
-    if (ended_) return Status::kEnd;
-    char message[1024] = "";
-    RomunectFeedFrame f{};
-    const int status = next_(feed_, &f, message, sizeof(message));
-    if (status == 0) {
-      ended_ = true;
-      return Status::kEnd;
-    }
-    if (status < 0) {
-      *error = message;
-      return Status::kBroken;
-    }
-    *frame = Frame();
-    frame->time_s = f.time_s;
-    // Copies: the feed's buffers live only until its next call.
-    if (f.depth_m != nullptr) {
-      frame->depth_m = cv::Mat(info_.height, info_.width, CV_32F, const_cast<float*>(f.depth_m)).clone();
-    }
-    if (f.ir != nullptr) frame->ir = cv::Mat(info_.height, info_.width, CV_16U, const_cast<uint16_t*>(f.ir)).clone();
-    return Status::kFrame;
-  }
-
- private:
-  void* handle_ = nullptr;
-  RomunectFeedCreateFn create_ = nullptr;
-  RomunectFeedNextFn next_ = nullptr;
-  RomunectFeedDestroyFn destroy_ = nullptr;
-  void* feed_ = nullptr;
-  RomunectFeedInfo info_{};
-  CameraModel camera_;
-  bool ended_ = false;
-};
-
-std::unique_ptr<FrameFeed> MakeFeed(const ParsedVirtualDeviceUri& parsed) {
-  if (parsed.feed) return std::make_unique<LibraryFeed>(parsed.feed_library, parsed.feed_query);
-  return std::make_unique<DirectoryFeed>(parsed.dir, parsed.options.loop);
-}
-
 template <typename T>
 OniStatus Answer(const T& value, void* data, int* size) {
   if (*size != static_cast<int>(sizeof(T))) return ONI_STATUS_BAD_PARAMETER;
@@ -303,18 +124,18 @@ class VirtualStream : public oni::driver::StreamBase {
 class VirtualDevice : public oni::driver::DeviceBase {
  public:
   VirtualDevice(const ParsedVirtualDeviceUri& parsed, oni::driver::DriverServices* services)
-      : options_(parsed.options), services_(services), feed_(MakeFeed(parsed)) {  // MakeFeed throws
-    chip_ = ReadChipParameters(feed_->extra_json());
-    has_ir_ = feed_->has_ir();
-    fps_ = static_cast<int>(std::lround(options_.fps > 0.0 ? options_.fps : feed_->fps()));
+      : options_(parsed.options), services_(services), content_(OpenDeviceContent(parsed)) {  // throws
+    chip_ = ReadChipParameters(content_.extra_json);
+    has_ir_ = content_.has_ir;
+    fps_ = static_cast<int>(std::lround(options_.fps > 0.0 ? options_.fps : content_.fps));
     if (fps_ <= 0) fps_ = 30;
-    const int w = feed_->camera().width, h = feed_->camera().height;
+    const int w = camera().width, h = camera().height;
     // Metric depth in two units when frames hold depth; the chip's raw shifts (the PS1080's
     // SHIFT_9_2: 11 bits, 2047 = none) when they hold raw.
-    if (feed_->has_depth()) {
+    if (content_.has_depth) {
       depth_modes_ = {{ONI_PIXEL_FORMAT_DEPTH_100_UM, w, h, fps_}, {ONI_PIXEL_FORMAT_DEPTH_1_MM, w, h, fps_}};
     }
-    if (feed_->has_raw()) depth_modes_.push_back({ONI_PIXEL_FORMAT_SHIFT_9_2, w, h, fps_});
+    if (content_.has_raw) depth_modes_.push_back({ONI_PIXEL_FORMAT_SHIFT_9_2, w, h, fps_});
     has_depth_ = !depth_modes_.empty();
     ir_modes_ = {{ONI_PIXEL_FORMAT_GRAY16, w, h, fps_}};
     if (has_depth_) sensors_.push_back({ONI_SENSOR_DEPTH, static_cast<int>(depth_modes_.size()), depth_modes_.data()});
@@ -398,11 +219,11 @@ class VirtualDevice : public oni::driver::DeviceBase {
   void StreamStateChanged() { wake_.notify_all(); }
 
   std::mutex& mutex() { return mutex_; }
-  const CameraModel& camera() const { return feed_->camera(); }
+  const CameraModel& camera() const { return content_.source->camera(); }
   const ChipParameters& chip() const { return chip_; }
   int total_frames() const {
     // A finite device says how many frames it will send, as OpenNI2's file player does.
-    return feed_->frame_count();
+    return content_.frame_count;
   }
   bool IsOffered(OniSensorType type, const OniVideoMode& mode) const {
     for (const OniVideoMode& m : type == ONI_SENSOR_DEPTH ? depth_modes_ : ir_modes_) {
@@ -423,22 +244,34 @@ class VirtualDevice : public oni::driver::DeviceBase {
     return !ended_;
   }
 
-  // Takes the next frame from the feed into pending_ (unless one waits there). Mutex held.
-  // False at the feed's end.
+  // The source's next frame. A source that can no longer deliver (it throws) ends the device's
+  // stream, as a sensor whose cable was pulled: OpenNI2 has no way to pass an error on.
+  FrameStatus NextFromSource(Frame* frame, std::string* error) {
+    try {
+      return content_.source->Next(frame, error);
+    } catch (const std::exception& e) {
+      services_->errorLoggerAppend("romunect virtual device: %s", e.what());
+      return FrameStatus::kEndOfStream;
+    }
+  }
+
+  // Takes the next frame from the source into pending_ (unless one waits there). Mutex held.
+  // False at the source's end.
   bool FetchLocked() {
     if (pending_) return true;
     Frame frame;
     std::string error;
     for (;;) {
-      const FrameFeed::Status status = feed_->Next(&frame, &error);
-      if (status == FrameFeed::Status::kEnd) {
+      const FrameStatus status = NextFromSource(&frame, &error);
+      if (status == FrameStatus::kEndOfStream) {
         ended_ = true;
         return false;
       }
-      if (status == FrameFeed::Status::kFrame) break;
+      if (status == FrameStatus::kOk) break;
       services_->errorLoggerAppend("romunect virtual device: %s", error.c_str());
       ++sent_;  // the lost frame's number is skipped, as a device that drops one
     }
+    frame.time_s -= content_.time_origin_s;
     pending_ = std::move(frame);
     return true;
   }
@@ -472,7 +305,7 @@ class VirtualDevice : public oni::driver::DeviceBase {
   void Produce() {
     std::unique_lock<std::mutex> lock(mutex_);
     bool running = false;
-    Clock::time_point start;
+    SteadyClock::time_point start;
     double start_t_s = 0.0;
     while (!closing_) {
       if (!AnyStartedLocked() || !CanSendLocked() || !FetchLocked()) {
@@ -484,19 +317,20 @@ class VirtualDevice : public oni::driver::DeviceBase {
       if (!running) {
         // Let every stream the application starts together see the first frame.
         running = true;
-        start = Clock::now() + std::chrono::milliseconds(50);
+        start = SteadyClock::now() + std::chrono::milliseconds(50);
         start_t_s = t_s;
       }
-      const auto due = start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(t_s - start_t_s));
+      const auto due =
+          start + std::chrono::duration_cast<SteadyClock::duration>(std::chrono::duration<double>(t_s - start_t_s));
       if (wake_.wait_until(lock, due, [this] { return closing_; })) break;
-      if (Clock::now() < due) continue;
+      if (SteadyClock::now() < due) continue;
       if (AnyStartedLocked() && CanSendLocked()) SendPendingLocked();
     }
   }
 
   VirtualDeviceOptions options_;
   oni::driver::DriverServices* services_;
-  std::unique_ptr<FrameFeed> feed_;
+  DeviceContent content_;
   ChipParameters chip_;
   bool has_depth_ = false, has_ir_ = false;
   int fps_ = 30;
@@ -506,9 +340,9 @@ class VirtualDevice : public oni::driver::DeviceBase {
   std::mutex mutex_;
   std::condition_variable wake_;
   std::set<VirtualStream*> streams_;
-  std::optional<Frame> pending_;  // fetched from the feed, not yet sent
+  std::optional<Frame> pending_;  // fetched from the source, not yet sent
   int sent_ = 0;                  // frame numbers used so far
-  bool ended_ = false;            // the feed has no more frames
+  bool ended_ = false;            // the source has no more frames
   bool closing_ = false;
   std::thread producer_;
 };

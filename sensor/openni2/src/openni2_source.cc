@@ -16,6 +16,7 @@
 
 #include "romunect/openni2/virtual_device.h"
 #include "romunect/sensor/check.h"
+#include "romunect/sensor/clock.h"
 #include "romunect/sensor/errors.h"
 #include "virtual_device_uri.h"
 
@@ -192,7 +193,7 @@ struct OpenNI2Source::Impl {
   uint64_t first_timestamp_us = 0;
   openni::VideoFrameRef pending_ir;
   OpenNI2SourceStats stats;
-  std::chrono::steady_clock::time_point player_settled;  // recordings: no close before this
+  SteadyClock::time_point player_settled;  // recordings: no close before this
 
   void FinishRecording() {
     if (recorder.isValid()) {
@@ -257,7 +258,7 @@ struct OpenNI2Source::Impl {
     int ready = -1;
     const int timeout_ms = static_cast<int>(std::ceil(options.timeout_s * 1000.0));
     const openni::Status waited = openni::OpenNI::waitForAnyStream(streams, 1, &ready, timeout_ms);
-    player_settled = std::chrono::steady_clock::now() + kPlayerSettlePause;
+    player_settled = SteadyClock::now() + kPlayerSettlePause;
     if (waited != openni::STATUS_OK) {
       std::ostringstream s;
       s << "no frame for " << options.timeout_s << " s (device unplugged or stalled); "
@@ -325,21 +326,33 @@ struct OpenNI2Source::Impl {
     for (size_t i = 0; i < formats.size(); ++i) want << (i ? " or " : "") << FormatName(formats[i]);
     throw InputError(name, "video mode", want.str() + " is not offered; the device offers: " + ModesOf(device, type));
   }
+
+  // The constructor's steps, in order (after the streams are created with SetUp).
+  void OpenDevice();         // opens the URI; playback on demand for recordings
+  void SelectPrimaryMode();  // the primary stream's mode: chosen, or a recording's own
+  void CheckDepthFormat();   // raw shifts or a depth unit, as asked; sets unit
+  void MatchIrMode();        // IR in depth's size, in gray16
+  void MakeCamera();
+  void ReadChip();           // the PS1080 geometry the depth stream answers
+  void ReadLength();         // total_frames of recordings and finite devices
+  void StartRecorder();      // when record_oni is set
+  void StartStreams();
 };
 
-OpenNI2Source::OpenNI2Source(const OpenNI2SourceOptions& options) : impl_(std::make_unique<Impl>()) {
-  Impl& s = *impl_;
-  s.options = options;
+namespace {
+
+bool IsOniPath(const std::string& uri) { return uri.size() > 4 && uri.compare(uri.size() - 4, 4, ".oni") == 0; }
+
+// What can be said about the options and the URI before OpenNI2 is asked: OpenNI2 itself only
+// reports "not found".
+void CheckBeforeOpening(const OpenNI2SourceOptions& options) {
   const std::string problem = options.Problem();
   if (!problem.empty()) throw InputError("OpenNI2 source options", "", problem);
-  s.name = options.uri.empty() ? "the first OpenNI2 device" : options.uri;
-  const bool oni = options.uri.size() > 4 && options.uri.compare(options.uri.size() - 4, 4, ".oni") == 0;
-  if (oni) {
+  if (IsOniPath(options.uri)) {
     std::error_code ec;
     if (!std::filesystem::is_regular_file(options.uri, ec)) throw InputError(options.uri, "", "no such .oni file");
   }
   if (IsVirtualDeviceUri(options.uri)) {
-    // Say what is wrong with a virtual device's URI; OpenNI2 itself only reports "not found".
     std::string why;
     const auto parsed = ParseVirtualDeviceUri(options.uri, &why);
     if (!parsed) throw InputError(options.uri, "", "not a valid virtual-device URI: " + why);
@@ -349,157 +362,207 @@ OpenNI2Source::OpenNI2Source(const OpenNI2SourceOptions& options) : impl_(std::m
                                             " is not a frame directory (no frames.json)");
     }
   }
-  EnsureOpenNI();
+}
 
-  if (s.device.open(options.uri.empty() ? openni::ANY_DEVICE : options.uri.c_str()) != openni::STATUS_OK) {
-    if (oni) throw InputError(s.name, "", "not a readable .oni recording: " + ExtendedError());
-    if (options.uri.empty()) {
+}  // namespace
+
+void OpenNI2Source::Impl::OpenDevice() {
+  const std::string& uri = options.uri;
+  if (device.open(uri.empty() ? openni::ANY_DEVICE : uri.c_str()) != openni::STATUS_OK) {
+    if (IsOniPath(uri)) throw InputError(name, "", "not a readable .oni recording: " + ExtendedError());
+    if (uri.empty()) {
       throw InputError("OpenNI2", "", "no device found (" + ExtendedError() + "); is the sensor plugged in and its driver in " +
                                           DriverDirectory().string() + "?");
     }
-    if (IsVirtualDeviceUri(options.uri)) {
+    if (IsVirtualDeviceUri(uri)) {
       const std::string why = VirtualDeviceOpenError();
-      if (!why.empty()) throw InputError(s.name, "", "the virtual device cannot open: " + why);
+      if (!why.empty()) throw InputError(name, "", "the virtual device cannot open: " + why);
     }
-    throw InputError(s.name, "", "no OpenNI2 device opens with this URI (" + ExtendedError() +
-                                     "); devices found: " + DeviceListText());
+    throw InputError(name, "", "no OpenNI2 device opens with this URI (" + ExtendedError() + "); devices found: " +
+                                   DeviceListText());
   }
-  s.file = s.device.isFile();
-  if (s.file) {
-    s.player_settled = std::chrono::steady_clock::now() + kPlayerSettlePause;
+  file = device.isFile();
+  if (file) {
+    player_settled = SteadyClock::now() + kPlayerSettlePause;
     // Speed -1: the file driver sends each frame on demand, so none is skipped; no repeat.
-    s.device.getPlaybackControl()->setSpeed(-1.0f);
-    s.device.getPlaybackControl()->setRepeatEnabled(false);
+    device.getPlaybackControl()->setSpeed(-1.0f);
+    device.getPlaybackControl()->setRepeatEnabled(false);
   }
-  s.step = s.device.isCommandSupported(kVirtualDeviceStepCommand);
-  if (s.device.isImageRegistrationModeSupported(openni::IMAGE_REGISTRATION_OFF)) {
-    s.device.setImageRegistrationMode(openni::IMAGE_REGISTRATION_OFF);  // depth stays in the IR camera
+  step = device.isCommandSupported(kVirtualDeviceStepCommand);
+  if (device.isImageRegistrationModeSupported(openni::IMAGE_REGISTRATION_OFF)) {
+    device.setImageRegistrationMode(openni::IMAGE_REGISTRATION_OFF);  // depth stays in the IR camera
   }
+}
 
+void OpenNI2Source::Impl::SelectPrimaryMode() {
+  openni::VideoStream& stream = primary();
+  const openni::SensorType type = options.depth ? openni::SENSOR_DEPTH : openni::SENSOR_IR;
+  if (!file) {
+    mode = ChooseMode(stream, type, options.width, options.height, options.fps);
+    if (stream.setVideoMode(mode) != openni::STATUS_OK) {
+      throw InputError(name, "video mode", "the device refused " + ModeString(type, mode) + ": " + ExtendedError());
+    }
+    return;
+  }
+  // Recordings play in their recorded mode; check it against what was asked for.
+  mode = stream.getVideoMode();
+  const bool size_ok =
+      options.width == 0 || (mode.getResolutionX() == options.width && mode.getResolutionY() == options.height);
+  const bool fps_ok = options.fps == 0 || mode.getFps() == options.fps;
+  if (!size_ok || !fps_ok) {
+    throw InputError(name, "video mode", "the recording holds " + ModeString(type, mode) + ", not the requested " +
+                                             std::to_string(options.width) + "x" + std::to_string(options.height) +
+                                             " @" + std::to_string(options.fps) + " Hz");
+  }
+}
+
+void OpenNI2Source::Impl::CheckDepthFormat() {
+  if (!options.depth) return;
+  const openni::PixelFormat f = depth.getVideoMode().getPixelFormat();
+  if (options.raw) {
+    if (f != openni::PIXEL_FORMAT_SHIFT_9_2) {
+      throw InputError(name, "depth stream", std::string("pixel format ") + FormatName(f) +
+                                                 ", not the raw shifts (shift9.2) asked for (a calibration's depth "
+                                                 "model reads raw shifts; `fuse --device-depth` fuses the metric "
+                                                 "depth instead)");
+    }
+    return;
+  }
+  if (f == openni::PIXEL_FORMAT_SHIFT_9_2) {
+    throw InputError(name, "depth stream", "holds the chip's raw shifts (shift9.2), not metric depth: `record --raw` "
+                                           "copies them, `fuse` needs a calibration with a depth model for them");
+  }
+  if (!IsDepthFormat(f)) {
+    throw InputError(name, "depth stream",
+                     std::string("pixel format ") + FormatName(f) + " is not a depth unit (1mm or 100um)");
+  }
+  unit = f == openni::PIXEL_FORMAT_DEPTH_100_UM ? DepthUnit::k100um : DepthUnit::k1mm;
+  if (file && options.depth_unit && *options.depth_unit != unit) {
+    throw InputError(name, "depth unit", std::string("the recording holds ") + ToString(unit) + ", not " +
+                                             ToString(*options.depth_unit));
+  }
+}
+
+void OpenNI2Source::Impl::MatchIrMode() {
+  if (!(options.depth && options.ir)) return;
+  // IR in the same size and rate as depth, so every Frame's images share one camera.
+  if (!file) {
+    const openni::VideoMode ir_mode =
+        ChooseMode(ir, openni::SENSOR_IR, mode.getResolutionX(), mode.getResolutionY(), mode.getFps());
+    if (ir.setVideoMode(ir_mode) != openni::STATUS_OK) {
+      throw InputError(name, "video mode", "the device refused " + ModeString(openni::SENSOR_IR, ir_mode) + ": " +
+                                               ExtendedError());
+    }
+  }
+  const openni::VideoMode m = ir.getVideoMode();
+  if (m.getResolutionX() != mode.getResolutionX() || m.getResolutionY() != mode.getResolutionY() ||
+      m.getPixelFormat() != openni::PIXEL_FORMAT_GRAY16) {
+    throw InputError(name, "IR stream", ModeString(openni::SENSOR_IR, m) + " does not match depth " +
+                                            ModeString(openni::SENSOR_DEPTH, mode) + " in size, or is not gray16");
+  }
+}
+
+// Camera: given, or a centred pinhole from the fields of view.
+void OpenNI2Source::Impl::MakeCamera() {
+  const int w = mode.getResolutionX(), h = mode.getResolutionY();
+  if (options.camera) {
+    if (options.camera->width != w || options.camera->height != h) {
+      throw InputError(name, "camera", "the given camera is " + std::to_string(options.camera->width) + "x" +
+                                           std::to_string(options.camera->height) + " but the stream is " +
+                                           std::to_string(w) + "x" + std::to_string(h));
+    }
+    camera = *options.camera;
+    return;
+  }
+  const double hfov = primary().getHorizontalFieldOfView(), vfov = primary().getVerticalFieldOfView();
+  if (!(hfov > 0.0 && hfov < M_PI && vfov > 0.0 && vfov < M_PI)) {
+    throw InputError(name, "field of view", "the device reports " + std::to_string(hfov) + " x " +
+                                                std::to_string(vfov) + " rad; give a camera model instead");
+  }
+  camera.width = w;
+  camera.height = h;
+  camera.fx = w / (2.0 * std::tan(hfov / 2.0));
+  camera.fy = h / (2.0 * std::tan(vfov / 2.0));
+  camera.cx = (w - 1) / 2.0;
+  camera.cy = (h - 1) / 2.0;
+}
+
+void OpenNI2Source::Impl::ReadChip() {
+  if (!options.depth) return;
+  // The PS1080 reports ZPD in mm, ZPPS in mm, LDDIS and DCRCDIS in cm.
+  auto length = [&](int id, double scale, std::optional<double>* out) {
+    if (auto v = ReadProperty<double>(depth, id)) *out = *v * scale;
+  };
+  if (auto v = ReadProperty<uint64_t>(depth, XN_STREAM_PROPERTY_ZERO_PLANE_DISTANCE)) {
+    chip.zero_plane_distance_m = static_cast<double>(*v) * 1e-3;
+  }
+  length(XN_STREAM_PROPERTY_ZERO_PLANE_PIXEL_SIZE, 1e-3, &chip.zero_plane_pixel_size_m);
+  length(XN_STREAM_PROPERTY_EMITTER_DCMOS_DISTANCE, 1e-2, &chip.emitter_camera_distance_m);
+  length(XN_STREAM_PROPERTY_DCMOS_RCMOS_DISTANCE, 1e-2, &chip.depth_rgb_camera_distance_m);
+  auto integer = [&](int id, std::optional<long long>* out) {
+    if (auto v = ReadProperty<uint64_t>(depth, id)) *out = static_cast<long long>(*v);
+  };
+  integer(XN_STREAM_PROPERTY_CONST_SHIFT, &chip.const_shift);
+  integer(XN_STREAM_PROPERTY_PARAM_COEFF, &chip.param_coeff);
+  integer(XN_STREAM_PROPERTY_SHIFT_SCALE, &chip.shift_scale);
+  integer(XN_STREAM_PROPERTY_MAX_SHIFT, &chip.max_shift);
+  integer(XN_STREAM_PROPERTY_PIXEL_SIZE_FACTOR, &chip.pixel_size_factor);
+}
+
+void OpenNI2Source::Impl::ReadLength() {
+  if (file) {
+    total_frames = device.getPlaybackControl()->getNumberOfFrames(primary());
+    if (total_frames <= 0) throw InputError(name, "", "not a readable .oni recording: its streams hold no frames");
+  } else if (auto n = ReadProperty<int>(primary(), ONI_STREAM_PROPERTY_NUMBER_OF_FRAMES)) {
+    total_frames = *n;  // a finite (virtual) device announces its length
+  }
+}
+
+void OpenNI2Source::Impl::StartRecorder() {
+  if (options.record_oni.empty()) return;
+  const std::string path = options.record_oni.string();
+  if (recorder.create(path.c_str()) != openni::STATUS_OK) {
+    throw InputError(path, "", "cannot create the .oni recording: " + ExtendedError());
+  }
+  for (openni::VideoStream* stream : {&depth, &ir}) {
+    if (stream->isValid() && recorder.attach(*stream, false) != openni::STATUS_OK) {
+      throw InputError(path, "", "cannot attach a stream to the recorder: " + ExtendedError());
+    }
+  }
+  recorder.start();
+  std::this_thread::sleep_for(kRecorderStartPause);
+}
+
+void OpenNI2Source::Impl::StartStreams() {
+  for (openni::VideoStream* stream : {&depth, &ir}) {
+    if (stream->isValid() && stream->start() != openni::STATUS_OK) {
+      throw InputError(name, "streams", "cannot start: " + ExtendedError());
+    }
+  }
+}
+
+OpenNI2Source::OpenNI2Source(const OpenNI2SourceOptions& options) : impl_(std::make_unique<Impl>()) {
+  CheckBeforeOpening(options);
+  Impl& s = *impl_;  // its destructor takes down whatever a throwing step leaves open
+  s.options = options;
+  s.name = options.uri.empty() ? "the first OpenNI2 device" : options.uri;
+  EnsureOpenNI();
+  s.OpenDevice();
   if (options.depth) s.SetUp(s.depth, openni::SENSOR_DEPTH, "depth");
   if (options.ir) s.SetUp(s.ir, openni::SENSOR_IR, "IR");
-
-  openni::VideoStream& primary = s.primary();
-  const openni::SensorType primary_type = options.depth ? openni::SENSOR_DEPTH : openni::SENSOR_IR;
-  if (s.file) {
-    // Recordings play in their recorded mode; check it against what was asked for.
-    s.mode = primary.getVideoMode();
-    const bool size_ok = options.width == 0 || (s.mode.getResolutionX() == options.width && s.mode.getResolutionY() == options.height);
-    const bool fps_ok = options.fps == 0 || s.mode.getFps() == options.fps;
-    if (!size_ok || !fps_ok) {
-      throw InputError(s.name, "video mode", "the recording holds " + ModeString(primary_type, s.mode) +
-                                                 ", not the requested " + std::to_string(options.width) + "x" +
-                                                 std::to_string(options.height) + " @" + std::to_string(options.fps) + " Hz");
-    }
-  } else {
-    s.mode = s.ChooseMode(primary, primary_type, options.width, options.height, options.fps);
-    if (primary.setVideoMode(s.mode) != openni::STATUS_OK) {
-      throw InputError(s.name, "video mode", "the device refused " + ModeString(primary_type, s.mode) + ": " + ExtendedError());
-    }
-  }
-  if (options.depth && options.raw) {
-    const openni::PixelFormat f = s.depth.getVideoMode().getPixelFormat();
-    if (f != openni::PIXEL_FORMAT_SHIFT_9_2) {
-      throw InputError(s.name, "depth stream", std::string("pixel format ") + FormatName(f) +
-                                                       ", not the raw shifts (shift9.2) asked for (a calibration's depth "
-                                                       "model reads raw shifts; `fuse --device-depth` fuses the metric "
-                                                       "depth instead)");
-    }
-  } else if (options.depth) {
-    const openni::PixelFormat f = s.depth.getVideoMode().getPixelFormat();
-    if (f == openni::PIXEL_FORMAT_SHIFT_9_2) {
-      throw InputError(s.name, "depth stream", "holds the chip's raw shifts (shift9.2), not metric depth: `record --raw` "
-                                                       "copies them, `fuse` needs a calibration with a depth model for them");
-    }
-    if (!IsDepthFormat(f)) throw InputError(s.name, "depth stream", std::string("pixel format ") + FormatName(f) + " is not a depth unit (1mm or 100um)");
-    s.unit = f == openni::PIXEL_FORMAT_DEPTH_100_UM ? DepthUnit::k100um : DepthUnit::k1mm;
-    if (s.file && options.depth_unit && *options.depth_unit != s.unit) {
-      throw InputError(s.name, "depth unit", std::string("the recording holds ") + ToString(s.unit) + ", not " + ToString(*options.depth_unit));
-    }
-  }
-  if (options.depth && options.ir) {
-    // IR in the same size and rate as depth, so every Frame's images share one camera.
-    if (!s.file) {
-      const openni::VideoMode ir_mode = s.ChooseMode(s.ir, openni::SENSOR_IR, s.mode.getResolutionX(), s.mode.getResolutionY(), s.mode.getFps());
-      if (s.ir.setVideoMode(ir_mode) != openni::STATUS_OK) {
-        throw InputError(s.name, "video mode", "the device refused " + ModeString(openni::SENSOR_IR, ir_mode) + ": " + ExtendedError());
-      }
-    }
-    const openni::VideoMode m = s.ir.getVideoMode();
-    if (m.getResolutionX() != s.mode.getResolutionX() || m.getResolutionY() != s.mode.getResolutionY() ||
-        m.getPixelFormat() != openni::PIXEL_FORMAT_GRAY16) {
-      throw InputError(s.name, "IR stream", ModeString(openni::SENSOR_IR, m) + " does not match depth " + ModeString(openni::SENSOR_DEPTH, s.mode) + " in size, or is not gray16");
-    }
-  }
+  s.SelectPrimaryMode();
+  s.CheckDepthFormat();
+  s.MatchIrMode();
   for (openni::VideoStream* stream : {&s.depth, &s.ir}) {
     if (stream->isValid() && !s.file && stream->isPropertySupported(ONI_STREAM_PROPERTY_MIRRORING)) {
       stream->setMirroringEnabled(false);
     }
   }
-
-  // Camera: given, or a centred pinhole from the fields of view.
-  const int w = s.mode.getResolutionX(), h = s.mode.getResolutionY();
-  if (options.camera) {
-    if (options.camera->width != w || options.camera->height != h) {
-      throw InputError(s.name, "camera", "the given camera is " + std::to_string(options.camera->width) + "x" +
-                                             std::to_string(options.camera->height) + " but the stream is " +
-                                             std::to_string(w) + "x" + std::to_string(h));
-    }
-    s.camera = *options.camera;
-  } else {
-    const double hfov = primary.getHorizontalFieldOfView(), vfov = primary.getVerticalFieldOfView();
-    if (!(hfov > 0.0 && hfov < M_PI && vfov > 0.0 && vfov < M_PI)) {
-      throw InputError(s.name, "field of view", "the device reports " + std::to_string(hfov) + " x " + std::to_string(vfov) + " rad; give a camera model instead");
-    }
-    s.camera.width = w;
-    s.camera.height = h;
-    s.camera.fx = w / (2.0 * std::tan(hfov / 2.0));
-    s.camera.fy = h / (2.0 * std::tan(vfov / 2.0));
-    s.camera.cx = (w - 1) / 2.0;
-    s.camera.cy = (h - 1) / 2.0;
-  }
-
-  if (options.depth) {
-    // The PS1080 reports ZPD in mm, ZPPS in mm, LDDIS and DCRCDIS in cm.
-    if (auto v = ReadProperty<uint64_t>(s.depth, XN_STREAM_PROPERTY_ZERO_PLANE_DISTANCE)) s.chip.zero_plane_distance_m = *v * 1e-3;
-    if (auto v = ReadProperty<double>(s.depth, XN_STREAM_PROPERTY_ZERO_PLANE_PIXEL_SIZE)) s.chip.zero_plane_pixel_size_m = *v * 1e-3;
-    if (auto v = ReadProperty<double>(s.depth, XN_STREAM_PROPERTY_EMITTER_DCMOS_DISTANCE)) s.chip.emitter_camera_distance_m = *v * 1e-2;
-    if (auto v = ReadProperty<double>(s.depth, XN_STREAM_PROPERTY_DCMOS_RCMOS_DISTANCE)) s.chip.depth_rgb_camera_distance_m = *v * 1e-2;
-    auto integer = [&](int id, std::optional<long long>* out) {
-      if (auto v = ReadProperty<uint64_t>(s.depth, id)) *out = static_cast<long long>(*v);
-    };
-    integer(XN_STREAM_PROPERTY_CONST_SHIFT, &s.chip.const_shift);
-    integer(XN_STREAM_PROPERTY_PARAM_COEFF, &s.chip.param_coeff);
-    integer(XN_STREAM_PROPERTY_SHIFT_SCALE, &s.chip.shift_scale);
-    integer(XN_STREAM_PROPERTY_MAX_SHIFT, &s.chip.max_shift);
-    integer(XN_STREAM_PROPERTY_PIXEL_SIZE_FACTOR, &s.chip.pixel_size_factor);
-  }
-
-  if (s.file) {
-    s.total_frames = s.device.getPlaybackControl()->getNumberOfFrames(primary);
-    if (s.total_frames <= 0) throw InputError(s.name, "", "not a readable .oni recording: its streams hold no frames");
-  } else if (auto n = ReadProperty<int>(primary, ONI_STREAM_PROPERTY_NUMBER_OF_FRAMES)) {
-    s.total_frames = *n;  // a finite (virtual) device announces its length
-  }
-
-  if (!options.record_oni.empty()) {
-    const std::string path = options.record_oni.string();
-    if (s.recorder.create(path.c_str()) != openni::STATUS_OK) {
-      throw InputError(path, "", "cannot create the .oni recording: " + ExtendedError());
-    }
-    for (openni::VideoStream* stream : {&s.depth, &s.ir}) {
-      if (stream->isValid() && s.recorder.attach(*stream, false) != openni::STATUS_OK) {
-        throw InputError(path, "", "cannot attach a stream to the recorder: " + ExtendedError());
-      }
-    }
-    s.recorder.start();
-    std::this_thread::sleep_for(kRecorderStartPause);
-  }
-  for (openni::VideoStream* stream : {&s.depth, &s.ir}) {
-    if (stream->isValid() && stream->start() != openni::STATUS_OK) {
-      throw InputError(s.name, "streams", "cannot start: " + ExtendedError());
-    }
-  }
+  s.MakeCamera();
+  s.ReadChip();
+  s.ReadLength();
+  s.StartRecorder();
+  s.StartStreams();
 }
 
 OpenNI2Source::~OpenNI2Source() = default;  // Impl's destructor takes the device down

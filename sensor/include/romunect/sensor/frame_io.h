@@ -117,6 +117,10 @@ class FrameDirectorySource : public FrameSource {
  public:
   explicit FrameDirectorySource(const std::filesystem::path& dir,
                                 InvalidDepthPolicy policy = InvalidDepthPolicy::kReject);
+  // Plays a manifest already read from `dir`, as given: a caller may drop images it does not
+  // need (an entry's gt_depth = "") or open many passes of one directory with one read.
+  FrameDirectorySource(const std::filesystem::path& dir, FrameDirectoryManifest manifest,
+                       InvalidDepthPolicy policy = InvalidDepthPolicy::kReject);
 
   const CameraModel& camera() const override { return manifest_.camera; }
   std::string Describe() const override;

@@ -1,0 +1,101 @@
+#include "feed_library_source.h"
+
+#include <dlfcn.h>
+
+#include <filesystem>
+#include <stdexcept>
+
+namespace romunect::openni2 {
+namespace {
+
+// The simulator's feed library: libRomunectSimFeed.so in <build>/lib, two folders above the
+// driver folder this plug-in was loaded from (CMake builds both there).
+std::string DefaultFeedLibrary() {
+  Dl_info info{};
+  if (dladdr(reinterpret_cast<void*>(&DefaultFeedLibrary), &info) == 0 || info.dli_fname == nullptr) return "";
+  const std::filesystem::path drivers = std::filesystem::path(info.dli_fname).parent_path();
+  return (drivers.parent_path().parent_path() / "libRomunectSimFeed.so").string();
+}
+
+}  // namespace
+
+FeedLibrarySource::FeedLibrarySource(const std::string& library, const std::string& query)
+    : path_(library.empty() ? DefaultFeedLibrary() : library) {
+  LoadLibrary(path_);
+  try {
+    CreateFeed(query);
+  } catch (...) {
+    dlclose(handle_);
+    throw;
+  }
+  camera_.width = info_.width;
+  camera_.height = info_.height;
+  camera_.fx = info_.fx;
+  camera_.fy = info_.fy;
+  camera_.cx = info_.cx;
+  camera_.cy = info_.cy;
+}
+
+void FeedLibrarySource::LoadLibrary(const std::string& path) {
+  // Never unloaded (NODELETE): its renderer's and physics' threads and statics may outlive the feed.
+  handle_ = dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL | RTLD_NODELETE);
+  if (handle_ == nullptr) throw std::runtime_error("cannot load the feed library " + path + ": " + dlerror());
+  create_ = reinterpret_cast<RomunectFeedCreateFn>(dlsym(handle_, ROMUNECT_FEED_CREATE_SYMBOL));
+  next_ = reinterpret_cast<RomunectFeedNextFn>(dlsym(handle_, ROMUNECT_FEED_NEXT_SYMBOL));
+  destroy_ = reinterpret_cast<RomunectFeedDestroyFn>(dlsym(handle_, ROMUNECT_FEED_DESTROY_SYMBOL));
+  if (create_ == nullptr || next_ == nullptr || destroy_ == nullptr) {
+    dlclose(handle_);
+    throw std::runtime_error(path + " is not a romunect feed library (it lacks romunect_feed_create/next/destroy)");
+  }
+}
+
+void FeedLibrarySource::CreateFeed(const std::string& query) {
+  char error[1024] = "";
+  RomunectFeedInfo info{};
+  feed_ = create_(query.c_str(), &info, error, sizeof(error));
+  if (feed_ == nullptr) throw std::runtime_error(path_ + ": " + error);
+  if (info.abi_version != ROMUNECT_FEED_ABI_VERSION || info.width <= 0 || info.height <= 0 ||
+      !(info.fx > 0.0 && info.fy > 0.0)) {
+    destroy_(feed_);
+    throw std::runtime_error(path_ + ": unsupported feed (ABI version " + std::to_string(info.abi_version) +
+                             ", size " + std::to_string(info.width) + "x" + std::to_string(info.height) + ")");
+  }
+  info_ = info;
+}
+
+FeedLibrarySource::~FeedLibrarySource() {
+  destroy_(feed_);
+  dlclose(handle_);
+}
+
+std::string FeedLibrarySource::Describe() const {
+  std::string d = "feed library " + path_ + ", " + std::to_string(info_.width) + "x" + std::to_string(info_.height);
+  d += info_.frame_count > 0 ? ", " + std::to_string(info_.frame_count) + " frames" : std::string(", endless");
+  return d;
+}
+
+FrameStatus FeedLibrarySource::Next(Frame* frame, std::string* error) {
+  if (ended_) return FrameStatus::kEndOfStream;
+  char message[1024] = "";
+  RomunectFeedFrame f{};
+  const int status = next_(feed_, &f, message, sizeof(message));
+  if (status == 0) {
+    ended_ = true;
+    return FrameStatus::kEndOfStream;
+  }
+  const int index = produced_++;
+  if (status < 0) {
+    *error = message;
+    return FrameStatus::kBadFrame;
+  }
+  *frame = Frame();
+  frame->index = index;
+  frame->time_s = f.time_s;
+  // Copies: the feed's buffers live only until its next call.
+  const int h = info_.height, w = info_.width;
+  if (f.depth_m != nullptr) frame->depth_m = cv::Mat(h, w, CV_32F, const_cast<float*>(f.depth_m)).clone();
+  if (f.ir != nullptr) frame->ir = cv::Mat(h, w, CV_16U, const_cast<uint16_t*>(f.ir)).clone();
+  return FrameStatus::kOk;
+}
+
+}  // namespace romunect::openni2
