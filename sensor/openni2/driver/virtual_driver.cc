@@ -44,7 +44,7 @@ namespace {
 // The PS1080 geometry the chip reports, in its own units. Defaults follow the twin's stock chip
 // (RigPreset("kinect-v1")): ZPD is the PS1080's fixed 120 mm, ZPPS the pixel size there for the
 // chip's 1280-px sensor (ZPD / 2 f at 640 px), LDDIS the baseline. A frames.json may override
-// any of them with a top-level "ps1080" object of the same keys (docs/openni2.md).
+// any of them with a top-level "ps1080" object of the same keys (docs/hardware.md).
 struct ChipParameters {
   uint64_t zero_plane_distance_mm = 120;
   double zero_plane_pixel_size_mm = 0.1042;

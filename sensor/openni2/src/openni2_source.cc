@@ -24,7 +24,7 @@ namespace romunect::openni2 {
 namespace {
 
 // OpenNI2's recorder starts on its own thread: frames sent before that are not recorded. Nothing
-// reports when it has started, so the streams start only after this pause (docs/openni2.md).
+// reports when it has started, so the streams start only after this pause (docs/hardware.md).
 constexpr std::chrono::milliseconds kRecorderStartPause{300};
 
 // How long a recording's player thread is given to settle before its device closes, counted

@@ -1,7 +1,7 @@
 // Robot pose logs: on real hardware the flange pose T_B_H comes from the robot controller as a
 // timestamped log, and frames get their pose by interpolation at their capture time.
 //
-// Format (CSV, docs/openni2.md): one pose per line, '#' starts a comment, an optional header
+// Format (CSV, docs/hardware.md): one pose per line, '#' starts a comment, an optional header
 // line starting with "time_s"; columns
 //     time_s, x_m, y_m, z_m, qw, qx, qy, qz
 // = time (s, the frames' clock: seconds since the first frame, shifted by time_offset_s),

@@ -1,6 +1,6 @@
 // The virtual OpenNI2 device: an OpenNI2 driver plug-in (libRomunectVirtual.so.0, built by this
 // project into <build>/lib/OpenNI2/Drivers) that presents a frame directory as a PS1080-like
-// device, so the real OpenNI2 code path runs end to end without a Kinect (docs/openni2.md).
+// device, so the real OpenNI2 code path runs end to end without a Kinect (docs/hardware.md).
 //
 // A device is named by a URI:  romunect:<absolute frame directory>[?key=value&...]
 //   pace=realtime   frames at their frames.json times (default), like a real device

@@ -1,6 +1,6 @@
 // The live twin as an OpenNI2 device: a frame feed (romunect/openni2/feed_abi.h) over the
 // simulator's Scanner, so the virtual device's driver plug-in presents simulated frames live as
-// they are rendered (URI romunect-sim:?key=value&...; docs/openni2.md). This folder sits above
+// they are rendered (URI romunect-sim:?key=value&...; docs/hardware.md). This folder sits above
 // sim/ and sensor/openni2/: the driver loads libRomunectSimFeed.so with dlopen and sees only
 // the C ABI, so sensor/openni2 never depends on the simulator.
 //
