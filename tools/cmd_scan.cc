@@ -201,9 +201,9 @@ void RunScan(const ScanArguments& args) {
   // frame k - 1's IR is synthesized and frame k - 2's depth computed on two more, a fourth fuses
   // and a fifth writes the frame directory. Frames keep their order and content, so a seed gives
   // the same bytes.
-  FramePipeline<sim::ScanWork> pipeline;
-  sim::AddScanStages(&scanner, &pipeline);
   fusion::CompletenessTracker completeness(grid);  // the curve, without extracting every frame
+  FramePipeline<sim::ScanWork> pipeline;  // after what its stages use: its threads end first
+  sim::AddScanStages(&scanner, &pipeline);
   pipeline.AddStage({"fuse", 2}, [&](sim::ScanWork* work) {
     Frame& frame = work->frame;
     if (calibration) frame.T_W_C = T_W_B * *frame.T_B_H * calibration->T_H_C;
