@@ -24,8 +24,8 @@
 #include "romunect/calib/calibration_file.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
+#include "romunect/sensor/frame_pipeline.h"
 #include "romunect/sensor/rig.h"
-#include "romunect/sim/frame_pipeline.h"
 #include "romunect/sim/objects.h"
 #include "romunect/sim/pick.h"
 #include "romunect/sim/pile.h"
@@ -153,8 +153,8 @@ void RunScan(const ScanArguments& args) {
   std::unique_ptr<sim::SensorImager> imager;
   if (!args.ideal_depth) {
     sim::SensorImagerOptions imager_options;
-    // Imaging runs on a thread of its own beside rendering and fusion (ScanOptions::
-    // imaging_thread): its stages do not split well (2 threads cost 15-35 % more CPU than one).
+    // Imaging runs on threads of its own beside rendering and fusion (the scan pipeline's IR and
+    // depth stages): its stages do not split well (2 threads cost 15-35 % more CPU than one).
     imager_options.threads = std::max(1, args.threads - 1);
     if (calibration) {
       if (!calibration->depth) {
@@ -197,28 +197,16 @@ void RunScan(const ScanArguments& args) {
   const bool interactive = isatty(fileno(stderr));
   const auto t_loop = std::chrono::steady_clock::now();
   const double cpu_loop = ProcessCpuSeconds();
-  // A pipeline on the cores: the simulator renders the next frame on its own thread while its
-  // imaging thread images the one before (ScanOptions::imaging_thread), this one fuses, and the
-  // frame directory is written on a fourth. Frames keep their order and content, so a seed
-  // gives the same bytes.
-  sim::PrefetchingSource source(&scanner);
-  // The writer may lag up to 16 frames (~60 MB of images) at a lower priority: it runs on what
-  // rendering, imaging and fusion leave (steadier loop times on 2 cores).
-  sim::FrameWorker frame_writer([&writer](const Frame& f) { writer.Add(f); }, 16, 10);
-  Frame frame;
-  std::string error;
+  // A pipeline on the cores (frame_pipeline.h): the simulator renders frame k on one thread while
+  // frame k - 1's IR is synthesized and frame k - 2's depth computed on two more, a fourth fuses
+  // and a fifth writes the frame directory. Frames keep their order and content, so a seed gives
+  // the same bytes.
   fusion::CompletenessTracker completeness(grid);  // the curve, without extracting every frame
-  for (;;) {
-    const FrameStatus status = source.Next(&frame, &error);
-    if (status == FrameStatus::kEndOfStream) break;
-    if (status == FrameStatus::kBadFrame) {
-      report.fusion.bad_frame_messages.push_back(error);
-      ++report.fusion.bad_frames;
-      continue;
-    }
+  FramePipeline<sim::ScanWork> pipeline;  // after what its stages use: its threads end first
+  sim::AddScanStages(&scanner, &pipeline);
+  pipeline.AddStage({"fuse", 2}, [&](sim::ScanWork* work) {
+    Frame& frame = work->frame;
     if (calibration) frame.T_W_C = T_W_B * *frame.T_B_H * calibration->T_H_C;
-    frame_writer.Push(frame);
-
     auto t = std::chrono::steady_clock::now();
     inserter.Insert(camera, frame.depth_m, *frame.T_W_C, &insert_stats);
     report.fusion.insert_ms.push_back(1e3 * Seconds(t));
@@ -236,13 +224,18 @@ void RunScan(const ScanArguments& args) {
                    interactive ? "\r" : "", frame.index + 1, total, 100.0 * report.valid_fraction_per_frame.back(),
                    100.0 * report.fusion.completeness_per_frame.back(), Seconds(t_loop), interactive ? "" : "\n");
     }
-  }
-  frame_writer.Finish();
+  });
+  // The writer may lag up to 16 frames (~60 MB of images) at a lower priority: it runs on what
+  // rendering, imaging and fusion leave (steadier loop times on 2 cores).
+  pipeline.AddStage({"write", 16, 10}, [&writer](sim::ScanWork* work) { writer.Add(work->frame); });
+  pipeline.Run();
   report.loop_wall_s = Seconds(t_loop);
   report.loop_cpu_s = ProcessCpuSeconds() - cpu_loop;
   if (interactive) std::fprintf(stderr, "\n");
-  report.write_s = frame_writer.busy_s();
-  report.wait_s = source.wait_s();
+  for (const PipelineStageTiming& stage : pipeline.timings()) {
+    if (stage.name == "write") report.write_s = stage.busy_s;
+    if (stage.name == "fuse") report.wait_s = stage.wait_s;
+  }
   writer.Finish();
 
   auto t = std::chrono::steady_clock::now();

@@ -50,7 +50,7 @@ struct SampleDepths {
       first_m = frame.depth_m.clone();
       first_index = frame.index;
     } else if (first_index >= 0) {
-      last_m = frame.depth_m;  // a delivered frame's images are its own (frame_pipeline.h)
+      last_m = frame.depth_m;  // a scanned frame's images are its own (sim/scanner.h, ScanWork)
       last_index = frame.index;
     }
   }

@@ -1,19 +1,14 @@
 #include "romunect/sim/scanner.h"
 
-#include <chrono>
 #include <cmath>
-#include <condition_variable>
 #include <cstdio>
-#include <exception>
-#include <functional>
 #include <mutex>
-#include <optional>
-#include <thread>
 #include <utility>
 
 #include <opencv2/imgproc.hpp>
 
 #include "romunect/sensor/check.h"
+#include "romunect/sensor/clock.h"
 #include "romunect/sensor/embree/ray_scene.h"
 #include "romunect/sensor/embree/renderer.h"
 #include "romunect/sensor/errors.h"
@@ -28,9 +23,6 @@ constexpr int kArmObjectId = 2000;
 // The ground-truth height map is traced from this high up: rays 30 m long are parallel to
 // within 0.12 mm over a 15 cm box for surfaces 5 cm high, and float hits keep 2 um there.
 constexpr double kTruthCameraHeightM = 30.0;
-
-using Clock = std::chrono::steady_clock;
-double Seconds(Clock::time_point since) { return std::chrono::duration<double>(Clock::now() - since).count(); }
 
 TriangleMesh ToTriangleMesh(const Mesh& mesh) {
   TriangleMesh out;
@@ -122,65 +114,6 @@ DepthRange MeasurableDepthRange(const Rig& rig, double usable_fraction) {
   return range;
 }
 
-// One imaging stage on its own thread, a frame at a time (Scanner::Next): frame k's IR is
-// synthesized from its own geometry buffer while frame k + 1 is rendered into the other, and
-// frame k - 1's depth is computed meanwhile on a second such thread.
-class ImagingThread {
- public:
-  ImagingThread() : thread_([this] { Run(); }) {}
-  ~ImagingThread() {
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      stop_ = true;
-    }
-    changed_.notify_all();
-    thread_.join();
-  }
-  // Starts job(); the previous one must have been waited for.
-  void Start(std::function<void()> job) {
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      job_ = std::move(job);
-      busy_ = true;
-    }
-    changed_.notify_all();
-  }
-  // Waits for the started job (if any); rethrows what it threw.
-  void Wait() {
-    std::unique_lock<std::mutex> lock(mutex_);
-    changed_.wait(lock, [this] { return !busy_; });
-    if (failure_) std::rethrow_exception(std::exchange(failure_, nullptr));
-  }
-
- private:
-  void Run() {
-    std::unique_lock<std::mutex> lock(mutex_);
-    for (;;) {
-      changed_.wait(lock, [this] { return stop_ || busy_; });
-      if (stop_) return;
-      std::function<void()> job = std::move(job_);
-      lock.unlock();
-      std::exception_ptr failure;
-      try {
-        job();
-      } catch (...) {
-        failure = std::current_exception();
-      }
-      lock.lock();
-      failure_ = failure;
-      busy_ = false;
-      changed_.notify_all();
-    }
-  }
-
-  std::mutex mutex_;
-  std::condition_variable changed_;
-  std::function<void()> job_;
-  bool busy_ = false, stop_ = false;
-  std::exception_ptr failure_;
-  std::thread thread_;  // last: starts after the rest is constructed
-};
-
 struct Scanner::Impl {
   ScanOptions options;
   std::unique_ptr<World> world;
@@ -191,53 +124,25 @@ struct Scanner::Impl {
   std::vector<Pose> T_W_G;
   embree::GeometryRenderer renderer;
   embree::RenderOptions render_options;
-  GeometryBuffer geometry[2];  // frame k renders into geometry[k % 2]
   std::unique_ptr<FrameImager> imager;
   ScanStats stats;
   int next = 0;
   int count = 0;
-  // With an imager and options.imaging_thread: the frame in IR synthesis (rendered by the last
-  // Next()) and the one in the depth engine (rendered by the one before), each on its thread
-  // (declared last: joined before what their jobs use goes away). Frames come out of Next() two
-  // calls late, the last two after rendering has ended.
-  struct Stage {
-    std::optional<Frame> frame;
-    double seconds = 0.0;  // the job's time, added to stats once waited for
-    std::unique_ptr<ImagingThread> thread;
-  };
-  Stage ir_stage, depth_stage;
+  // Geometry buffers rendered into and read by SynthesizeIr: in a pipeline a few frames hold one
+  // at a time (one per frame between the two stages); reused, not reallocated per frame.
+  std::mutex geometry_mutex;
+  std::vector<std::shared_ptr<GeometryBuffer>> free_geometry;
 
-  // Waits for a stage's job; a failed frame is dropped, never delivered half-imaged.
-  void Wait(Stage* stage) {
-    try {
-      stage->thread->Wait();
-    } catch (...) {
-      stage->frame.reset();
-      throw;
-    }
-    stats.imaging_s += stage->seconds;
+  std::shared_ptr<GeometryBuffer> TakeGeometry() {
+    std::lock_guard<std::mutex> lock(geometry_mutex);
+    if (free_geometry.empty()) return std::make_shared<GeometryBuffer>();
+    std::shared_ptr<GeometryBuffer> buffer = std::move(free_geometry.back());
+    free_geometry.pop_back();
+    return buffer;
   }
-  // Moves the pipeline on by a frame: the frame in the depth engine is done and returned (if
-  // any), the one in IR synthesis moves on to the depth engine.
-  std::optional<Frame> Advance() {
-    std::optional<Frame> ready;
-    if (depth_stage.frame) {
-      Wait(&depth_stage);
-      ready = std::move(depth_stage.frame);
-      depth_stage.frame.reset();
-    }
-    if (ir_stage.frame) {
-      Wait(&ir_stage);
-      depth_stage.frame = std::move(ir_stage.frame);
-      ir_stage.frame.reset();
-      Frame* f = &*depth_stage.frame;
-      depth_stage.thread->Start([this, f] {
-        const auto depth_start = Clock::now();
-        imager->ComputeDepth(options.rig, f);
-        depth_stage.seconds = Seconds(depth_start);
-      });
-    }
-    return ready;
+  void GiveBack(std::shared_ptr<GeometryBuffer> buffer) {
+    std::lock_guard<std::mutex> lock(geometry_mutex);
+    free_geometry.push_back(std::move(buffer));
   }
 };
 
@@ -245,7 +150,7 @@ Scanner::Scanner(const ScanOptions& options) : impl_(std::make_unique<Impl>()) {
   Impl& s = *impl_;
   if (const std::string p = options.Problem(); !p.empty()) throw InputError("scan options", "", p);
   s.options = options;
-  const auto setup_start = Clock::now();
+  const Stopwatch setup;
   double settle_wall_s = 0.0;
   if (!options.saved_scene.empty()) {
     s.world = std::make_unique<World>(LoadSettledScene(options.saved_scene));
@@ -286,16 +191,12 @@ Scanner::Scanner(const ScanOptions& options) : impl_(std::make_unique<Impl>()) {
   s.render_options.threads = options.threads;
   s.render_options.focus_distance_m = options.rig.optics.focus_distance_m;
   s.render_options.aperture_radius_m = options.samples_per_pixel > 1 ? options.rig.optics.aperture_m / 2 : 0.0;
-  s.stats.setup_s = Seconds(setup_start) - settle_wall_s;
+  s.stats.setup_s = setup.seconds() - settle_wall_s;
 }
 
 Scanner::~Scanner() = default;
 
-void Scanner::SetImager(std::unique_ptr<FrameImager> imager) {
-  ROMUNECT_CHECK_MSG(!impl_->ir_stage.frame && !impl_->depth_stage.frame,
-                     "Scanner::SetImager while a frame is being imaged");
-  impl_->imager = std::move(imager);
-}
+void Scanner::SetImager(std::unique_ptr<FrameImager> imager) { impl_->imager = std::move(imager); }
 const CameraModel& Scanner::camera() const { return impl_->options.rig.camera; }
 int Scanner::frame_count() const { return impl_->count; }
 const ScanOptions& Scanner::options() const { return impl_->options; }
@@ -315,72 +216,78 @@ std::string Scanner::Describe() const {
 
 FrameStatus Scanner::Next(Frame* frame, std::string* error) {
   ROMUNECT_CHECK(frame != nullptr && error != nullptr);
+  ScanWork work;
+  if (!Render(&work)) return FrameStatus::kEndOfStream;
+  SynthesizeIr(&work);
+  ComputeDepth(&work);
+  *frame = std::move(work.frame);
+  return FrameStatus::kOk;
+}
+
+bool Scanner::Render(ScanWork* work) {
+  ROMUNECT_CHECK(work != nullptr);
   Impl& s = *impl_;
-  const bool pipelined = s.imager != nullptr && s.options.imaging_thread;
-  if (s.next >= s.count) {
-    if (!pipelined || (!s.ir_stage.frame && !s.depth_stage.frame)) return FrameStatus::kEndOfStream;
-    // Rendering has ended: the stages drain in order.
-    std::optional<Frame> ready = s.Advance();
-    if (!ready) return Next(frame, error);  // a one-frame scan: its depth is under way
-    *frame = std::move(*ready);
-    return FrameStatus::kOk;
-  }
+  if (s.next >= s.count) return false;
   const int k = s.next;
   const double t = k / s.options.rig.frame_rate_hz;
 
-  auto start = Clock::now();
+  const Stopwatch physics;
   s.executor->AdvanceTo(t);
-  s.stats.physics_s += Seconds(start);
+  s.stats.physics_s += physics.seconds();
 
-  start = Clock::now();
+  const Stopwatch render;
   World& world = *s.world;
   UpdatePoses(world, s.handles, &s.T_W_G, &s.scene);
   const Pose T_W_C = world.T_W_C();
-  GeometryBuffer& geometry = s.geometry[k % 2];
+  work->geometry = s.TakeGeometry();
   // The rig is the optics' truth (a saved scene may carry another projector site).
-  s.renderer.Render(s.scene, s.options.rig.camera, T_W_C, s.options.rig.T_C_P, s.render_options, &geometry);
-  Frame rendered;
-  rendered.index = k;
-  rendered.time_s = t;
-  rendered.T_W_C = T_W_C;
-  rendered.T_B_H = world.T_B_H();
-  rendered.gt_depth_m = embree::GroundTruthDepth(geometry);
-  s.stats.render_s += Seconds(start);
+  s.renderer.Render(s.scene, s.options.rig.camera, T_W_C, s.options.rig.T_C_P, s.render_options, work->geometry.get());
+  Frame& frame = work->frame;
+  frame.index = k;
+  frame.time_s = t;
+  frame.T_W_C = T_W_C;
+  frame.T_B_H = world.T_B_H();
+  frame.gt_depth_m = embree::GroundTruthDepth(*work->geometry);
+  s.stats.render_s += render.seconds();
   s.stats.tracking = s.executor->tracking();
   s.stats.simulated_s = t;
   ++s.stats.frames;
   ++s.next;
 
-  const uint64_t seed = s.options.seed * 1000003ULL + k;
+  work->seed = s.options.seed * 1000003ULL + k;
   if (!s.imager) {
-    rendered.depth_m = rendered.gt_depth_m.clone();  // an ideal sensor
-    *frame = std::move(rendered);
-    return FrameStatus::kOk;
+    frame.depth_m = frame.gt_depth_m.clone();  // an ideal sensor
+    s.GiveBack(std::move(work->geometry));
   }
-  if (!pipelined) {
-    const auto imaging_start = Clock::now();
-    s.imager->Image(s.options.rig, geometry, seed, &rendered);
-    s.stats.imaging_s += Seconds(imaging_start);
-    *frame = std::move(rendered);
-    return FrameStatus::kOk;
-  }
-  // Frame k - 2 goes out, k - 1 moves from IR synthesis to the depth engine, k starts IR
-  // synthesis from its geometry buffer (k - 1's IR, which read the other one, has ended).
-  if (!s.ir_stage.thread) {
-    s.ir_stage.thread = std::make_unique<ImagingThread>();
-    s.depth_stage.thread = std::make_unique<ImagingThread>();
-  }
-  std::optional<Frame> ready = s.Advance();
-  s.ir_stage.frame = std::move(rendered);
-  Frame* f = &*s.ir_stage.frame;
-  s.ir_stage.thread->Start([&s, &geometry, seed, f] {
-    const auto ir_start = Clock::now();
-    s.imager->SynthesizeIr(s.options.rig, geometry, seed, f);
-    s.ir_stage.seconds = Seconds(ir_start);
-  });
-  if (!ready) return Next(frame, error);  // the first two frames: render the next meanwhile
-  *frame = std::move(*ready);
-  return FrameStatus::kOk;
+  return true;
+}
+
+void Scanner::SynthesizeIr(ScanWork* work) {
+  ROMUNECT_CHECK(work != nullptr);
+  Impl& s = *impl_;
+  if (!s.imager) return;
+  ROMUNECT_CHECK_MSG(work->geometry != nullptr, "Scanner::SynthesizeIr without a rendered frame");
+  const Stopwatch ir;
+  s.imager->SynthesizeIr(s.options.rig, *work->geometry, work->seed, &work->frame);
+  work->ir_s = ir.seconds();
+  s.GiveBack(std::move(work->geometry));
+}
+
+void Scanner::ComputeDepth(ScanWork* work) {
+  ROMUNECT_CHECK(work != nullptr);
+  Impl& s = *impl_;
+  if (!s.imager) return;
+  const Stopwatch depth;
+  s.imager->ComputeDepth(s.options.rig, &work->frame);
+  // Only this stage writes imaging_s (Render writes the other stats): no two threads share one.
+  s.stats.imaging_s += work->ir_s + depth.seconds();
+}
+
+void AddScanStages(Scanner* scanner, FramePipeline<ScanWork>* pipeline, int queue_depth) {
+  ROMUNECT_CHECK(scanner != nullptr && pipeline != nullptr && queue_depth >= 1);
+  pipeline->SetSource({"render"}, [scanner](ScanWork* work) { return scanner->Render(work); });
+  pipeline->AddStage({"ir", queue_depth}, [scanner](ScanWork* work) { scanner->SynthesizeIr(work); });
+  pipeline->AddStage({"depth", queue_depth}, [scanner](ScanWork* work) { scanner->ComputeDepth(work); });
 }
 
 cv::Mat GroundTruthHeightMap(const World& world, const HeightMapGeometry& geometry) {

@@ -1,34 +1,28 @@
 // The default scan's wall time (docs/performance.md): settle a pile (range(0) objects), plan the
 // approach, then per 30 Hz frame advance the physics, update the instances, render at the
 // romunect rig's full resolution, and (range(1) = 1) image it: IR synthesis, depth engine and
-// ground-truth depth correction (SensorImager). range(2) = 1 also fuses every frame (insert
-// and the completeness curve's CompletenessTracker, as `romunect scan` does) with the
-// simulator on its own thread ahead of fusion (PrefetchingSource); 2: the same, serially;
+// ground-truth depth correction (SensorImager), with rendering, IR synthesis and the depth engine
+// on a thread each (the scan pipeline, frame_pipeline.h). range(2) = 1 also fuses every frame
+// (insert and the completeness curve's CompletenessTracker, as `romunect scan` does) on a
+// pipeline stage of its own; 2: the same, every stage serially on the caller (Scanner::Next);
 // range(3): fusion's threads.
 // Counters: per-frame milliseconds per stage, the wall time per frame and the real-time
 // factor (simulated approach time / wall time of its frames).
 #include <benchmark/benchmark.h>
 
-#include <time.h>
-
-#include <chrono>
-#include <ctime>
 #include <memory>
+#include <string>
+#include <vector>
 
 #include "romunect/fusion/frame_inserter.h"
 #include "romunect/fusion/voting_grid.h"
-#include "romunect/sim/frame_pipeline.h"
+#include "romunect/sensor/clock.h"
+#include "romunect/sensor/frame_pipeline.h"
 #include "romunect/sim/scanner.h"
 #include "romunect/sim/sensor_imager.h"
 
 namespace romunect::sim {
 namespace {
-
-double ProcessCpuS() {
-  timespec ts;
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-  return ts.tv_sec + ts.tv_nsec * 1e-9;
-}
 
 void BM_DefaultScan(benchmark::State& state) {
   for (auto _ : state) {
@@ -36,15 +30,15 @@ void BM_DefaultScan(benchmark::State& state) {
     options.pile.num_objects = static_cast<int>(state.range(0));
     options.threads = 2;
     // Serially (fusion:2) every stage runs alone, so its process CPU is its own.
-    options.imaging_thread = state.range(2) != 2;
-    const auto start = std::chrono::steady_clock::now();
+    const bool pipelined = state.range(2) != 2;
+    const Stopwatch setup;
     Scanner scanner(options);
     if (state.range(1) == 1) {
       SensorImagerOptions imager;
-      imager.threads = 1;  // as romunect scan: imaging on its own thread beside rendering
+      imager.threads = 1;  // as romunect scan: imaging on threads of its own beside rendering
       scanner.SetImager(std::make_unique<SensorImager>(options.rig, imager));
     }
-    const double setup_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    const double setup_s = setup.seconds();
     const ScanBox region = ScanRegionBox(scanner.world(), scanner.options().approach);
     fusion::GridOptions box;
     box.min_W = region.min_W;
@@ -58,32 +52,41 @@ void BM_DefaultScan(benchmark::State& state) {
       inserter = std::make_unique<fusion::FrameInserter>(grid.get(), fusion::InserterOptions{static_cast<int>(state.range(3))});
       completeness = std::make_unique<fusion::CompletenessTracker>(*grid);
     }
-    std::unique_ptr<PrefetchingSource> prefetching;
-    FrameSource* source = &scanner;
-    if (state.range(2) == 1) source = (prefetching = std::make_unique<PrefetchingSource>(&scanner)).get();
-    Frame frame;
-    std::string error;
     double fusion_s = 0.0;
-    const std::clock_t cpu_start = std::clock();  // the process's CPU time, all threads
-    const auto frames_start = std::chrono::steady_clock::now();
-    // Process CPU per stage: meaningful when the stages run one after the other (fusion:2 or
-    // no fusion), where nothing else runs between the two clock reads.
+    // Process CPU per stage: meaningful when the stages run one after the other (fusion:2),
+    // where nothing else runs between the two clock reads.
     double simulator_cpu_s = 0.0, fusion_cpu_s = 0.0;
-    for (;;) {
-      const double cpu0 = ProcessCpuS();
-      if (source->Next(&frame, &error) != FrameStatus::kOk) break;
-      simulator_cpu_s += ProcessCpuS() - cpu0;
+    auto fuse = [&](const Frame& frame) {
       benchmark::DoNotOptimize(frame.gt_depth_m.data);
-      if (!inserter) continue;
-      const auto t = std::chrono::steady_clock::now();
-      const double cpu1 = ProcessCpuS();
+      if (!inserter) return;
+      const Stopwatch t;
+      const double cpu = ProcessCpuSeconds();
       inserter->Insert(scanner.camera(), frame.depth_m, *frame.T_W_C, nullptr);
       benchmark::DoNotOptimize(completeness->Update(inserter->changed_columns()));
-      fusion_cpu_s += ProcessCpuS() - cpu1;
-      fusion_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+      fusion_cpu_s += ProcessCpuSeconds() - cpu;
+      fusion_s += t.seconds();
+    };
+    const double cpu_start = ProcessCpuSeconds();  // all threads
+    const Stopwatch frames_wall;
+    std::vector<PipelineStageTiming> timings;
+    if (pipelined) {
+      FramePipeline<ScanWork> pipeline;
+      AddScanStages(&scanner, &pipeline);
+      pipeline.AddStage({"fuse", 2}, [&fuse](ScanWork* work) { fuse(work->frame); });
+      pipeline.Run();
+      timings = pipeline.timings();
+    } else {
+      Frame frame;
+      std::string error;
+      for (;;) {
+        const double cpu = ProcessCpuSeconds();
+        if (scanner.Next(&frame, &error) != FrameStatus::kOk) break;
+        simulator_cpu_s += ProcessCpuSeconds() - cpu;
+        fuse(frame);
+      }
     }
-    const double frames_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - frames_start).count();
-    const double cpu_s = static_cast<double>(std::clock() - cpu_start) / CLOCKS_PER_SEC;
+    const double frames_s = frames_wall.seconds();
+    const double cpu_s = ProcessCpuSeconds() - cpu_start;
     const ScanStats& s = scanner.stats();
     const double n = s.frames;
     state.counters["frames"] = n;
@@ -94,11 +97,11 @@ void BM_DefaultScan(benchmark::State& state) {
     state.counters["render_ms_per_frame"] = 1e3 * s.render_s / n;
     state.counters["imaging_ms_per_frame"] = 1e3 * s.imaging_s / n;
     state.counters["fusion_ms_per_frame"] = 1e3 * fusion_s / n;
-    if (!prefetching) {
+    if (!pipelined) {
       state.counters["simulator_cpu_ms_per_frame"] = 1e3 * simulator_cpu_s / n;
       if (inserter) state.counters["fusion_cpu_ms_per_frame"] = 1e3 * fusion_cpu_s / n;
     }
-    if (prefetching) state.counters["fusion_wait_ms_per_frame"] = 1e3 * prefetching->wait_s() / n;
+    if (pipelined && inserter) state.counters["fusion_wait_ms_per_frame"] = 1e3 * timings.back().wait_s / n;
     state.counters["frame_ms"] = 1e3 * frames_s / n;
     // CPU per frame over all threads: on an idle machine with C cores a frame needs at least
     // cpu / C of wall time (real time on 2 cores needs <= 67 ms of CPU per 30 Hz frame).

@@ -1,7 +1,10 @@
 #include "romunect/sim/scanner.h"
 
+#include <atomic>
 #include <cmath>
 #include <limits>
+#include <thread>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -106,6 +109,49 @@ TEST(ScannerTest, FramesMatchBruteForceRayCastingAndTheExecutedPoses) {
   EXPECT_NEAR(p_Bin.z(), scanner.plan().levels_m.back(), 5e-3);  // within the servo's tracking error
   EXPECT_NEAR(scanner.plan().levels_m.back(), 0.2, 0.01);
   std::cout << scanner.stats().BriefReport() << "\n";
+}
+
+// The scanner's stages on a pipeline deliver Next()'s frames, in order, bit for bit; a pipeline
+// destroyed mid-approach stops the scanner after the frame in hand.
+TEST(ScannerTest, ItsStagesOnAPipelineDeliverTheSameFramesAsNext) {
+  std::vector<Frame> in_line, piped;
+  {
+    Scanner scanner(SmallScan());
+    Frame frame;
+    std::string error;
+    while (scanner.Next(&frame, &error) == FrameStatus::kOk) in_line.push_back(frame);
+  }
+  Scanner scanner(SmallScan());
+  FramePipeline<ScanWork> pipeline;
+  AddScanStages(&scanner, &pipeline, 2);
+  pipeline.AddStage({"collect"}, [&piped](ScanWork* work) {
+    EXPECT_EQ(work->geometry, nullptr);  // given back to the scanner after imaging
+    piped.push_back(std::move(work->frame));
+  });
+  pipeline.Run();
+  ASSERT_EQ(piped.size(), in_line.size());
+  EXPECT_EQ(scanner.stats().frames, static_cast<int>(piped.size()));
+  const std::vector<PipelineStageTiming> timings = pipeline.timings();
+  ASSERT_EQ(timings.size(), 4u);
+  EXPECT_EQ(timings[0].name, "render");
+  EXPECT_EQ(timings[0].items, static_cast<int>(piped.size()));
+  for (size_t i = 0; i < piped.size(); ++i) {
+    EXPECT_EQ(piped[i].index, in_line[i].index);
+    EXPECT_TRUE(piped[i].T_W_C->matrix() == in_line[i].T_W_C->matrix()) << "frame " << i;
+    EXPECT_TRUE(testing::ImagesBitEqual(piped[i].gt_depth_m, in_line[i].gt_depth_m)) << "frame " << i;
+    EXPECT_TRUE(testing::ImagesBitEqual(piped[i].depth_m, in_line[i].depth_m)) << "frame " << i;
+  }
+
+  Scanner stopped(SmallScan());
+  std::atomic<int> collected{0};
+  {
+    FramePipeline<ScanWork> early;
+    AddScanStages(&stopped, &early);
+    early.AddStage({"collect"}, [&collected](ScanWork*) { ++collected; });
+    early.Start();
+    while (collected.load() < 2) std::this_thread::yield();
+  }
+  EXPECT_LT(stopped.stats().frames, stopped.frame_count());
 }
 
 TEST(ScannerTest, GroundTruthHeightMapShowsBinFloorRimAndObjects) {

@@ -13,6 +13,15 @@
 namespace romunect::sim {
 namespace {
 
+// The scanner's frames through its stages on a pipeline (render, IR synthesis and depth engine on a
+// thread each), collected in the pipeline's last stage; rethrows what a stage threw.
+void PipelinedFrames(Scanner* scanner, std::vector<Frame>* frames) {
+  FramePipeline<ScanWork> pipeline;
+  AddScanStages(scanner, &pipeline);
+  pipeline.AddStage({"collect", 2}, [frames](ScanWork* work) { frames->push_back(std::move(work->frame)); });
+  pipeline.Run();
+}
+
 // Full resolution (the depth engine's chip geometry is the rig's), but a short approach: the
 // last 2 cm of descent straight down over a 3-object pile, a handful of frames.
 ScanOptions ShortDescent() {
@@ -67,20 +76,25 @@ TEST(SensorImagerTest, ScanFramesCarryIrRawAndMetricDepthCloseToGroundTruth) {
   EXPECT_LT(median, 0.2e-3);
 }
 
-// Imaging on threads of their own (IR synthesis of frame k - 1 and the depth engine of frame
-// k - 2 while k renders) changes nothing: the same frames, in order, bit for bit, as imaging in
-// line.
-TEST(SensorImagerTest, ImagingOnItsOwnThreadGivesTheSameFrames) {
-  ScanOptions options = ShortDescent();
+// The scan's stages on threads of their own (IR synthesis of frame k - 1 and the depth engine of
+// frame k - 2 while k renders) change nothing: the same frames, in order, bit for bit, as Next()
+// in line.
+TEST(SensorImagerTest, ImagingOnThreadsOfItsOwnGivesTheSameFrames) {
+  const ScanOptions options = ShortDescent();
   std::vector<Frame> frames[2];
   for (int pipelined = 0; pipelined < 2; ++pipelined) {
-    options.imaging_thread = pipelined == 1;
     Scanner scanner(options);
     scanner.SetImager(std::make_unique<SensorImager>(options.rig, SensorImagerOptions{}));
-    Frame frame;
-    std::string error;
-    while (scanner.Next(&frame, &error) == FrameStatus::kOk) frames[pipelined].push_back(frame);
+    if (pipelined == 1) {
+      PipelinedFrames(&scanner, &frames[1]);
+    } else {
+      Frame frame;
+      std::string error;
+      while (scanner.Next(&frame, &error) == FrameStatus::kOk) frames[0].push_back(frame);
+    }
     EXPECT_EQ(static_cast<int>(frames[pipelined].size()), scanner.frame_count());
+    EXPECT_EQ(scanner.stats().frames, scanner.frame_count());
+    EXPECT_GT(scanner.stats().imaging_s, 0.0);
   }
   ASSERT_EQ(frames[0].size(), frames[1].size());
   ASSERT_GE(frames[0].size(), 4u);
@@ -100,7 +114,7 @@ TEST(SensorImagerTest, ImagingOnItsOwnThreadGivesTheSameFrames) {
 }
 
 // An imager whose depth stage fails on frame 2: the frames before it come out in order, then
-// Next() rethrows, in line and pipelined; the failed frame is never delivered.
+// Next() or the pipeline rethrows; the failed frame is never delivered.
 class DepthFailsOnFrame2 : public FrameImager {
  public:
   void SynthesizeIr(const Rig& rig, const GeometryBuffer&, uint64_t, Frame* frame) override {
@@ -117,22 +131,27 @@ TEST(SensorImagerTest, AFailingStageStopsTheStreamAfterTheFramesBeforeIt) {
   ScanOptions options = ShortDescent();
   for (const bool pipelined : {false, true}) {
     SCOPED_TRACE(pipelined ? "pipelined" : "in line");
-    options.imaging_thread = pipelined;
     Scanner scanner(options);
     ASSERT_GE(scanner.frame_count(), 4);
     scanner.SetImager(std::make_unique<DepthFailsOnFrame2>());
-    std::vector<int> delivered;
-    Frame frame;
-    std::string error;
+    std::vector<Frame> frames;
     try {
-      while (scanner.Next(&frame, &error) == FrameStatus::kOk) {
-        EXPECT_EQ(frame.ir.at<uint16_t>(0, 0), frame.index);
-        ASSERT_FALSE(frame.depth_m.empty());
-        delivered.push_back(frame.index);
+      if (pipelined) {
+        PipelinedFrames(&scanner, &frames);
+      } else {
+        Frame frame;
+        std::string error;
+        while (scanner.Next(&frame, &error) == FrameStatus::kOk) frames.push_back(frame);
       }
       ADD_FAILURE() << "the stream ended without the depth stage's failure";
     } catch (const std::runtime_error& e) {
       EXPECT_STREQ(e.what(), "depth stage failed on frame 2");
+    }
+    std::vector<int> delivered;
+    for (const Frame& frame : frames) {
+      EXPECT_EQ(frame.ir.at<uint16_t>(0, 0), frame.index);
+      EXPECT_FALSE(frame.depth_m.empty());
+      delivered.push_back(frame.index);
     }
     EXPECT_EQ(delivered, (std::vector<int>{0, 1}));
   }

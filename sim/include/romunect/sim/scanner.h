@@ -4,7 +4,9 @@
 // object through world() afterwards does not show in renders; the arm's geoms as instances),
 // and is then a FrameSource: each Next() advances the physics to the next 30 Hz sensor frame,
 // updates the instances' poses, renders, and images the frame (IR synthesis and depth engine
-// through a FrameImager; without one, depth_m is the ideal ground truth). Frames carry the
+// through a FrameImager; without one, depth_m is the ideal ground truth), all on the caller's
+// thread. The same steps are exposed as stages (Render, SynthesizeIr, ComputeDepth) for a
+// FramePipeline that runs them on threads of their own (AddScanStages). Frames carry the
 // EXECUTED T_W_C and T_B_H, and gt_depth_m. Frames: W world, B base, H hand, C camera; SI units.
 #pragma once
 
@@ -17,6 +19,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "romunect/sensor/frame_pipeline.h"
 #include "romunect/sensor/frame_source.h"
 #include "romunect/sensor/geometry_buffer.h"
 #include "romunect/sensor/height_map.h"
@@ -29,9 +32,9 @@ namespace romunect::sim {
 
 // Turns a rendered frame's geometry into the sensor's images in two stages: SynthesizeIr sets
 // frame->ir from the geometry, then ComputeDepth sets raw and depth_m from the ir (gt_depth_m,
-// poses, index and time are already set). `seed` differs per frame. The scanner may run the two
-// stages at once on consecutive frames (ScanOptions::imaging_thread), so an imager keeps the
-// stages' state apart. Image runs both.
+// poses, index and time are already set). `seed` differs per frame. A scan pipeline runs the two
+// stages at once on different frames (AddScanStages), so an imager keeps the stages' state apart.
+// Image runs both.
 class FrameImager {
  public:
   virtual ~FrameImager() = default;
@@ -67,10 +70,6 @@ struct ScanOptions {
   IkOptions ik;
   int samples_per_pixel = 1;          // renderer: 1 (pinhole) or 4 (thin lens, defocus)
   int threads = 2;                    // renderer threads
-  // With an imager: while frame k renders, frame k - 1's IR synthesis and frame k - 2's depth
-  // engine run on a thread each (the same frames, each delivered two renders later). The
-  // imager's own threads add to them.
-  bool imaging_thread = true;
   uint64_t seed = 1;                  // per-frame imaging seeds derive from it
 
   std::string Problem() const;  // "" when valid; otherwise "field = value: rule"
@@ -89,6 +88,16 @@ struct ScanStats {
   std::string BriefReport() const;
 };
 
+// One frame of the scan between the Scanner's stages: the frame and, from Render until
+// SynthesizeIr, the geometry buffer it was rendered into (the scanner's, lent for that time).
+// The frame's images are its own (new for every frame): a consumer may keep them.
+struct ScanWork {
+  Frame frame;
+  uint64_t seed = 0;  // the frame's imaging seed
+  std::shared_ptr<GeometryBuffer> geometry;
+  double ir_s = 0.0;  // wall time of SynthesizeIr (added to ScanStats::imaging_s by ComputeDepth)
+};
+
 class Scanner : public FrameSource {
  public:
   // Does everything up to the first frame. Throws InputError for bad input: an invalid scene,
@@ -97,17 +106,27 @@ class Scanner : public FrameSource {
   explicit Scanner(const ScanOptions& options);
   ~Scanner() override;
 
-  // Replaces the imaging stage (IR synthesis, depth engine, depth correction). Before the first
-  // Next(), or after the stream ended: with ScanOptions::imaging_thread a frame may be in it.
+  // Replaces the imaging stage (IR synthesis, depth engine, depth correction). Not while a
+  // pipeline runs the stages.
   void SetImager(std::unique_ptr<FrameImager> imager);
 
   const CameraModel& camera() const override;
   std::string Describe() const override;
+  // Render, SynthesizeIr and ComputeDepth of the next frame, in line.
   FrameStatus Next(Frame* frame, std::string* error) override;
+
+  // The stages of Next(), for a pipeline. Each is called in frame order from one thread at a
+  // time; the three may run at once on different frames (frame k renders while k - 1 has its IR
+  // synthesized and k - 2 its depth computed): a frame's bytes are the same either way.
+  // Render: advances the physics to the next frame and renders it into *work (a fresh ScanWork);
+  // false when the approach has ended. Without an imager it also sets the ideal depth.
+  bool Render(ScanWork* work);
+  void SynthesizeIr(ScanWork* work);  // with an imager: frame.ir; gives the geometry buffer back
+  void ComputeDepth(ScanWork* work);  // with an imager: frame.raw and frame.depth_m
 
   int frame_count() const;  // frames the approach will deliver
   const ScanOptions& options() const;
-  const ScanStats& stats() const;
+  const ScanStats& stats() const;  // between frames, or after a pipeline's run
   const ApproachPlan& plan() const;
   World& world();
   const World& world() const;
@@ -116,6 +135,11 @@ class Scanner : public FrameSource {
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };
+
+// Sets `pipeline`'s source to scanner->Render and adds the imaging stages ("ir", "depth", with
+// queues of `queue_depth`); the caller adds its consumers (fusion, writing) after them. The
+// scanner must outlive the pipeline's run, and nothing else may drive it meanwhile.
+void AddScanStages(Scanner* scanner, FramePipeline<ScanWork>* pipeline, int queue_depth = 1);
 
 // The ground-truth height map of the world as it is now (world z of the highest surface in
 // each cell's centre column, m; NaN where nothing is hit), ray traced from above. The arm is
