@@ -23,7 +23,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "commands.h"
-#include "output_folder.h"
+#include "romunect/jobs/output_folder.h"
 #include "romunect/calib/calibration_file.h"
 #include "romunect/calib/chain.h"
 #include "romunect/calib/depth_correction.h"
@@ -38,6 +38,8 @@
 
 namespace romunect::tools {
 namespace {
+using jobs::CheckFolderCanBeCreated;
+using jobs::OutputFolder;
 namespace fs = std::filesystem;
 using namespace romunect::calib;
 constexpr double kDeg = M_PI / 180.0;

@@ -17,7 +17,7 @@
 #include <opencv2/core.hpp>
 
 #include "commands.h"
-#include "output_folder.h"
+#include "romunect/jobs/output_folder.h"
 #include "romunect/calib/calibration_file.h"
 #include "romunect/openni2/open_source.h"
 #include "romunect/openni2/openni2_source.h"
@@ -27,6 +27,8 @@
 
 namespace romunect::tools {
 namespace {
+using jobs::CheckFolderCanBeCreated;
+using jobs::OutputFolder;
 namespace fs = std::filesystem;
 
 volatile std::sig_atomic_t g_interrupted = 0;

@@ -27,12 +27,6 @@
 
 namespace romunect::tools {
 
-Rig LoadRigArgument(const std::string& value) {
-  if (value.size() > 5 && value.substr(value.size() - 5) == ".json") return LoadRig(value);
-  if (std::filesystem::exists(value)) return LoadRig(value);
-  return RigPreset(value);
-}
-
 namespace {
 namespace fs = std::filesystem;
 

@@ -6,7 +6,7 @@
 
 #include <CLI/CLI.hpp>
 
-#include "romunect/sensor/rig.h"
+#include "romunect/jobs/rig_argument.h"
 
 namespace romunect::tools {
 
@@ -17,8 +17,6 @@ void AddRenderCommand(CLI::App& app);  // cmd_render.cc (sensor/embree)
 void AddCalibrateCommand(CLI::App& app);  // cmd_calibrate.cc (calib)
 void AddScanCommand(CLI::App& app);  // cmd_scan.cc (the main job: sim/, fusion/)
 
-// A --rig argument: a rig JSON file (a name ending in .json, or an existing file) or a preset
-// name (RigPreset: an unknown name says which presets exist). Defined in cmd_render.cc.
-Rig LoadRigArgument(const std::string& value);
+using jobs::LoadRigArgument;
 
 }  // namespace romunect::tools
