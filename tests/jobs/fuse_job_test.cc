@@ -44,7 +44,8 @@ void WriteBinDirectory(const AnalyticBin& bin, const fs::path& dir) {
 // Frames from memory; an empty depth image stands for a bad frame.
 class MemorySource : public FrameSource {
  public:
-  MemorySource(CameraModel camera, std::vector<Frame> frames) : camera_(std::move(camera)), frames_(std::move(frames)) {}
+  MemorySource(CameraModel camera, std::vector<Frame> frames)
+      : camera_(std::move(camera)), frames_(std::move(frames)) {}
   const CameraModel& camera() const override { return camera_; }
   std::string Describe() const override { return "frames in memory"; }
   FrameStatus Next(Frame* frame, std::string* error) override {
@@ -164,7 +165,8 @@ TEST(FuseJob, WritesTheMapAndItsReport) {
   EXPECT_EQ(s.depth_from, "the frame directory's depth");
   EXPECT_FALSE(s.stopped);
   EXPECT_GT(s.report.completeness, 0.3);
-  for (const char* file : {"fused_depth.exr", "fused_depth.png", "fused_points.ply", "completeness.png", "report.json"}) {
+  for (const char* file :
+       {"fused_depth.exr", "fused_depth.png", "fused_points.ply", "completeness.png", "report.json"}) {
     EXPECT_TRUE(fs::exists(dir / "fused" / file)) << file;
   }
   const nlohmann::json report = nlohmann::json::parse(testing::ReadText(dir / "fused" / "report.json"));

@@ -39,7 +39,8 @@ TEST(RunFolder, RefusesAFolderThatHoldsAnythingAndTouchesNothing) {
   WriteText(dir / "done" / "report.json", "{}");
   EXPECT_THAT(ErrorOf([&] { RunFolder run((dir / "done").string(), "--out", "scan"); }),
               HasSubstr("holds a finished scan (report.json); choose another --out"));
-  EXPECT_THAT(ErrorOf([&] { RunFolder run(".", "--out", "scan"); }), HasSubstr("--out: '.' names no folder of its own"));
+  EXPECT_THAT(ErrorOf([&] { RunFolder run(".", "--out", "scan"); }),
+              HasSubstr("--out: '.' names no folder of its own"));
   EXPECT_THAT(ErrorOf([&] { RunFolder run((dir / "file" / "run").string(), "--out", "scan"); }),
               HasSubstr("file is not a folder"));
   EXPECT_EQ(ReadText(dir / "mine" / "notes.txt"), "precious");

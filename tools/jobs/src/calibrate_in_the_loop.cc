@@ -180,8 +180,8 @@ json DepthJson(const Measured& m) {
                       {"exact_mean_mm", 1e3 * e.mean_m}, {"affine_rms_mm", 1e3 * t.depth_affine[i].rms_m},
                       {"valid_fraction", e.valid_fraction}});
   }
-  return {{"planes", r.planes_used}, {"model", "inverse_affine_in_raw"}, {"fit_exact_rms_mm", 1e3 * r.depth.inverse_rms_m},
-          {"fit_affine_rms_mm", 1e3 * r.depth.affine_rms_m}, {"fitted_pixels", r.depth.fitted_pixels},
+  return {{"planes", r.planes_used}, {"model", "inverse_affine_in_raw"},
+          {"fit_exact_rms_mm", 1e3 * r.depth.inverse_rms_m}, {"fit_affine_rms_mm", 1e3 * r.depth.affine_rms_m}, {"fitted_pixels", r.depth.fitted_pixels},
           {"truth_planes", planes}, {"truth_rms_mm", m.depth_mm}, {"truth_affine_rms_mm", m.affine_mm},
           {"compute_s", r.times.depth_s}};
 }
@@ -189,11 +189,13 @@ json DepthJson(const Measured& m) {
 json GoalsJson(const Measured& m) {
   const PoseError& known = m.truth.hand_eye_known_intrinsics;
   const PoseError& end_to_end = m.truth.hand_eye;
-  return {{"intrinsics_mapping_px", {{"goal", kGoalMappingPx}, {"value", m.truth.mapping.rms_px}, {"met", m.met_mapping}}},
+  return {{"intrinsics_mapping_px",
+           {{"goal", kGoalMappingPx}, {"value", m.truth.mapping.rms_px}, {"met", m.met_mapping}}},
           {"hand_eye", {{"goal_deg", kGoalHandEyeDeg}, {"goal_mm", kGoalHandEyeMm},
                         {"condition", "intrinsics known (true camera, the chain's stations)"},
                         {"deg", known.angle_rad / kDeg}, {"mm", 1e3 * known.translation_m},
-                        {"end_to_end_deg", end_to_end.angle_rad / kDeg}, {"end_to_end_mm", 1e3 * end_to_end.translation_m},
+                        {"end_to_end_deg", end_to_end.angle_rad / kDeg},
+                        {"end_to_end_mm", 1e3 * end_to_end.translation_m},
                         {"end_to_end_line_of_sight_rms_deg", m.truth.line_of_sight_rms_rad / kDeg},
                         {"met", m.met_hand_eye}}},
           {"homography_px", {{"goal", kGoalHomographyPx}, {"value", m.homography_px},
@@ -210,7 +212,8 @@ std::string ReportJson(const Measured& m, const std::string& rig_name, unsigned 
                        {"homography", HomographyJson(m)},
                        {"hand_eye", HandEyeJson(m)},
                        {"depth", DepthJson(m)},
-                       {"times", {{"compute_s", m.compute_s}, {"hardware_s", m.r.times.hardware_s}, {"wall_s", m.wall_s}}},
+                       {"times",
+                        {{"compute_s", m.compute_s}, {"hardware_s", m.r.times.hardware_s}, {"wall_s", m.wall_s}}},
                        {"goals", GoalsJson(m)}};
   return report.dump(2) + "\n";
 }
@@ -221,7 +224,8 @@ std::string GoalsTable(const Measured& m) {
   const sim::ChainTruthErrors& t = m.truth;
   const PoseError& known = t.hand_eye_known_intrinsics;
   std::string table = "| step | goal | measured against truth | |\n| --- | --- | --- | --- |\n";
-  table += Format("| intrinsics, %zu views, full-image mapping error | <= %.2f px | %.3f px (max %.3f; Zhang alone %.3f) | %s |\n",
+  table += Format("| intrinsics, %zu views, full-image mapping error | <= %.2f px "
+                  "| %.3f px (max %.3f; Zhang alone %.3f) | %s |\n",
                   r.view_names.size(), kGoalMappingPx, t.mapping.rms_px, t.mapping.max_px, t.mapping_zhang.rms_px,
                   Yes(m.met_mapping).c_str());
   table += Format("| hand-eye, %d stations, intrinsics known (the step on the same captures with the true camera) "
@@ -230,13 +234,15 @@ std::string GoalsTable(const Measured& m) {
                   Yes(m.met_hand_eye).c_str());
   table += Format("| hand-eye end to end (estimated intrinsics): T_H_C alone | | %.4f deg, %.3f mm | |\n",
                   t.hand_eye.angle_rad / kDeg, 1e3 * t.hand_eye.translation_m);
-  table += Format("| hand-eye end to end: lines of sight in H (T_H_C with its camera) | <= %.2f deg | %.4f deg RMS (max %.4f) | %s |\n",
+  table += Format("| hand-eye end to end: lines of sight in H (T_H_C with its camera) | <= %.2f deg "
+                  "| %.4f deg RMS (max %.4f) | %s |\n",
                   kGoalHandEyeDeg, t.line_of_sight_rms_rad / kDeg, t.line_of_sight_max_rad / kDeg,
                   Yes(t.line_of_sight_max_rad / kDeg <= kGoalHandEyeDeg).c_str());
   table += Format("| projector homography residual | <= %.2f px within %d captures | %.3f px, %d captures | %s |\n",
                   kGoalHomographyPx, kGoalHomographyCaptures, m.homography_px, r.homography.captures,
                   Yes(m.met_homography).c_str());
-  table += Format("| metric depth after correction (exact model), planes in focus | <= %.2f mm RMS | %.4f mm (paper's affine: %.3f mm) | %s |\n",
+  table += Format("| metric depth after correction (exact model), planes in focus | <= %.2f mm RMS "
+                  "| %.4f mm (paper's affine: %.3f mm) | %s |\n",
                   kGoalDepthMm, m.depth_mm, m.affine_mm, Yes(m.met_depth).c_str());
   table += Format("| whole chain, compute only | < %.1f s | %.2f s | %s |\n\n", kGoalComputeS, m.compute_s,
                   Yes(m.met_compute).c_str());
@@ -260,7 +266,8 @@ std::string ReportMarkdown(const Measured& m, const std::string& table, const st
         "\n- " + r.depth.BriefReport() + "\n";
   md += Format("- depth engine matches on the reference area: %.1f %% unwarped, %.1f %% with the nominal pre-warp, "
                "%.1f %% with the calibrated H_P_rec\n",
-               100 * r.raw_valid_fraction_unwarped, 100 * r.raw_valid_fraction_initial, 100 * r.raw_valid_fraction_final);
+               100 * r.raw_valid_fraction_unwarped, 100 * r.raw_valid_fraction_initial,
+               100 * r.raw_valid_fraction_final);
   for (const auto& [name, why] : r.rejected) md += "- rejected " + name + ": " + why + "\n";
   md += "\n## Reprojection errors per view\n\n![reprojection errors](reprojection_errors.png)\n\n"
         "## Per-pixel depth residual (exact model, fit)\n\n![depth residual](depth_residual.png)\n";
@@ -268,7 +275,8 @@ std::string ReportMarkdown(const Measured& m, const std::string& table, const st
 }
 
 // The chain with the simulated rig, then its comparison with the rig's ground truth.
-Measured RunChain(const InTheLoopOptions& o, const sim::CalibrationRigOptions& rig_options, const ChainOptions& options) {
+Measured RunChain(const InTheLoopOptions& o, const sim::CalibrationRigOptions& rig_options,
+                  const ChainOptions& options) {
   std::printf("calibrating the simulated rig '%s' in the loop (seed %u): %d views, %d stations, %d planes\n",
               rig_options.rig.name.c_str(), o.seed, o.views, o.stations, o.planes);
   std::fflush(stdout);

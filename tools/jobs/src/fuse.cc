@@ -299,8 +299,8 @@ void CheckSomethingFused(const FuseOptions& o, const FusionSummary& fused, bool 
   // Frames without one valid depth pixel (a dark scene, a depth model that fits no pixel).
   if (report.stats.rays == 0) {
     throw InputError(o.source, "",
-                     "nothing to fuse: no frame has a valid depth pixel: of the " + std::to_string(report.stats.pixels) +
-                         " pixels of the " + std::to_string(report.frames) + " frames, " +
+                     "nothing to fuse: no frame has a valid depth pixel: of the " +
+                         std::to_string(report.stats.pixels) + " pixels of the " + std::to_string(report.frames) + " frames, " +
                          std::to_string(report.stats.no_measurement) + " have no measurement and " +
                          std::to_string(report.stats.invalid_depth) + " NaN, inf or negative depth (depth from " +
                          depth_from + ")" + stopped);

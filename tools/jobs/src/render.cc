@@ -125,7 +125,8 @@ Frame RenderFrame(const RenderJobOptions& o, const Rig& rig, const TriangleMesh&
   render_options.aperture_radius_m = 0.5 * rig.optics.aperture_m;
   embree::GeometryRenderer renderer;
   GeometryBuffer geometry;
-  s->render_stats = renderer.Render(scene, rig.camera, Pose::Identity(), rig.T_C_P, render_options, &geometry).BriefReport();
+  s->render_stats =
+      renderer.Render(scene, rig.camera, Pose::Identity(), rig.T_C_P, render_options, &geometry).BriefReport();
 
   IrSynthesisOptions synthesis_options;
   synthesis_options.threads = o.threads;
