@@ -2,6 +2,7 @@
 // Arguments -> RecordOptions -> Record -> summary; --list-devices and --list-modes list and exit.
 #include <cstdio>
 #include <memory>
+#include <string>
 
 #include "commands.h"
 #include "romunect/jobs/record.h"
@@ -42,10 +43,11 @@ void AddRecordCommand(CLI::App& app) {
   cmd->add_flag("--list-devices", *list_devices, "List the OpenNI2 devices and exit");
   cmd->add_flag("--list-modes", *list_modes, "List the video modes of SOURCE and exit");
   cmd->callback([o, pose_offset, list_devices, list_modes] {
-    if (*list_devices) return (void)std::printf("%s", jobs::DeviceListText().c_str());
-    if (*list_modes) return (void)std::printf("%s", jobs::VideoModesText(o->source).c_str());
     o->pose_offset_given = pose_offset->count() > 0;
-    std::printf("%s", jobs::RecordSummaryText(jobs::Record(*o), *o).c_str());
+    const std::string text = *list_devices ? jobs::DeviceListText()
+                             : *list_modes ? jobs::VideoModesText(o->source)
+                                           : jobs::RecordSummaryText(jobs::Record(*o), *o);
+    std::printf("%s", text.c_str());
   });
 }
 
