@@ -2,23 +2,15 @@
 // callback may throw InputError (bad input), which main() reports with a non-zero exit.
 #pragma once
 
-#include <string>
-
 #include <CLI/CLI.hpp>
-
-#include "romunect/sensor/rig.h"
 
 namespace romunect::tools {
 
 void AddInfoCommand(CLI::App& app);
-void AddFuseCommand(CLI::App& app);  // cmd_fuse.cc (fusion)
-void AddRecordCommand(CLI::App& app);  // cmd_record.cc (sensor/openni2)
-void AddRenderCommand(CLI::App& app);  // cmd_render.cc (sensor/embree)
-void AddCalibrateCommand(CLI::App& app);  // cmd_calibrate.cc (calib)
-void AddScanCommand(CLI::App& app);  // cmd_scan.cc (the main job: sim/, fusion/)
-
-// A --rig argument: a rig JSON file (a name ending in .json, or an existing file) or a preset
-// name (RigPreset: an unknown name says which presets exist). Defined in cmd_render.cc.
-Rig LoadRigArgument(const std::string& value);
+void AddFuseCommand(CLI::App& app);       // cmd_fuse.cc (jobs/fuse.h)
+void AddRecordCommand(CLI::App& app);     // cmd_record.cc (jobs/record.h)
+void AddRenderCommand(CLI::App& app);     // cmd_render.cc (jobs/render.h)
+void AddCalibrateCommand(CLI::App& app);  // cmd_calibrate.cc (jobs/calibrate.h)
+void AddScanCommand(CLI::App& app);       // cmd_scan.cc (the main job: jobs/scan.h)
 
 }  // namespace romunect::tools

@@ -17,11 +17,11 @@ namespace {
 using json_fields::Field;
 using nlohmann::json;
 
-// Problems read "field: what is wrong"; the prefix lets LoadRig name the field.
-std::string Bad(const std::string& field, const std::string& rule, double value) {
+// A rule broken by a field's value: "field: rule, found value" when shown.
+FieldProblem Bad(const std::string& field, const std::string& rule, double value) {
   std::ostringstream s;
-  s << field << ": " << rule << ", found " << value;
-  return s.str();
+  s << rule << ", found " << value;
+  return {field, s.str()};
 }
 
 bool Finite(std::initializer_list<double> xs) {
@@ -31,15 +31,18 @@ bool Finite(std::initializer_list<double> xs) {
   return true;
 }
 
-std::string Prefixed(const std::string& prefix, const std::string& problem) {
-  return problem.empty() ? "" : prefix + "." + problem;
+// A member's problem as its owner's: the field under `prefix`.
+FieldProblem Prefixed(const std::string& prefix, const FieldProblem& problem) {
+  return {problem.field.empty() ? prefix : prefix + "." + problem.field, problem.rule};
 }
 
 }  // namespace
 
 // ---------------------------------------------------------------- ProjectorModel
 
-std::string ProjectorModel::Problem() const {
+std::string ProjectorModel::Problem() const { return Check().ToString(); }
+
+FieldProblem ProjectorModel::Check() const {
   if (width <= 0) return Bad("width", "must be positive", width);
   if (height <= 0) return Bad("height", "must be positive", height);
   if (!(std::isfinite(fx) && fx > 0)) return Bad("fx", "must be positive and finite", fx);
@@ -55,7 +58,7 @@ std::string ProjectorModel::Problem() const {
   if (!(std::isfinite(brightness_e_per_s) && brightness_e_per_s >= 0)) {
     return Bad("brightness_e_per_s", "must be non-negative and finite", brightness_e_per_s);
   }
-  return "";
+  return {};
 }
 
 double ProjectorModel::CircleOfConfusionPx(double depth_m) const {
@@ -71,7 +74,9 @@ cv::Matx33d ProjectorModel::Matrix() const { return {fx, 0, cx, 0, fy, cy, 0, 0,
 
 // ---------------------------------------------------------------- CameraOptics
 
-std::string CameraOptics::Problem() const {
+std::string CameraOptics::Problem() const { return Check().ToString(); }
+
+FieldProblem CameraOptics::Check() const {
   if (!(std::isfinite(focus_distance_m) && focus_distance_m > 0)) {
     return Bad("focus_distance_m", "must be positive and finite", focus_distance_m);
   }
@@ -97,7 +102,7 @@ std::string CameraOptics::Problem() const {
   if (!(std::isfinite(ambient_e_per_s) && ambient_e_per_s >= 0)) {
     return Bad("ambient_e_per_s", "must be non-negative", ambient_e_per_s);
   }
-  return "";
+  return {};
 }
 
 double CameraOptics::CircleOfConfusionPx(const CameraModel& camera, double depth_m) const {
@@ -126,7 +131,9 @@ std::optional<PatternKind> PatternKindFromName(const std::string& name) {
   return std::nullopt;
 }
 
-std::string PatternSpec::Problem() const {
+std::string PatternSpec::Problem() const { return Check().ToString(); }
+
+FieldProblem PatternSpec::Check() const {
   if (width <= 0 || width > 8192) return Bad("width", "must be in [1, 8192]", width);
   if (height <= 0 || height > 8192) return Bad("height", "must be in [1, 8192]", height);
   if (kind == PatternKind::kKinectDots) {
@@ -152,20 +159,22 @@ std::string PatternSpec::Problem() const {
   if (!(std::isfinite(min_level) && min_level >= 0 && min_level <= 1)) {
     return Bad("min_level", "must be in [0, 1]", min_level);
   }
-  return "";
+  return {};
 }
 
 // ---------------------------------------------------------------- ChipGeometry, options
 
-std::string ChipGeometry::Problem() const {
-  if (std::string p = camera.Problem(); !p.empty()) return "camera: " + p;
-  if (std::string p = projector.Problem(); !p.empty()) return Prefixed("projector", p);
-  if (std::string p = pattern.Problem(); !p.empty()) return Prefixed("pattern", p);
-  if (pattern.kind != PatternKind::kKinectDots) return "pattern.kind: the chip's reference is kinect_dots";
+std::string ChipGeometry::Problem() const { return Check().ToString(); }
+
+FieldProblem ChipGeometry::Check() const {
+  if (std::string p = camera.Problem(); !p.empty()) return {"camera", p};
+  if (FieldProblem p = projector.Check()) return Prefixed("projector", p);
+  if (FieldProblem p = pattern.Check()) return Prefixed("pattern", p);
+  if (pattern.kind != PatternKind::kKinectDots) return {"pattern.kind", "the chip's reference is kinect_dots"};
   if (pattern.width != projector.width || pattern.height != projector.height) {
-    return "pattern.width: the reference pattern must be the stock projector's size (" +
-           std::to_string(projector.width) + " x " + std::to_string(projector.height) + "), found " +
-           std::to_string(pattern.width) + " x " + std::to_string(pattern.height);
+    return {"pattern.width", "the reference pattern must be the stock projector's size (" +
+                                 std::to_string(projector.width) + " x " + std::to_string(projector.height) +
+                                 "), found " + std::to_string(pattern.width) + " x " + std::to_string(pattern.height)};
   }
   if (!(std::isfinite(baseline_m) && baseline_m > 0.001 && baseline_m < 1)) {
     return Bad("baseline_m", "must be in (0.001, 1) m", baseline_m);
@@ -180,11 +189,13 @@ std::string ChipGeometry::Problem() const {
   if (!(raw_ref > 0)) {
     return Bad("reference_distance_m", "gives a negative raw value at the reference", reference_distance_m);
   }
-  return "";
+  return {};
 }
 
-std::string DepthEngineOptions::Problem() const {
-  if (std::string p = chip.Problem(); !p.empty()) return "chip." + p;
+std::string DepthEngineOptions::Problem() const { return Check().ToString(); }
+
+FieldProblem DepthEngineOptions::Check() const {
+  if (FieldProblem p = chip.Check()) return Prefixed("chip", p);
   if (window_px < 3 || window_px > 11 || window_px % 2 == 0) {
     return Bad("window_px", "must be odd, in [3, 11] (costs fit 16 bits)", window_px);
   }
@@ -210,23 +221,25 @@ std::string DepthEngineOptions::Problem() const {
   const double raw_min = raw_ref - 8.0 * (min_shift_px + search_range_px - 1);
   if (raw_max > 2046 || raw_min < 0) {
     std::ostringstream s;
-    s << "search_range_px: shifts [" << min_shift_px << ", " << min_shift_px + search_range_px
+    s << "shifts [" << min_shift_px << ", " << min_shift_px + search_range_px
       << ") give raw values [" << raw_min << ", " << raw_max << "], outside the 11-bit range [0, 2046]";
-    return s.str();
+    return {"search_range_px", s.str()};
   }
-  return "";
+  return {};
 }
 
 // ---------------------------------------------------------------- Rig
 
-std::string Rig::Problem() const {
-  if (std::string p = camera.Problem(); !p.empty()) return "camera: " + p;
-  if (std::string p = optics.Problem(); !p.empty()) return Prefixed("optics", p);
-  if (std::string p = projector.Problem(); !p.empty()) return Prefixed("projector", p);
-  if (std::string p = pattern.Problem(); !p.empty()) return Prefixed("pattern", p);
-  if (std::string p = depth_engine.Problem(); !p.empty()) return Prefixed("depth_engine", p);
+std::string Rig::Problem() const { return Check().ToString(); }
+
+FieldProblem Rig::Check() const {
+  if (std::string p = camera.Problem(); !p.empty()) return {"camera", p};
+  if (FieldProblem p = optics.Check()) return Prefixed("optics", p);
+  if (FieldProblem p = projector.Check()) return Prefixed("projector", p);
+  if (FieldProblem p = pattern.Check()) return Prefixed("pattern", p);
+  if (FieldProblem p = depth_engine.Check()) return Prefixed("depth_engine", p);
   Eigen::Matrix4d m = T_C_P.matrix();
-  if (std::string p = RigidityProblem(m); !p.empty()) return "T_C_P: " + p;
+  if (std::string p = RigidityProblem(m); !p.empty()) return {"T_C_P", p};
   const Eigen::Vector3d t = T_C_P.translation();
   if (t.z() < -0.02) return Bad("T_C_P", "projector behind the camera (centre z in C must be >= -0.02 m)", t.z());
   if (T_C_P.linear()(2, 2) < 0.5) {
@@ -235,18 +248,18 @@ std::string Rig::Problem() const {
   }
   if (t.norm() < 0.005) return Bad("T_C_P", "baseline must be at least 5 mm", t.norm());
   if (!H_P_rec.allFinite() || std::abs(H_P_rec.determinant()) < 1e-12) {
-    return "H_P_rec: must be a finite, invertible 3x3 matrix";
+    return {"H_P_rec", "must be a finite, invertible 3x3 matrix"};
   }
   const CameraModel& chip_camera = depth_engine.chip.camera;
   if (camera.width != chip_camera.width || camera.height != chip_camera.height) {
-    return "camera: image size " + std::to_string(camera.width) + " x " + std::to_string(camera.height) +
-           " differs from the depth chip's " + std::to_string(chip_camera.width) + " x " +
-           std::to_string(chip_camera.height);
+    return {"camera", "image size " + std::to_string(camera.width) + " x " + std::to_string(camera.height) +
+                          " differs from the depth chip's " + std::to_string(chip_camera.width) + " x " +
+                          std::to_string(chip_camera.height)};
   }
   if (!(std::isfinite(frame_rate_hz) && frame_rate_hz > 0 && frame_rate_hz <= 1000)) {
     return Bad("frame_rate_hz", "must be in (0, 1000]", frame_rate_hz);
   }
-  return "";
+  return {};
 }
 
 namespace {
@@ -387,12 +400,10 @@ json ProjectorJson(const ProjectorModel& p) {
           {"brightness_e_per_s", p.brightness_e_per_s}};
 }
 
-// Turns "field: problem" from a Problem() into an InputError on that field under f.
-[[noreturn]] void FailProblem(const Field& f, const std::string& problem) {
-  const size_t colon = problem.find(": ");
-  if (colon == std::string::npos) f.Fail(problem);
-  const std::string field = problem.substr(0, colon);
-  throw InputError(f.source(), f.path().empty() ? field : f.path() + "." + field, problem.substr(colon + 2));
+// A Check() finding as an InputError on its field under f.
+[[noreturn]] void FailProblem(const Field& f, const FieldProblem& problem) {
+  if (problem.field.empty()) f.Fail(problem.rule);
+  throw InputError(f.source(), f.path().empty() ? problem.field : f.path() + "." + problem.field, problem.rule);
 }
 
 ProjectorModel ReadProjector(const Field& f) {
@@ -406,7 +417,7 @@ ProjectorModel ReadProjector(const Field& f) {
   p.focus_distance_m = f["focus_distance_m"].Number();
   p.aperture_m = f["aperture_m"].Number();
   p.brightness_e_per_s = f["brightness_e_per_s"].Number();
-  if (std::string problem = p.Problem(); !problem.empty()) FailProblem(f, problem);
+  if (const FieldProblem problem = p.Check()) FailProblem(f, problem);
   return p;
 }
 
@@ -430,7 +441,7 @@ CameraOptics ReadOptics(const Field& f) {
   o.shot_noise = f["shot_noise"].Bool();
   o.bits = f["bits"].Int();
   o.ambient_e_per_s = f["ambient_e_per_s"].Number();
-  if (std::string problem = o.Problem(); !problem.empty()) FailProblem(f, problem);
+  if (const FieldProblem problem = o.Check()) FailProblem(f, problem);
   return o;
 }
 
@@ -456,7 +467,7 @@ PatternSpec ReadPattern(const Field& f) {
   p.dot_level = f["dot_level"].Number();
   p.pitch_px = f["pitch_px"].Int();
   p.min_level = f["min_level"].Number();
-  if (std::string problem = p.Problem(); !problem.empty()) FailProblem(f, problem);
+  if (const FieldProblem problem = p.Check()) FailProblem(f, problem);
   return p;
 }
 
@@ -489,7 +500,7 @@ DepthEngineOptions ReadEngine(const Field& f) {
   o.uniqueness = f["uniqueness"].Number();
   o.prefilter_px = f["prefilter_px"].Int();
   o.threads = f["threads"].Int();
-  if (std::string problem = o.Problem(); !problem.empty()) FailProblem(f, problem);
+  if (const FieldProblem problem = o.Check()) FailProblem(f, problem);
   return o;
 }
 
@@ -540,7 +551,7 @@ Rig LoadRig(const std::filesystem::path& path) {
     for (int i = 0; i < 9; ++i) rig.H_P_rec(i / 3, i % 3) = h[i];
   }
   rig.depth_engine = ReadEngine(root["depth_engine"]);
-  if (std::string problem = rig.Problem(); !problem.empty()) FailProblem(root, problem);
+  if (const FieldProblem problem = rig.Check()) FailProblem(root, problem);
   return rig;
 }
 

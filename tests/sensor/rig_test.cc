@@ -140,6 +140,22 @@ TEST(RigFileTest, BadFieldsAreNamed) {
                  "T_C_P");  // not a rotation
 }
 
+// Check() names the field at fault as structure (the key path a rig file uses); Problem() is
+// the same finding as prose.
+TEST(RigTest, CheckNamesTheFieldAndTheRule) {
+  Rig rig = RigPreset("romunect");
+  EXPECT_FALSE(rig.Check());
+  EXPECT_EQ(rig.Problem(), "");
+  rig.optics.exposure_s = 0.0;
+  EXPECT_EQ(rig.Check().field, "optics.exposure_s");
+  EXPECT_EQ(rig.Check().rule, "must be in (0, 1] s, found 0");
+  EXPECT_EQ(rig.Problem(), "optics.exposure_s: must be in (0, 1] s, found 0");
+  rig = RigPreset("romunect");
+  rig.depth_engine.chip.camera.fx = -1.0;
+  EXPECT_EQ(rig.Check().field, "depth_engine.chip.camera");
+  EXPECT_EQ(rig.Problem(), "depth_engine.chip.camera: " + rig.depth_engine.chip.camera.Problem());
+}
+
 TEST(RigFileTest, MissingAndMalformedFilesAreNamed) {
   ScratchDir dir("rig_bad_file");
   EXPECT_THROW(LoadRig(dir / "none.json"), InputError);

@@ -8,6 +8,18 @@
 
 namespace romunect {
 
+// What a validator found, as structure for callers that name the field their own way (a CLI
+// option, a key path under a file's section): `field` is the key path within the validated
+// value ("camera", "chip.window_px"; "" for the value as a whole), `rule` what is wrong and what
+// was expected. Empty when the value is valid. ToString() is the prose shown: "field: rule".
+struct FieldProblem {
+  std::string field;
+  std::string rule;
+
+  explicit operator bool() const { return !rule.empty(); }
+  std::string ToString() const { return field.empty() || rule.empty() ? rule : field + ": " + rule; }
+};
+
 class InputError : public std::runtime_error {
  public:
   // `source` names where the input came from (a file path, "--voxel", a device URI),

@@ -23,6 +23,7 @@
 #include <opencv2/core.hpp>
 
 #include "romunect/sensor/camera_model.h"
+#include "romunect/sensor/errors.h"
 #include "romunect/sensor/pose.h"
 
 namespace romunect {
@@ -37,8 +38,10 @@ struct ProjectorModel {
   double aperture_m = 0.002;      // lens aperture diameter; 0 = pinhole (always sharp)
   double brightness_e_per_s = 1.0e6;  // see the radiometry note above
 
-  // Why the model is unusable, or "" when valid.
+  // Why the model is unusable, or "" when valid: Check().ToString().
   std::string Problem() const;
+  // The same as structure: the field at fault and the rule it breaks (empty when valid).
+  FieldProblem Check() const;
   // Circle-of-confusion diameter in projector pixels at distance depth_m (z in P).
   double CircleOfConfusionPx(double depth_m) const;
   // Projector pixel of a point in P; nullopt behind the projector. May be off the image.
@@ -62,6 +65,7 @@ struct CameraOptics {
   double ambient_e_per_s = 2000.0;  // ambient IR on a white surface, electrons per second
 
   std::string Problem() const;
+  FieldProblem Check() const;
   double CircleOfConfusionPx(const CameraModel& camera, double depth_m) const;
   int MaxDn() const { return (1 << bits) - 1; }
 
@@ -93,6 +97,7 @@ struct PatternSpec {
   double min_level = 0.3;          // dot grid: lowest modulation level
 
   std::string Problem() const;
+  FieldProblem Check() const;
   bool operator==(const PatternSpec&) const = default;
 };
 
@@ -109,6 +114,7 @@ struct ChipGeometry {
   double raw_offset = 1090.0;  // raw value at zero disparity (infinite depth), "doff"
 
   std::string Problem() const;
+  FieldProblem Check() const;
   double FocalTimesBaseline() const { return camera.fx * baseline_m; }  // px m
   bool operator==(const ChipGeometry&) const = default;
 };
@@ -126,6 +132,7 @@ struct DepthEngineOptions {
   int threads = 1;
 
   std::string Problem() const;
+  FieldProblem Check() const;
   bool operator==(const DepthEngineOptions&) const = default;
 };
 
@@ -141,8 +148,9 @@ struct Rig {
   DepthEngineOptions depth_engine;
   double frame_rate_hz = 30.0;
 
-  // Why the rig is unusable, or "" when valid: "field: problem".
+  // Why the rig is unusable, or "" when valid: "field: problem" (Check().ToString()).
   std::string Problem() const;
+  FieldProblem Check() const;
   Eigen::Vector3d ProjectorCentre_C() const { return T_C_P.translation(); }
 };
 

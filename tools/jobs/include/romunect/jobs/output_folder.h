@@ -5,7 +5,7 @@
 #include <filesystem>
 #include <string>
 
-namespace romunect::tools {
+namespace romunect::jobs {
 
 // `path` lexically normal and without trailing separators ("scan1/" is "scan1"; a root stays).
 std::filesystem::path WithoutTrailingSeparators(const std::filesystem::path& path);
@@ -19,4 +19,4 @@ std::filesystem::path OutputFolder(const std::string& value, const std::string& 
 // existing ancestor must be a directory this process may write in.
 void CheckFolderCanBeCreated(const std::filesystem::path& dir, const std::string& option);
 
-}  // namespace romunect::tools
+}  // namespace romunect::jobs

@@ -1,8 +1,8 @@
-#include "scan_report.h"
+#include "romunect/jobs/scan_report.h"
 
 #include <algorithm>
 #include <cmath>
-#include <cstdio>
+#include <iomanip>
 #include <limits>
 #include <sstream>
 #include <thread>
@@ -12,22 +12,17 @@
 #include <opencv2/imgproc.hpp>
 
 #include "romunect/fusion/outputs.h"
+#include "romunect/jobs/text.h"
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/image_io.h"
 
-namespace romunect::tools {
+namespace romunect::jobs {
 namespace {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
 // The paper's table 1 reports completeness after 1, 20 and 50 frames.
 constexpr int kTableFrames[] = {1, 20, 50};
-
-std::string Format(const char* format, double value) {
-  char buffer[96];
-  std::snprintf(buffer, sizeof(buffer), format, value);
-  return buffer;
-}
 
 // Frames are counted from the first that holds depth (SampleDepths' threshold), as the
 // paper counts fused depth maps: the descent from 400 mm starts above the focused range.
@@ -152,7 +147,7 @@ std::string Html(const ScanReport& r, const fs::path& dir) {
        "td,th{border:1px solid #bbb;padding:4px 10px;text-align:right}th{background:#eee}"
        "img{max-width:100%;border:1px solid #ddd;margin:4px 0}</style></head><body>";
   h << "<h1>romunect scan</h1><p>" << Escape(r.scan_description) << "<br>rig <b>" << Escape(r.rig_name)
-    << "</b>, seed " << r.seed << ", " << r.objects << " objects, " << r.args.threads << " threads (fusion "
+    << "</b>, seed " << r.seed << ", " << r.objects << " objects, " << r.options.threads << " threads (fusion "
     << r.fusion.threads << "), " << r.samples << " sample(s) per pixel.<br>Depth correction: "
     << Escape(r.depth_correction) << "</p>";
   h << "<h2>Completeness (the paper's table 1)</h2><table><tr><th>frames</th>";
@@ -193,16 +188,16 @@ std::string ScanReportJson(const ScanReport& r) {
   json j;
   j["format"] = "romunect-scan-report";
   j["version"] = 1;
-  char started[32];
-  std::strftime(started, sizeof(started), "%Y-%m-%dT%H:%M:%SZ", std::gmtime(&r.started_at));
-  j["started_at"] = started;
+  std::ostringstream started;
+  started << std::put_time(std::gmtime(&r.started_at), "%Y-%m-%dT%H:%M:%SZ");
+  j["started_at"] = started.str();
   j["scan"] = r.scan_description;
   j["rig"] = r.rig_name;
   j["seed"] = r.seed;
   j["objects"] = r.objects;
   j["samples_per_pixel"] = r.samples;
   j["depth_correction"] = r.depth_correction;
-  const ScanArguments& a = r.args;  // `romunect scan` with these repeats the run (same bytes)
+  const ScanJobOptions& a = r.options;  // `romunect scan` with these repeats the run (same bytes)
   j["options"] = {{"scene", a.scene},         {"saved_scene", a.saved_scene}, {"seed", a.seed},
                   {"objects", a.objects},     {"meshes", a.meshes},           {"mesh_unit_m", a.mesh_unit_m},
                   {"mesh_material", a.mesh_material}, {"rig", a.rig},         {"calibration", a.calibration},
@@ -268,7 +263,9 @@ void WriteScanOutputs(const fs::path& dir, const ScanReport& r) {
   WriteTextAtomically(dir / "report.html", Html(r, dir));
 }
 
-std::string ScanSummary(const ScanReport& r, const fs::path& run_dir) {
+std::string ScanSummaryText(const ScanSummary& summary) {
+  const ScanReport& r = summary.report;
+  const fs::path& run_dir = summary.run_dir;
   const fusion::HeightMapMetrics& m = *r.fusion.metrics;
   std::ostringstream s;
   s << "completeness after 1 / 20 / 50 frames (from frame " << FirstFrameWithDepth(r) << ", the first with >= 5 % valid depth):";
@@ -291,4 +288,4 @@ std::string ScanSummary(const ScanReport& r, const fs::path& run_dir) {
   return s.str();
 }
 
-}  // namespace romunect::tools
+}  // namespace romunect::jobs

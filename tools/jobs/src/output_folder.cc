@@ -1,4 +1,4 @@
-#include "output_folder.h"
+#include "romunect/jobs/output_folder.h"
 
 #include <unistd.h>
 
@@ -6,7 +6,7 @@
 
 #include "romunect/sensor/errors.h"
 
-namespace romunect::tools {
+namespace romunect::jobs {
 namespace fs = std::filesystem;
 
 fs::path WithoutTrailingSeparators(const fs::path& path) {
@@ -37,4 +37,4 @@ void CheckFolderCanBeCreated(const fs::path& dir, const std::string& option) {
   }
 }
 
-}  // namespace romunect::tools
+}  // namespace romunect::jobs

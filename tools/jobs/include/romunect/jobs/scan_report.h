@@ -19,12 +19,12 @@
 #include "romunect/sim/pick.h"
 #include "romunect/sim/scanner.h"
 
-namespace romunect::tools {
+namespace romunect::jobs {
 
-// The command's arguments (defaults as `romunect scan --help` shows them): the report records
-// them, so a run says how to repeat it.
-struct ScanArguments {
-  std::string scene, saved_scene, rig = "romunect", calibration, out;
+// The scan's options (defaults as `romunect scan --help` shows them): the report records them,
+// so a run says how to repeat it.
+struct ScanJobOptions {
+  std::string scene, saved_scene, rig = "romunect", calibration, out;  // out "": runs/scan-<date>-<time>
   uint32_t seed = 1;
   int objects = 12;
   int threads = 2;
@@ -57,7 +57,7 @@ struct SampleDepths {
 };
 
 struct ScanReport {
-  ScanArguments args;
+  ScanJobOptions options;
   std::time_t started_at = 0;
   std::string scan_description, rig_name, depth_correction;
   uint32_t seed = 0;
@@ -85,7 +85,13 @@ void WriteScanOutputs(const std::filesystem::path& dir, const ScanReport& report
 // The report as JSON text.
 std::string ScanReportJson(const ScanReport& report);
 
-// A few lines for the terminal: the paper's table 1, accuracy, pick, timings, where files are.
-std::string ScanSummary(const ScanReport& report, const std::filesystem::path& run_dir);
+// What RunScan returns: the finished run folder and its report.
+struct ScanSummary {
+  std::filesystem::path run_dir;
+  ScanReport report;
+};
 
-}  // namespace romunect::tools
+// A few lines for the terminal: the paper's table 1, accuracy, pick, timings, where files are.
+std::string ScanSummaryText(const ScanSummary& summary);
+
+}  // namespace romunect::jobs

@@ -1,0 +1,124 @@
+// The scan job in-process: its option checks, its report's keys, and a small scan end to end
+// whose frame directory `fuse` turns into the same map.
+#include <filesystem>
+#include <string>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "romunect/jobs/fuse.h"
+#include "romunect/jobs/scan.h"
+#include "romunect/sensor/errors.h"
+#include "romunect/testing/test_support.h"
+
+namespace romunect::jobs {
+namespace {
+namespace fs = std::filesystem;
+using ::testing::HasSubstr;
+using testing::ReadText;
+using testing::ScratchDir;
+
+// The InputError RunScan throws: "source: field: problem" ("" when none).
+std::string ScanError(const ScanJobOptions& o) {
+  try {
+    RunScan(o);
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(ScanJob, RefusesBadOptionsBeforeAnyWork) {
+  ScratchDir dir("scan_job");
+  ScanJobOptions o;
+  o.out = (dir / "run").string();
+  ScanJobOptions bad = o;
+  bad.objects = 0;
+  EXPECT_EQ(ScanError(bad), "--objects: 0 is outside 1..60");
+  bad = o;
+  bad.samples = 3;
+  EXPECT_EQ(ScanError(bad), "--samples: 3 is not 1 or 4");
+  bad = o;
+  bad.voxel_m = 0.0;
+  EXPECT_EQ(ScanError(bad), "--voxel: expected 0.00005 .. 0.005 metres");
+  bad = o;
+  bad.sweep = "diagonal";
+  EXPECT_EQ(ScanError(bad), "--sweep: 'diagonal' is not columns or levels");
+  bad = o;
+  bad.mesh_material = "purple";
+  EXPECT_EQ(ScanError(bad), "--mesh-material: 'purple' is not bright, dark or shiny");
+  bad = o;
+  bad.calibration = (dir / "missing.yaml").string();
+  EXPECT_EQ(ScanError(bad), (dir / "missing.yaml").string() + ": file not found");
+  EXPECT_FALSE(fs::exists(dir / "run"));
+  EXPECT_FALSE(fs::exists(dir / "run.incomplete"));
+}
+
+TEST(ScanReport, JsonHoldsTheTableAccuracyPickTimingsAndOptions) {
+  ScanReport r;
+  r.options.seed = 7;
+  r.options.meshes = {"part.stl"};
+  r.fusion.completeness_per_frame = {0.0, 0.1, 0.2, 0.3};
+  r.valid_fraction_per_frame = {0.0, 0.2, 0.3, 0.4};
+  r.fusion.metrics = fusion::HeightMapMetrics{};
+  r.fusion.metrics->completeness = 0.3;
+  const nlohmann::json j = nlohmann::json::parse(ScanReportJson(r));
+  EXPECT_EQ(j["format"], "romunect-scan-report");
+  for (const char* key : {"version", "started_at", "scan", "rig", "seed", "objects", "samples_per_pixel",
+                          "depth_correction", "options", "frames", "table1_completeness", "table1_first_frame",
+                          "valid_fraction_per_frame", "accuracy", "pick", "timings_s", "realtime", "fusion", "settle",
+                          "tracking", "outputs"}) {
+    EXPECT_TRUE(j.contains(key)) << key;
+  }
+  EXPECT_EQ(j["options"]["seed"].get<int>(), 7);
+  EXPECT_EQ(j["options"]["meshes"][0], "part.stl");
+  EXPECT_EQ(j["frames"].get<int>(), 4);
+  // Frames count from the first with depth (frame 1): after 1 frame is frame 1's value.
+  EXPECT_EQ(j["table1_first_frame"].get<int>(), 1);
+  EXPECT_DOUBLE_EQ(j["table1_completeness"]["after_1"].get<double>(), 0.1);
+  EXPECT_TRUE(j["table1_completeness"]["after_20"].is_null());
+  EXPECT_DOUBLE_EQ(j["accuracy"]["completeness"].get<double>(), 0.3);
+  EXPECT_TRUE(j["timings_s"].contains("total"));
+  EXPECT_EQ(j["started_at"], "1970-01-01T00:00:00Z");
+  const std::string text = ScanSummaryText({"runs/x", r});
+  EXPECT_THAT(text, HasSubstr("completeness after 1 / 20 / 50 frames (from frame 1, the first with >= 5 % valid "
+                              "depth): 10.0 % - -   (all 4 frames: 30.0 %)"));
+  EXPECT_THAT(text, HasSubstr("wrote runs/x/ (report.html"));
+}
+
+// One object, ideal depth: the whole job in a few seconds of CPU.
+TEST(ScanJobIntegration, ScansFusesPicksAndFuseRepeatsTheMapBitForBit) {
+  ScratchDir dir("scan_job");
+  ScanJobOptions o;
+  o.objects = 1;
+  o.seed = 4;
+  o.ideal_depth = true;
+  o.out = (dir / "run").string();
+  const ScanSummary s = RunScan(o);
+  EXPECT_EQ(s.run_dir, dir / "run");
+  EXPECT_FALSE(fs::exists(dir / "run.incomplete"));
+  const ScanReport& r = s.report;
+  EXPECT_EQ(r.objects, 1);
+  EXPECT_GT(r.fusion.frames, 50u);
+  EXPECT_EQ(r.fusion.completeness_per_frame.size(), r.fusion.frames);
+  EXPECT_EQ(r.valid_fraction_per_frame.size(), r.fusion.frames);
+  EXPECT_GT(r.fusion.completeness, 0.8);
+  EXPECT_EQ(r.depth_correction, "none: ideal depth (ground truth), --ideal-depth");
+  for (const char* file : {"report.json", "report.html", "fused_depth.exr", "frames/frames.json", "scene.json"}) {
+    EXPECT_TRUE(fs::exists(dir / "run" / file)) << file;
+  }
+  const nlohmann::json report = nlohmann::json::parse(ReadText(dir / "run" / "report.json"));
+  EXPECT_TRUE(report["options"]["ideal_depth"].get<bool>());
+  // The frame directory over the box it records: the scan's map again.
+  FuseOptions fuse;
+  fuse.source = (dir / "run" / "frames").string();
+  fuse.out = (dir / "fused").string();
+  const FuseJobSummary f = RunFuse(fuse);
+  EXPECT_EQ(f.box_from, "frames.json's region_W");
+  EXPECT_EQ(f.report.frames, r.fusion.frames);
+  EXPECT_EQ(ReadText(dir / "fused" / "fused_depth.exr"), ReadText(dir / "run" / "fused_depth.exr"));
+}
+
+}  // namespace
+}  // namespace romunect::jobs

@@ -1,0 +1,82 @@
+// `romunect calibrate`: the calibration chain (calib/chain.h).
+// - CalibrateInTheLoop: the whole chain with the simulated rig (sim/calibration_rig.h), writing
+//   DIR/calibration.yaml, DIR/report.json, DIR/report.md and its plots, with every error against
+//   the rig's ground truth and the goals the chain is held to.
+// - The steps alone, on recorded input, each updating one calibration file
+//   (calib/calibration_file.h): intrinsics from a folder of board images; hand-eye from IR
+//   images of the board with T_B_H per frame; depth from raw depth of the reference plane (the
+//   board's plane z = 0 of K). Frame sources are what OpenSource opens (a frame directory, an
+//   .oni file, a device URI); T_B_H comes from frames.json or a pose log.
+// Progress and each step's findings go to stdout.
+#pragma once
+
+#include <filesystem>
+#include <string>
+
+#include "romunect/calib/calibration_file.h"
+
+namespace romunect::jobs {
+
+// The calibration file a step updates.
+struct CalibrationFileOptions {
+  std::string output = "calibration.yaml";
+  bool overwrite_worse = false;
+  bool maps_as_exr = false;
+};
+
+// Where the hand-eye and depth steps take T_B_H from when the frames do not carry it.
+struct PoseLogOptions {
+  std::string log;         // CSV pose log of T_B_H; empty: the frames' own (frames.json)
+  double offset_s = 0.0;   // added to frame times to get pose-log times
+  bool offset_given = false;
+};
+
+struct IntrinsicsStepOptions {
+  std::string images, board = "9x6";
+  double square_m = 0.025;
+  bool k3 = false;
+  CalibrationFileOptions file;
+};
+
+struct HandEyeStepOptions {
+  std::string frames, board = "9x6";
+  PoseLogOptions poses;
+  double square_m = 0.025;
+  CalibrationFileOptions file;
+};
+
+struct DepthStepOptions {
+  std::string frames, model = "exact";  // exact (1/Z affine in raw) or affine (paper eq. 3)
+  PoseLogOptions poses;
+  CalibrationFileOptions file;
+};
+
+// Each step returns the calibration it saved.
+calib::Calibration RunIntrinsicsStep(const IntrinsicsStepOptions& options);
+calib::Calibration RunHandEyeStep(const HandEyeStepOptions& options);
+calib::Calibration RunDepthStep(const DepthStepOptions& options);
+
+struct InTheLoopOptions {
+  std::string out = "calibration";
+  std::string rig = "romunect";
+  unsigned seed = 1;
+  int views = 20, stations = 15, planes = 12;
+  int board_samples = 3;
+  int threads = 2;
+  bool overwrite_worse = false;
+};
+
+struct InTheLoopSummary {
+  std::filesystem::path out, calibration_file;
+  std::string goals_table;  // Markdown: each goal, the value against ground truth, met or not
+  bool all_met = false;
+};
+
+// Validates the options and the existing-file rules first (InputError), runs the chain, compares
+// with ground truth and writes the calibration and the reports into options.out.
+InTheLoopSummary CalibrateInTheLoop(const InTheLoopOptions& options);
+
+// The goals table and where the files are, for the terminal.
+std::string InTheLoopSummaryText(const InTheLoopSummary& summary);
+
+}  // namespace romunect::jobs

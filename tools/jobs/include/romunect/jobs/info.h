@@ -1,0 +1,34 @@
+// `romunect info DIR`: summarizes and validates a frame directory (every image is opened).
+#pragma once
+
+#include <cstddef>
+#include <filesystem>
+#include <optional>
+#include <string>
+
+#include <Eigen/Core>
+
+#include "romunect/sensor/camera_model.h"
+#include "romunect/sensor/world_box.h"
+
+namespace romunect::jobs {
+
+struct FrameDirectoryInfo {
+  std::filesystem::path dir;
+  CameraModel camera;
+  size_t frames = 0;
+  double first_time_s = 0.0, last_time_s = 0.0;
+  size_t with_depth = 0, with_ir = 0, with_raw = 0, with_gt_depth = 0, with_pose = 0;
+  double valid_mean = 0.0, valid_min = 1.0, valid_max = 0.0;  // share of valid depth pixels per frame
+  Eigen::Vector3d cameras_min_W = Eigen::Vector3d::Zero(), cameras_max_W = Eigen::Vector3d::Zero();
+  double path_m = 0.0;  // the cameras' path, frame to frame
+  std::optional<WorldBox> region_W;
+};
+
+// Reads frames.json and every frame (InputError naming the file and field on anything bad).
+FrameDirectoryInfo InspectFrameDirectory(const std::filesystem::path& dir);
+
+// The summary for the terminal, ending with "valid: all N frames read and checked".
+std::string FrameDirectoryInfoText(const FrameDirectoryInfo& info);
+
+}  // namespace romunect::jobs
