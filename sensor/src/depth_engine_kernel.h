@@ -23,6 +23,8 @@
 #include <cstdint>
 #include <limits>
 
+#include "romunect/sensor/cpu_features.h"
+
 namespace romunect::depth_engine_internal {
 
 inline constexpr int kLanesPerBlock = 32;
@@ -74,6 +76,13 @@ void MatchRowsScalar(const KernelArgs& args, KernelStats* stats);
 void MatchRowsSse2(const KernelArgs& args, KernelStats* stats);
 void MatchRowsAvx2(const KernelArgs& args, KernelStats* stats);
 void MatchRowsAvx512(const KernelArgs& args, KernelStats* stats);
+
+// One entry of the engine's dispatch table (depth_engine.cc, ResolveKernel).
+using MatchRowsFn = void (*)(const KernelArgs& args, KernelStats* stats);
+struct Kernel {
+  Isa isa;
+  MatchRowsFn match_rows;
+};
 
 }  // namespace romunect::depth_engine_internal
 
