@@ -191,17 +191,18 @@ TEST(IrSynthesisTest, EveryKernelGivesTheScalarBytes) {
       options.noise = c.noise;
       options.camera_defocus = c.defocus;
       IrSynthesizer scalar(options);
-      scalar.set_kernel(IrKernel::kScalar);
+      scalar.set_isa(Isa::kScalar);
       cv::Mat ir_scalar;
       scalar.Synthesize(*c.rig, *c.geometry, 11, &ir_scalar, nullptr);
-      for (IrKernel kernel : {IrKernel::kAvx2, IrKernel::kAvx512}) {
-        if (!IrKernelAvailable(kernel)) continue;
-        SCOPED_TRACE(std::string(preset) + ", " + IrKernelName(kernel) + ", " + std::to_string(c.geometry->layers.size()) +
+      for (Isa isa : {Isa::kAvx2, Isa::kAvx512}) {
+        if (!CpuSupports(isa)) continue;
+        SCOPED_TRACE(std::string(preset) + ", " + ToString(isa) + ", " + std::to_string(c.geometry->layers.size()) +
                      " layers, " + std::to_string(c.geometry->materials.size()) + " materials, " +
                      std::to_string(c.rig->camera.width) + " wide, noise " + std::to_string(c.noise) + ", defocus " +
                      std::to_string(c.defocus));
         IrSynthesizer fast(options);
-        fast.set_kernel(kernel);
+        fast.set_isa(isa);
+        EXPECT_EQ(fast.isa(), isa);
         cv::Mat ir;
         fast.Synthesize(*c.rig, *c.geometry, 11, &ir, nullptr);
         EXPECT_TRUE(testing::ImagesBitEqual(ir, ir_scalar));
