@@ -175,26 +175,6 @@ struct PacketKernel {
     }
   }
 
-  // The output lines a block will write, fetched while its rays are traced: otherwise each
-  // first store to a line waits for the line (the buffers are ~10 MB per layer).
-  static void PrefetchOutputs(const Lanes& lanes, GeometryBuffer* out) {
-    if (!lanes.block) return;
-    GeometryLayer& layer = out->layers[lanes.layer[0]];
-    for (int r = 0; r < kPacket; ++r) {
-      const int v = lanes.v[0] + r, u = lanes.u[0];
-      const char* lines[] = {reinterpret_cast<const char*>(layer.p_C.ptr<float>(v) + 3 * u),
-                             reinterpret_cast<const char*>(layer.normal_C.ptr<float>(v) + 3 * u),
-                             reinterpret_cast<const char*>(layer.material.ptr<int>(v) + u),
-                             reinterpret_cast<const char*>(layer.object_id.ptr<int>(v) + u),
-                             reinterpret_cast<const char*>(layer.lit.ptr<uint8_t>(v) + u)};
-      const int bytes[] = {12 * kPacket, 12 * kPacket, 4 * kPacket, 4 * kPacket, kPacket};
-      for (int k = 0; k < 5; ++k) {
-        __builtin_prefetch(lines[k], 1, 3);
-        __builtin_prefetch(lines[k] + bytes[k] - 1, 1, 3);
-      }
-    }
-  }
-
   // The camera rays in W (rh.ray) and their directions in C, for the first `count` lanes.
   static void SetCameraRays(const FrameSetup& f, int count, PacketLanes* p) {
     U lane0;  // 0, 1, ..., kWidth - 1
@@ -373,7 +353,26 @@ struct PacketKernel {
   static void RenderPacket(const FrameSetup& f, const Lanes& lanes, GeometryBuffer* out, Counters* counters) {
     PacketLanes p;
     LoadRays(f, lanes, &p);
-    PrefetchOutputs(lanes, out);
+    // The output lines a block will write, fetched while its rays are traced: otherwise each
+    // first store to a line waits for the line (the buffers are ~10 MB per layer). In this body,
+    // not a function of their own: GCC 12 takes a function that only prefetches for one without
+    // effect and drops its calls.
+    if (lanes.block) {
+      GeometryLayer& layer = out->layers[lanes.layer[0]];
+      for (int r = 0; r < kPacket; ++r) {
+        const int v = lanes.v[0] + r, u = lanes.u[0];
+        const char* lines[] = {reinterpret_cast<const char*>(layer.p_C.ptr<float>(v) + 3 * u),
+                               reinterpret_cast<const char*>(layer.normal_C.ptr<float>(v) + 3 * u),
+                               reinterpret_cast<const char*>(layer.material.ptr<int>(v) + u),
+                               reinterpret_cast<const char*>(layer.object_id.ptr<int>(v) + u),
+                               reinterpret_cast<const char*>(layer.lit.ptr<uint8_t>(v) + u)};
+        const int bytes[] = {12 * kPacket, 12 * kPacket, 4 * kPacket, 4 * kPacket, kPacket};
+        for (int k = 0; k < 5; ++k) {
+          __builtin_prefetch(lines[k], 1, 3);
+          __builtin_prefetch(lines[k] + bytes[k] - 1, 1, 3);
+        }
+      }
+    }
     SetCameraRays(f, lanes.count, &p);
     IntersectPacket(f, p.valid_lanes, &p.rh);
     const bool moving_hit = HitParts(f, &p);
