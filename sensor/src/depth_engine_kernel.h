@@ -1,7 +1,9 @@
 // The depth engine's matching kernel (private to sensor/src): one template, instantiated per
 // instruction set in depth_engine_kernel_{scalar,sse2,avx2,avx512}.cc. Integer arithmetic in the same
 // order everywhere, so every instruction set gives the same bytes (tested against each other and
-// against the full-search reference in tests/sensor).
+// against the full-search reference in tests/sensor). The dispatch follows the one idiom of
+// docs/design.md, "SIMD kernels": a table of the instruction sets compiled in (depth_engine.cc),
+// picked by ResolveKernel.
 //
 // Layout: disparities run across SIMD lanes, in blocks of 32. Lane j of pixel x compares the
 // pixel with reference column x - (min_shift + j). The reference rows are stored reversed, so

@@ -3,7 +3,8 @@
 // ir_synthesis_kernel_{scalar,avx2,avx512}.cc. The template performs the same IEEE operations
 // in the same order in every lane as the scalar instantiation does per pixel (no FMA
 // contraction: the sensor target builds with -ffp-contract=off), so every instruction set gives
-// the same bytes (tested).
+// the same bytes (tested). Dispatch: a table of the instruction sets compiled in
+// (ir_synthesis.cc), picked by ResolveKernel (docs/design.md, "SIMD kernels").
 //
 // This header holds what the synthesizer and the kernels share: plain pointers and constants,
 // no inline code of its own, so that nothing is shared between units compiled for different

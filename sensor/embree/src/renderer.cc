@@ -46,6 +46,8 @@ constexpr renderer_internal::Kernel kKernels[] = {
 // CPU lacks it.
 const renderer_internal::Kernel* KernelFor(Isa requested) { return ResolveKernel(requested, kKernels); }
 
+// The samples of one layer's 4 x 4 block at (u0, v0): the whole block, or at the image's border
+// the pixels inside it.
 Lanes Block(const FrameSetup& f, int layer_index, int u0, int v0) {
   Lanes lanes;
   if (u0 + kPacket <= f.width && v0 + kPacket <= f.height) {

@@ -4,7 +4,9 @@
 // renderer_kernel_{sse2,avx2,avx512}.cc, each on GCC vectors of its register width. Every lane
 // performs the same IEEE operations in the same order as 3-vector Eigen code (no FMA
 // contraction: the target builds with -ffp-contract=off), so every instruction set writes the
-// same bytes (tested). Embree picks its own instruction set.
+// same bytes (tested). Embree picks its own instruction set. Dispatch: a table of the
+// instruction sets compiled in (renderer.cc), picked by ResolveKernel (docs/design.md, "SIMD
+// kernels").
 //
 // This header holds what the renderer and the kernels share, included by every kernel unit
 // before its target pragma so that its inline functions stay baseline code.
