@@ -4,8 +4,9 @@
 //
 // One idiom for every kernel family (renderer, IR synthesis, depth engine, fusion insertion and
 // extraction): the family's options hold an `Isa` (kAuto by default); the family implements a
-// fixed set of instruction sets, one translation unit each (<family>_<isa>.cc, compiled under
-// `#pragma GCC target`), and picks its function with ResolveIsa(). docs/design.md, "SIMD kernels".
+// fixed set of instruction sets, one translation unit each (<family>_kernel_<isa>.cc, compiled
+// under `#pragma GCC target`), lists those compiled in in a table and picks its entry with
+// ResolveKernel() (ResolveIsa over the table). docs/design.md, "SIMD kernels".
 #pragma once
 
 #include <cstddef>
