@@ -1,5 +1,5 @@
 // The matching kernel's template (see depth_engine_kernel.h). Included once per instruction set
-// by depth_engine_kernel_{scalar,sse2,avx2}.cc; everything here has internal linkage.
+// by depth_engine_kernel_{scalar,sse2,avx2,avx512}.cc; everything here has internal linkage.
 #pragma once
 
 #include <cmath>

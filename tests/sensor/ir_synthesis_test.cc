@@ -245,6 +245,18 @@ constexpr double kLevelBlendTolerance = 0.06;
 // that relies on OpenCV blurring a band of rows to the bytes the whole image has there (it takes
 // the rows around the band as its border). Checked at the levels' range of sigmas and at bands
 // touching the image's edges.
+// kAuto resolves to an instruction set the synthesizer implements; SSE2 is not one of them.
+TEST(IrSynthesisTest, IsaResolvesOrIsRefused) {
+  IrSynthesizer synth;
+  EXPECT_NE(synth.isa(), Isa::kAuto);
+  EXPECT_NE(synth.isa(), Isa::kSse2);
+  synth.set_isa(Isa::kScalar);
+  EXPECT_EQ(synth.isa(), Isa::kScalar);
+  synth.set_isa(Isa::kAuto);
+  EXPECT_NE(synth.isa(), Isa::kAuto);
+  EXPECT_DEATH(synth.set_isa(Isa::kSse2), "sse2");
+}
+
 TEST(IrSynthesisTest, ABandOfRowsBlursToTheWholeImagesBytes) {
   cv::Mat image(120, 160, CV_32F);
   cv::RNG rng(7);
