@@ -40,6 +40,10 @@ bool CpuSupports(Isa isa) {
 }
 
 std::optional<Isa> ResolveIsa(Isa requested, std::initializer_list<Isa> implements) {
+  return ResolveIsa(requested, std::span<const Isa>(implements.begin(), implements.size()));
+}
+
+std::optional<Isa> ResolveIsa(Isa requested, std::span<const Isa> implements) {
   if (requested != Isa::kAuto) {
     const bool implemented = std::find(implements.begin(), implements.end(), requested) != implements.end();
     if (implemented && CpuSupports(requested)) return requested;

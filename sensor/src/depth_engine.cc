@@ -1,18 +1,16 @@
 #include "romunect/sensor/depth_engine.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdlib>
 #include <limits>
 #include <sstream>
 
-#include <time.h>
-
 #include <opencv2/imgproc.hpp>
 
 #include "depth_engine_kernel.h"
 #include "romunect/sensor/check.h"
+#include "romunect/sensor/clock.h"
 #include "romunect/sensor/cpu_features.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/ir_synthesis.h"
@@ -27,53 +25,25 @@ constexpr float kSigmaFloorDn = 2.0f;  // keeps the normalization finite on flat
 constexpr float kNormScale = 48.0f;    // one local standard deviation = 48 levels of 8 bits
 static_assert(internal::kRawNone == kRawInvalid);
 
-using KernelFn = void (*)(const internal::KernelArgs&, internal::KernelStats*);
-
-KernelFn KernelFunction(MatchKernel kernel) {
-  switch (kernel) {
-#if ROMUNECT_DEPTH_KERNEL_AVX512
-    case MatchKernel::kAvx512: return &internal::MatchRowsAvx512;
+// The search kernels compiled in (depth_engine_kernel.h), narrowest first.
+constexpr internal::Kernel kKernels[] = {
+    {Isa::kScalar, &internal::MatchRowsScalar},
+#if ROMUNECT_DEPTH_KERNEL_SSE2
+    {Isa::kSse2, &internal::MatchRowsSse2},
 #endif
 #if ROMUNECT_DEPTH_KERNEL_AVX2
-    case MatchKernel::kAvx2: return &internal::MatchRowsAvx2;
+    {Isa::kAvx2, &internal::MatchRowsAvx2},
 #endif
-#if ROMUNECT_DEPTH_KERNEL_SSE2
-    case MatchKernel::kSse2: return &internal::MatchRowsSse2;
+#if ROMUNECT_DEPTH_KERNEL_AVX512
+    {Isa::kAvx512, &internal::MatchRowsAvx512},
 #endif
-    case MatchKernel::kScalar: return &internal::MatchRowsScalar;
-    default: return nullptr;  // not compiled in
-  }
-}
+};
+
+// The kernel for `requested` (ResolveIsa over kKernels); null where it is not compiled in or
+// the CPU lacks it.
+const internal::Kernel* KernelFor(Isa requested) { return ResolveKernel(requested, kKernels); }
 
 }  // namespace
-
-const char* MatchKernelName(MatchKernel kernel) {
-  switch (kernel) {
-    case MatchKernel::kScalar: return "scalar";
-    case MatchKernel::kSse2: return "sse2";
-    case MatchKernel::kAvx2: return "avx2";
-    case MatchKernel::kAvx512: return "avx512";
-  }
-  return "?";
-}
-
-bool MatchKernelAvailable(MatchKernel kernel) {
-  if (KernelFunction(kernel) == nullptr) return false;
-#if ROMUNECT_DEPTH_KERNEL_AVX2
-  if (kernel == MatchKernel::kAvx2) return CpuHasAvx2();
-#endif
-#if ROMUNECT_DEPTH_KERNEL_AVX512
-  if (kernel == MatchKernel::kAvx512) return CpuHasAvx512();
-#endif
-  return true;
-}
-
-MatchKernel FastestMatchKernel() {
-  for (MatchKernel k : {MatchKernel::kAvx512, MatchKernel::kAvx2, MatchKernel::kSse2}) {
-    if (MatchKernelAvailable(k)) return k;
-  }
-  return MatchKernel::kScalar;
-}
 
 std::string DepthEngineStats::BriefReport() const {
   std::ostringstream s;
@@ -197,12 +167,6 @@ void PrefilterRows(const cv::Mat& ir, int window_px, bool squares_fit_32_bits, i
   }
 }
 
-double ThreadCpuSeconds() {
-  timespec t;
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
-  return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
-}
-
 }  // namespace
 
 void DepthEngine::Prefilter(const cv::Mat& ir, int window_px, cv::Mat* normalized, cv::Mat* local_sigma) {
@@ -216,7 +180,7 @@ DepthEngine::DepthEngine(const DepthEngineOptions& options)
     : DepthEngine(options, ChipReferenceImage(options.chip)) {}
 
 DepthEngine::DepthEngine(const DepthEngineOptions& options, const cv::Mat& reference_ir)
-    : options_(options), kernel_(FastestMatchKernel()) {
+    : options_(options), isa_(KernelFor(Isa::kAuto)->isa) {
   ROMUNECT_CHECK_MSG(options.Problem().empty(), options.Problem().c_str());
   ROMUNECT_CHECK(reference_ir.type() == CV_16U);
   ROMUNECT_CHECK(reference_ir.cols == options.chip.camera.width && reference_ir.rows == options.chip.camera.height);
@@ -268,9 +232,10 @@ DepthEngine::DepthEngine(const DepthEngineOptions& options, const cv::Mat& refer
   while (clean_end_ < W && clean(clean_end_)) ++clean_end_;
 }
 
-void DepthEngine::set_kernel(MatchKernel kernel) {
-  ROMUNECT_CHECK_MSG(MatchKernelAvailable(kernel), MatchKernelName(kernel));
-  kernel_ = kernel;
+void DepthEngine::set_isa(Isa isa) {
+  const internal::Kernel* kernel = KernelFor(isa);
+  ROMUNECT_CHECK_MSG(kernel != nullptr, ToString(isa));
+  isa_ = kernel->isa;
 }
 
 double DepthEngine::RawAtReference() const {
@@ -283,7 +248,7 @@ double DepthEngine::ChipDepthM(int raw) const { return romunect::ChipDepthM(opti
 double DepthEngine::ShiftOfRaw(int raw) const { return (raw_at_reference_rounded_ - raw) / 8.0; }
 
 void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
-  const auto start = std::chrono::steady_clock::now();
+  const Stopwatch stopwatch;
   ROMUNECT_CHECK(out != nullptr);
   const CameraModel& cam = options_.chip.camera;
   if (ir.type() != CV_16UC1) {
@@ -350,7 +315,7 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
   args.shift_px = out->shift_px.ptr<float>();
   args.float_step = out->depth_m.step1();
   ROMUNECT_CHECK(out->shift_px.step1() == args.float_step);
-  const KernelFn match_rows = KernelFunction(kernel_);
+  const internal::MatchRowsFn match_rows = KernelFor(isa_)->match_rows;
   std::vector<internal::KernelStats> thread_stats(threads);
   ParallelRows(threads, rows, [&](int row_begin, int row_end) {
     const double cpu_start = ThreadCpuSeconds();
@@ -374,7 +339,7 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
     out->stats.border += s.border;
   }
   out->stats.busiest_thread_cpu_s = *std::max_element(thread_cpu_s.begin(), thread_cpu_s.end());
-  out->stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  out->stats.seconds = stopwatch.seconds();
 }
 
 // ---------------------------------------------------------------- metric correction

@@ -1,7 +1,9 @@
 // The depth engine's matching kernel (private to sensor/src): one template, instantiated per
 // instruction set in depth_engine_kernel_{scalar,sse2,avx2,avx512}.cc. Integer arithmetic in the same
 // order everywhere, so every instruction set gives the same bytes (tested against each other and
-// against the full-search reference in tests/sensor).
+// against the full-search reference in tests/sensor). The dispatch follows the one idiom of
+// docs/design.md, "SIMD kernels": a table of the instruction sets compiled in (depth_engine.cc),
+// picked by ResolveKernel.
 //
 // Layout: disparities run across SIMD lanes, in blocks of 32. Lane j of pixel x compares the
 // pixel with reference column x - (min_shift + j). The reference rows are stored reversed, so
@@ -22,6 +24,8 @@
 #include <cstddef>
 #include <cstdint>
 #include <limits>
+
+#include "romunect/sensor/cpu_features.h"
 
 namespace romunect::depth_engine_internal {
 
@@ -74,6 +78,13 @@ void MatchRowsScalar(const KernelArgs& args, KernelStats* stats);
 void MatchRowsSse2(const KernelArgs& args, KernelStats* stats);
 void MatchRowsAvx2(const KernelArgs& args, KernelStats* stats);
 void MatchRowsAvx512(const KernelArgs& args, KernelStats* stats);
+
+// One entry of the engine's dispatch table (depth_engine.cc, ResolveKernel).
+using MatchRowsFn = void (*)(const KernelArgs& args, KernelStats* stats);
+struct Kernel {
+  Isa isa;
+  MatchRowsFn match_rows;
+};
 
 }  // namespace romunect::depth_engine_internal
 

@@ -2,7 +2,7 @@
 // depth_engine_kernel_sse2.cc). AVX2 unpacks within 128-bit halves, so the int16 lanes hold the
 // shifts in the order 0-7, 16-23 | 8-15, 24-31 (Lane); minima do not care, and the masks come out
 // in shift order. Compiled for AVX2 under a pragma, not a build flag, and called
-// only where __builtin_cpu_supports("avx2") (depth_engine.cc). Standard headers and the shared
+// only where CpuSupports(Isa::kAvx2) (depth_engine.cc's dispatch). Standard headers and the shared
 // structs come before the pragma so that their inline functions stay baseline code.
 #include <cmath>
 #include <cstddef>

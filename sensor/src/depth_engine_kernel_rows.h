@@ -1,5 +1,5 @@
 // The matching kernel's template (see depth_engine_kernel.h). Included once per instruction set
-// by depth_engine_kernel_{scalar,sse2,avx2}.cc; everything here has internal linkage.
+// by depth_engine_kernel_{scalar,sse2,avx2,avx512}.cc; everything here has internal linkage.
 #pragma once
 
 #include <cmath>
@@ -56,66 +56,164 @@ inline void RefineRow(const KernelArgs& a, const int16_t* code, const int16_t* b
   }
 }
 
+// The band's sliding window at row y: the rows it takes in and leaves (the old row exists from
+// the band's second row on), and the reference rows reversed, pointed at p = W - 1 (x = 0,
+// j = 0), so that column x reads at -x.
+struct RowWindow {
+  int y = 0;
+  bool first_row = false;
+  const uint8_t *obs_new = nullptr, *obs_old = nullptr;
+  const uint8_t *ref_new = nullptr, *ref_old = nullptr;
+  const uint8_t* outside = nullptr;
+};
+
+inline RowWindow WindowAt(const KernelArgs& a, int y) {
+  RowWindow w;
+  w.y = y;
+  w.first_row = y == a.y_begin;
+  const size_t row_new = static_cast<size_t>(y + a.radius);
+  const size_t row_old = w.first_row ? row_new : static_cast<size_t>(y - a.radius - 1);
+  w.obs_new = a.obs + row_new * a.obs_step;
+  w.obs_old = a.obs + row_old * a.obs_step;
+  w.ref_new = a.ref_rev + row_new * a.ref_step + (a.width - 1);
+  w.ref_old = a.ref_rev + row_old * a.ref_step + (a.width - 1);
+  w.outside = a.outside + (a.width - 1);
+  return w;
+}
+
+// Column x's window sums (kLanes = NB x 32 shifts at colsum + x kLanes): summed for the band's
+// first row, then + new row - old row. Columns near the image sides also see shifts without a
+// reference column (difference 255).
+template <class V, int NB>
+[[gnu::always_inline]] inline void UpdateColumn(const KernelArgs& a, const RowWindow& w, int x, int16_t* colsum) {
+  using I16 = typename V::I16;
+  using U8 = typename V::U8;
+  const int r = a.radius;
+  int16_t* c = colsum + x * NB * kLanesPerBlock;
+  const bool clean = x >= a.clean_begin && x < a.clean_end;
+  for (int b = 0; b < NB; ++b) {
+    const int p = b * kLanesPerBlock - x;
+    auto masked = [&](U8 d) { return clean ? d : V::OrBytes(d, w.outside + p); };
+    if (w.first_row) {
+      I16 sum = V::Widen(masked(V::AbsDiff(a.obs[(w.y - r) * a.obs_step + x], w.ref_new + p - 2 * r * a.ref_step)));
+      for (int dy = -r + 1; dy <= r; ++dy) {
+        const size_t row = static_cast<size_t>(w.y + dy);
+        sum = V::Add(sum, V::Widen(masked(V::AbsDiff(a.obs[row * a.obs_step + x],
+                                                     a.ref_rev + row * a.ref_step + (a.width - 1) + p))));
+      }
+      V::Store(c + b * kLanesPerBlock, sum);
+    } else {
+      const I16 diff = V::WidenDiff(masked(V::AbsDiff(w.obs_new[x], w.ref_new + p)),
+                                    masked(V::AbsDiff(w.obs_old[x], w.ref_old + p)));
+      V::Store(c + b * kLanesPerBlock, V::Add(V::Load(c + b * kLanesPerBlock), diff));
+    }
+  }
+}
+
+// The search's results for one row (the first pass), read by RefineRow.
+struct SearchRow {
+  int16_t* code = nullptr;
+  int16_t* best_cost = nullptr;
+  int16_t* best_j = nullptr;
+  int16_t* cost_minus = nullptr;
+  int16_t* cost_plus = nullptr;
+};
+
+// The search at pixel x of a textured window with costs s (the last block's padding lanes
+// raised to kCostMax by `pad`): weak, ambiguous, at the edge of the range, or a candidate with
+// its best shift and the neighbours' costs. `lanes` holds NB x 32 values of scratch.
+template <class V, int NB>
+[[gnu::always_inline]] inline void SearchPixel(const KernelArgs& a, const typename V::I16 (&s)[NB],
+                                               const typename V::I16& pad, int x, int16_t* lanes,
+                                               const SearchRow& out) {
+  using I16 = typename V::I16;
+  constexpr int kWords = (NB + 1) / 2;  // 64-bit lane masks
+  const I16 last = V::Or(s[NB - 1], pad);
+  I16 m = last;
+  for (int b = 0; b < NB - 1; ++b) m = V::Min(m, s[b]);
+  const int c0 = V::HorizontalMin(m);
+  out.best_cost[x] = static_cast<int16_t>(c0);
+  if (c0 > a.max_best_cost) {
+    out.code[x] = kWeak;
+    return;
+  }
+  const int below = a.ambiguous_below[c0];
+  uint64_t equal[kWords], less[kWords];
+  for (int w = 0; w < kWords; ++w) {
+    const int b = 2 * w;
+    const I16& lo = b == NB - 1 ? last : s[b];
+    equal[w] = V::EqualMask(lo, c0);
+    less[w] = V::LessMask(lo, below);
+    if (b + 1 < NB) {
+      const I16& hi = b + 1 == NB - 1 ? last : s[b + 1];
+      equal[w] |= static_cast<uint64_t>(V::EqualMask(hi, c0)) << 32;
+      less[w] |= static_cast<uint64_t>(V::LessMask(hi, below)) << 32;
+    }
+  }
+  int j = 0;  // the first shift at the best cost
+  for (int w = 0; w < kWords; ++w) {
+    if (equal[w] != 0) {
+      j = 64 * w + __builtin_ctzll(equal[w]);
+      break;
+    }
+  }
+  uint64_t beyond = 0;
+  for (int w = 0; w < kWords; ++w) {
+    // Bits j - 1 .. j + 1 within this word.
+    const int lo = j - 1 - 64 * w;
+    const uint64_t near = lo >= 64 || lo < -2 ? 0 : lo >= 0 ? uint64_t{7} << lo : uint64_t{7} >> -lo;
+    beyond |= less[w] & ~near;
+  }
+  if (beyond != 0) {
+    out.code[x] = kAmbiguous;
+  } else if (j == 0 || j == a.range - 1) {
+    out.code[x] = kEdgeOfRange;
+  } else {
+    out.code[x] = kCandidate;
+    out.best_j[x] = static_cast<int16_t>(j);
+    for (int b = 0; b < NB; ++b) V::Store(lanes + b * kLanesPerBlock, s[b]);
+    out.cost_minus[x] = lanes[(j - 1) / kLanesPerBlock * kLanesPerBlock + V::Lane((j - 1) % kLanesPerBlock)];
+    out.cost_plus[x] = lanes[(j + 1) / kLanesPerBlock * kLanesPerBlock + V::Lane((j + 1) % kLanesPerBlock)];
+  }
+}
+
+inline void AddStats(const KernelStats& s, KernelStats* to) {
+  to->valid += s.valid;
+  to->flat += s.flat;
+  to->weak += s.weak;
+  to->ambiguous += s.ambiguous;
+  to->out_of_range += s.out_of_range;
+  to->border += s.border;
+}
+
 // V: the instruction set's lanes (operations listed in depth_engine_kernel_sse2.cc).
 // NB: blocks of 32 shifts, a constant so that the window costs stay in registers.
 template <class V, int NB>
 void MatchRows(const KernelArgs& args, KernelStats* stats_out) {
   using I16 = typename V::I16;
-  using U8 = typename V::U8;
   constexpr int kLanes = NB * kLanesPerBlock;
-  constexpr int kWords = (NB + 1) / 2;  // 64-bit lane masks
   const KernelArgs a = args;  // a local copy: the output stores cannot alias it
   const int W = a.width, r = a.radius;
   int16_t* const colsum = a.scratch;
-  int16_t* const code = colsum + static_cast<size_t>(W) * kLanes;
-  int16_t* const best_cost = code + W;
-  int16_t* const best_j = best_cost + W;
-  int16_t* const cost_minus = best_j + W;
-  int16_t* const cost_plus = cost_minus + W;
+  SearchRow search;
+  search.code = colsum + static_cast<size_t>(W) * kLanes;
+  search.best_cost = search.code + W;
+  search.best_j = search.best_cost + W;
+  search.cost_minus = search.best_j + W;
+  search.cost_plus = search.cost_minus + W;
   // Padding lanes (shifts j >= D) of the last block never win.
   alignas(64) int16_t pad_lanes[kLanesPerBlock] = {};
   for (int k = a.range - (NB - 1) * kLanesPerBlock; k < kLanesPerBlock; ++k) pad_lanes[V::Lane(k)] = kCostMax;
   const I16 pad = V::Load(pad_lanes);
   alignas(64) int16_t lanes[kLanes];
   KernelStats stats;
-  for (int x = 0; x < r; ++x) code[x] = code[W - 1 - x] = kBorder;
+  for (int x = 0; x < r; ++x) search.code[x] = search.code[W - 1 - x] = kBorder;
 
   for (int y = a.y_begin; y < a.y_end; ++y) {
-    const bool first_row = y == a.y_begin;
-    // Row pointers; reference pointers at p = W - 1 (x = 0, j = 0), so column x reads at -x.
-    // The old row (left by the sliding window) exists from the band's second row on.
-    const size_t row_new = static_cast<size_t>(y + r), row_old = first_row ? row_new : static_cast<size_t>(y - r - 1);
-    const uint8_t* obs_new = a.obs + row_new * a.obs_step;
-    const uint8_t* obs_old = a.obs + row_old * a.obs_step;
-    const uint8_t* ref_new = a.ref_rev + row_new * a.ref_step + (W - 1);
-    const uint8_t* ref_old = a.ref_rev + row_old * a.ref_step + (W - 1);
-    const uint8_t* outside = a.outside + (W - 1);
-    // Column x's window sums: summed for the band's first row, then + new row - old row.
-    // Columns near the image sides also see shifts without a reference column (difference 255).
-    auto column = [&](int x) {
-      int16_t* c = colsum + x * kLanes;
-      const bool clean = x >= a.clean_begin && x < a.clean_end;
-      for (int b = 0; b < NB; ++b) {
-        const int p = b * kLanesPerBlock - x;
-        auto masked = [&](U8 d) { return clean ? d : V::OrBytes(d, outside + p); };
-        if (first_row) {
-          I16 sum = V::Widen(masked(V::AbsDiff(a.obs[(y - r) * a.obs_step + x], ref_new + p - 2 * r * a.ref_step)));
-          for (int dy = -r + 1; dy <= r; ++dy) {
-            const size_t row = static_cast<size_t>(y + dy);
-            sum = V::Add(sum, V::Widen(masked(V::AbsDiff(a.obs[row * a.obs_step + x],
-                                                         a.ref_rev + row * a.ref_step + (W - 1) + p))));
-          }
-          V::Store(c + b * kLanesPerBlock, sum);
-        } else {
-          const I16 diff = V::WidenDiff(masked(V::AbsDiff(obs_new[x], ref_new + p)),
-                                        masked(V::AbsDiff(obs_old[x], ref_old + p)));
-          V::Store(c + b * kLanesPerBlock, V::Add(V::Load(c + b * kLanesPerBlock), diff));
-        }
-      }
-    };
+    const RowWindow window = WindowAt(a, y);
     const float* sigma_row = a.sigma + y * a.sigma_step;
     I16 s[NB];
-    for (int x = 0; x <= 2 * r; ++x) column(x);
+    for (int x = 0; x <= 2 * r; ++x) UpdateColumn<V, NB>(a, window, x, colsum);
     for (int b = 0; b < NB; ++b) {
       s[b] = V::Load(colsum + b * kLanesPerBlock);
       for (int x = 1; x <= 2 * r; ++x) s[b] = V::Add(s[b], V::Load(colsum + x * kLanes + b * kLanesPerBlock));
@@ -123,73 +221,22 @@ void MatchRows(const KernelArgs& args, KernelStats* stats_out) {
     // First pass: the search. Flat windows skip it (invalid whatever their costs).
     for (int x = r; x < W - r; ++x) {
       if (sigma_row[x] < a.min_texture) {
-        code[x] = kFlat;
+        search.code[x] = kFlat;
       } else {
-        const I16 last = V::Or(s[NB - 1], pad);
-        I16 m = last;
-        for (int b = 0; b < NB - 1; ++b) m = V::Min(m, s[b]);
-        const int c0 = V::HorizontalMin(m);
-        best_cost[x] = static_cast<int16_t>(c0);
-        if (c0 > a.max_best_cost) {
-          code[x] = kWeak;
-        } else {
-          const int below = a.ambiguous_below[c0];
-          uint64_t equal[kWords], less[kWords];
-          for (int w = 0; w < kWords; ++w) {
-            const int b = 2 * w;
-            const I16& lo = b == NB - 1 ? last : s[b];
-            equal[w] = V::EqualMask(lo, c0);
-            less[w] = V::LessMask(lo, below);
-            if (b + 1 < NB) {
-              const I16& hi = b + 1 == NB - 1 ? last : s[b + 1];
-              equal[w] |= static_cast<uint64_t>(V::EqualMask(hi, c0)) << 32;
-              less[w] |= static_cast<uint64_t>(V::LessMask(hi, below)) << 32;
-            }
-          }
-          int j = 0;  // the first shift at the best cost
-          for (int w = 0; w < kWords; ++w) {
-            if (equal[w] != 0) {
-              j = 64 * w + __builtin_ctzll(equal[w]);
-              break;
-            }
-          }
-          uint64_t beyond = 0;
-          for (int w = 0; w < kWords; ++w) {
-            // Bits j - 1 .. j + 1 within this word.
-            const int lo = j - 1 - 64 * w;
-            const uint64_t near = lo >= 64 || lo < -2 ? 0 : lo >= 0 ? uint64_t{7} << lo : uint64_t{7} >> -lo;
-            beyond |= less[w] & ~near;
-          }
-          if (beyond != 0) {
-            code[x] = kAmbiguous;
-          } else if (j == 0 || j == a.range - 1) {
-            code[x] = kEdgeOfRange;
-          } else {
-            code[x] = kCandidate;
-            best_j[x] = static_cast<int16_t>(j);
-            for (int b = 0; b < NB; ++b) V::Store(lanes + b * kLanesPerBlock, s[b]);
-            cost_minus[x] = lanes[(j - 1) / kLanesPerBlock * kLanesPerBlock + V::Lane((j - 1) % kLanesPerBlock)];
-            cost_plus[x] = lanes[(j + 1) / kLanesPerBlock * kLanesPerBlock + V::Lane((j + 1) % kLanesPerBlock)];
-          }
-        }
+        SearchPixel<V, NB>(a, s, pad, x, lanes, search);
       }
       if (x + r + 1 < W) {
-        column(x + r + 1);
+        UpdateColumn<V, NB>(a, window, x + r + 1, colsum);
         for (int b = 0; b < NB; ++b) {
           s[b] = V::Add(s[b], V::Sub(V::Load(colsum + (x + r + 1) * kLanes + b * kLanesPerBlock),
                                      V::Load(colsum + (x - r) * kLanes + b * kLanesPerBlock)));
         }
       }
     }
-    RefineRow(a, code, best_cost, best_j, cost_minus, cost_plus, a.raw + y * a.raw_step, a.depth_m + y * a.float_step,
-              a.shift_px + y * a.float_step, &stats);
+    RefineRow(a, search.code, search.best_cost, search.best_j, search.cost_minus, search.cost_plus,
+              a.raw + y * a.raw_step, a.depth_m + y * a.float_step, a.shift_px + y * a.float_step, &stats);
   }
-  stats_out->valid += stats.valid;
-  stats_out->flat += stats.flat;
-  stats_out->weak += stats.weak;
-  stats_out->ambiguous += stats.ambiguous;
-  stats_out->out_of_range += stats.out_of_range;
-  stats_out->border += stats.border;
+  AddStats(stats, stats_out);
 }
 
 // Instantiates MatchRows<V, NB> for the block count the engine needs.

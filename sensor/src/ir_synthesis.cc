@@ -1,15 +1,14 @@
 #include "romunect/sensor/ir_synthesis.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <sstream>
 
 #include <opencv2/imgproc.hpp>
 
 #include "ir_synthesis_kernel.h"
-#include "ir_synthesis_rows.h"
 #include "romunect/sensor/check.h"
+#include "romunect/sensor/clock.h"
 #include "romunect/sensor/cpu_features.h"
 #include "romunect/sensor/parallel_rows.h"
 #include "romunect/sensor/pattern.h"
@@ -31,22 +30,20 @@ std::vector<float> LevelSigmas(float s0, float max_sigma) {
   return sigmas;
 }
 
-struct RowKernels {
-  void (*shade)(const internal::ShadeArgs&, const internal::ShadeRowData&) = nullptr;
-  void (*finish)(const internal::FinishArgs&, const internal::FinishRowData&) = nullptr;
-  void (*defocus)(const internal::DefocusArgs&, const internal::DefocusRowData&) = nullptr;
+// The row kernels compiled in (ir_synthesis_kernel.h), narrowest first.
+constexpr internal::Kernel kKernels[] = {
+    {Isa::kScalar, &internal::ShadeRowScalar, &internal::FinishRowScalar, &internal::DefocusRowScalar},
+#if ROMUNECT_IR_KERNEL_AVX2
+    {Isa::kAvx2, &internal::ShadeRowAvx2, &internal::FinishRowAvx2, &internal::DefocusRowAvx2},
+#endif
+#if ROMUNECT_IR_KERNEL_AVX512
+    {Isa::kAvx512, &internal::ShadeRowAvx512, &internal::FinishRowAvx512, &internal::DefocusRowAvx512},
+#endif
 };
 
-RowKernels KernelRows(IrKernel kernel) {
-  switch (kernel) {
-#if ROMUNECT_IR_KERNEL_X86
-    case IrKernel::kAvx512: return {&internal::ShadeRowAvx512, &internal::FinishRowAvx512, &internal::DefocusRowAvx512};
-    case IrKernel::kAvx2: return {&internal::ShadeRowAvx2, &internal::FinishRowAvx2, &internal::DefocusRowAvx2};
-#endif
-    case IrKernel::kScalar: return {&internal::ShadeRowScalar, &internal::FinishRowScalar, &internal::DefocusRowScalar};
-    default: return {};  // not compiled in
-  }
-}
+// The kernels for `requested` (ResolveIsa over kKernels); null where they are not compiled in or
+// the CPU lacks them.
+const internal::Kernel* KernelFor(Isa requested) { return ResolveKernel(requested, kKernels); }
 
 // A level table (IrSynthesizer::LevelTable) and its stacked levels (rows of `stride` floats,
 // `plane` floats per level).
@@ -66,40 +63,28 @@ internal::LevelStack StackOf(const LevelTable& table, const float* pixels, size_
   return stack;
 }
 
+// The frame's counts (IrSynthesisStats, but the time) from layer 0 and the image.
+IrSynthesisStats CountPixels(const GeometryLayer& l0, const cv::Mat& ir, const CameraOptics& optics) {
+  IrSynthesisStats stats;
+  const float gain = static_cast<float>(optics.gain_dn_per_e), full_well = static_cast<float>(optics.full_well_e);
+  const int saturated_dn = std::min(optics.MaxDn(), static_cast<int>(gain * full_well + 0.5f));
+  double sum = 0;
+  for (int y = 0; y < ir.rows; ++y) {
+    const int* m = l0.material.ptr<int>(y);
+    const uint8_t* lit = l0.lit.ptr<uint8_t>(y);
+    const uint16_t* v = ir.ptr<uint16_t>(y);
+    for (int x = 0; x < ir.cols; ++x) {
+      stats.pixels_hit += m[x] >= 0;
+      stats.pixels_lit += m[x] >= 0 && lit[x] != 0;
+      stats.pixels_saturated += v[x] >= saturated_dn;
+      sum += v[x];
+    }
+  }
+  stats.mean_dn = sum / (ir.rows * ir.cols);
+  return stats;
+}
+
 }  // namespace
-
-namespace ir_synthesis_internal {
-
-void ShadeRowScalar(const ShadeArgs& args, const ShadeRowData& row) { ShadeRow<ScalarLanes>(args, row); }
-void FinishRowScalar(const FinishArgs& args, const FinishRowData& row) { FinishRow<ScalarLanes>(args, row); }
-void DefocusRowScalar(const DefocusArgs& args, const DefocusRowData& row) { DefocusRow<ScalarLanes>(args, row); }
-
-}  // namespace ir_synthesis_internal
-
-const char* IrKernelName(IrKernel kernel) {
-  switch (kernel) {
-    case IrKernel::kScalar: return "scalar";
-    case IrKernel::kAvx2: return "avx2";
-    case IrKernel::kAvx512: return "avx512";
-  }
-  return "?";
-}
-
-bool IrKernelAvailable(IrKernel kernel) {
-  if (KernelRows(kernel).shade == nullptr) return false;
-#if ROMUNECT_IR_KERNEL_X86
-  if (kernel == IrKernel::kAvx2) return CpuHasAvx2();
-  if (kernel == IrKernel::kAvx512) return CpuHasAvx512();
-#endif
-  return true;
-}
-
-IrKernel FastestIrKernel() {
-  for (IrKernel k : {IrKernel::kAvx512, IrKernel::kAvx2}) {
-    if (IrKernelAvailable(k)) return k;
-  }
-  return IrKernel::kScalar;
-}
 
 IrSynthesizer::LevelTable::LevelTable(std::vector<float> level_sigmas) : sigmas(std::move(level_sigmas)) {
   ROMUNECT_CHECK(!sigmas.empty());
@@ -125,13 +110,14 @@ std::string IrSynthesisStats::BriefReport() const {
   return s.str();
 }
 
-IrSynthesizer::IrSynthesizer(const IrSynthesisOptions& options) : options_(options), kernel_(FastestIrKernel()) {
+IrSynthesizer::IrSynthesizer(const IrSynthesisOptions& options) : options_(options), isa_(KernelFor(Isa::kAuto)->isa) {
   ROMUNECT_CHECK_MSG(options.Problem().empty(), options.Problem().c_str());
 }
 
-void IrSynthesizer::set_kernel(IrKernel kernel) {
-  ROMUNECT_CHECK_MSG(IrKernelAvailable(kernel), IrKernelName(kernel));
-  kernel_ = kernel;
+void IrSynthesizer::set_isa(Isa isa) {
+  const internal::Kernel* kernel = KernelFor(isa);
+  ROMUNECT_CHECK_MSG(kernel != nullptr, ToString(isa));
+  isa_ = kernel->isa;
 }
 
 void IrSynthesizer::PreparePattern(const Rig& rig) {
@@ -192,7 +178,7 @@ void IrSynthesizer::ShadeLayer(const Rig& rig, const GeometryLayer& layer, const
   args.pattern_rows = pattern_stack_.rows / levels - 2;
   args.pattern = StackOf(pattern_table_, pattern_stack_.ptr<float>(), pattern_stack_.total() / levels,
                          pattern_stack_.cols);
-  const auto shade_row = KernelRows(kernel_).shade;
+  const auto shade_row = KernelFor(isa_)->shade;
   ParallelRows(options_.threads, layer.p_C.rows, [&](int row_begin, int row_end) {
     for (int y = row_begin; y < row_end; ++y) {
       internal::ShadeRowData row;
@@ -213,19 +199,7 @@ void IrSynthesizer::ShadeLayer(const Rig& rig, const GeometryLayer& layer, const
   });
 }
 
-void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, cv::Mat* ir,
-                               IrSynthesisStats* stats) {
-  const auto start = std::chrono::steady_clock::now();
-  ROMUNECT_CHECK(ir != nullptr);
-  ROMUNECT_CHECK(!geometry.layers.empty());
-  const cv::Size size(rig.camera.width, rig.camera.height);
-  for (const GeometryLayer& layer : geometry.layers) {
-    ROMUNECT_CHECK(layer.p_C.size() == size && layer.p_C.type() == CV_32FC3);
-    ROMUNECT_CHECK(layer.normal_C.size() == size && layer.normal_C.type() == CV_32FC3);
-    ROMUNECT_CHECK(layer.material.size() == size && layer.material.type() == CV_32S);
-    ROMUNECT_CHECK(layer.lit.size() == size && layer.lit.type() == CV_8U);
-  }
-  PreparePattern(rig);
+bool IrSynthesizer::ShadeLayers(const Rig& rig, const GeometryBuffer& geometry) {
   const std::vector<IrMaterial>& materials = geometry.materials;
   const size_t table_size = std::max<size_t>(materials.size(), internal::kTableSize);
   material_table_.assign(3 * table_size, 0.f);
@@ -234,12 +208,11 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
     material_table_[table_size + m] = materials[m].specular;
     material_table_[2 * table_size + m] = materials[m].shininess;
   }
-
   // Radiance summed over the layers (the quality mode's samples), then averaged. Samples that
   // repeat layer 0's hit (adaptive sampling away from edges) reuse its radiance.
   const size_t layer_count = geometry.layers.size();
   cv::Mat& first = layer_count > 1 ? layer0_electrons_ : electrons_;
-  first.create(size, CV_32F);
+  first.create(geometry.layers[0].p_C.size(), CV_32F);
   ShadeLayer(rig, geometry.layers[0], materials, nullptr, nullptr, &first);
   bool lens_sampled = !geometry.layers[0].lens_offset_m.isZero();
   if (layer_count > 1) {
@@ -251,31 +224,32 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
     }
     electrons_ *= 1.0 / layer_count;
   }
-  // Camera blur: the focused lens' PSF everywhere, plus the defocus disk (sigma coc / 4) unless
-  // the layers already sampled the aperture. Only the levels some pixel blends are blurred.
+  return lens_sampled;
+}
+
+float IrSynthesizer::DefocusSigmas(const Rig& rig, const GeometryLayer& layer0) {
   const CameraOptics& optics = rig.optics;
   const float s0 = static_cast<float>(optics.psf_sigma_px);
-  const bool defocus = options_.camera_defocus && !lens_sampled && optics.aperture_m > 0;
-  float max_sigma = s0;
-  std::vector<float> row_min, row_max;  // per row, with defocus
-  if (defocus) {
-    sigma_map_.create(size, CV_32F);
-    internal::DefocusArgs args;
-    args.width = size.width;
-    args.scale = static_cast<float>(rig.camera.fx * optics.aperture_m);
-    args.inv_focus = static_cast<float>(1.0 / optics.focus_distance_m);
-    args.psf2 = s0 * s0;
-    const cv::Mat& p0 = geometry.layers[0].p_C;
-    row_min.resize(size.height);
-    row_max.resize(size.height);
-    const auto defocus_row = KernelRows(kernel_).defocus;
-    ParallelRows(options_.threads, size.height, [&](int row_begin, int row_end) {
-      for (int y = row_begin; y < row_end; ++y) {
-        defocus_row(args, {p0.ptr<float>(y), sigma_map_.ptr<float>(y), &row_min[y], &row_max[y]});
-      }
-    });
-    max_sigma = std::max(s0, *std::max_element(row_max.begin(), row_max.end()));
-  }
+  const cv::Size size = layer0.p_C.size();
+  sigma_map_.create(size, CV_32F);
+  internal::DefocusArgs args;
+  args.width = size.width;
+  args.scale = static_cast<float>(rig.camera.fx * optics.aperture_m);
+  args.inv_focus = static_cast<float>(1.0 / optics.focus_distance_m);
+  args.psf2 = s0 * s0;
+  row_sigma_min_.resize(size.height);
+  row_sigma_max_.resize(size.height);
+  const auto defocus_row = KernelFor(isa_)->defocus;
+  ParallelRows(options_.threads, size.height, [&](int row_begin, int row_end) {
+    for (int y = row_begin; y < row_end; ++y) {
+      defocus_row(args, {layer0.p_C.ptr<float>(y), sigma_map_.ptr<float>(y), &row_sigma_min_[y], &row_sigma_max_[y]});
+    }
+  });
+  return std::max(s0, *std::max_element(row_sigma_max_.begin(), row_sigma_max_.end()));
+}
+
+void IrSynthesizer::BlurCameraLevels(float s0, float max_sigma, bool defocus) {
+  const cv::Size size = electrons_.size();
   const bool blend = defocus && max_sigma > s0 * 1.01f;
   std::vector<float> sigmas = blend ? LevelSigmas(std::max(s0, 0.25f), std::min(max_sigma, 30.f)) : std::vector<float>{s0};
   if (sigmas[0] != s0) sigmas.insert(sigmas.begin(), s0);
@@ -295,12 +269,12 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
   // Several levels come only from defocus, which measured every row's sigmas.
   std::vector<int> row_k_lo(size.height, 0), row_k_hi(size.height, 0);
   if (count > 1) {
-    ROMUNECT_CHECK(!row_min.empty());
+    ROMUNECT_CHECK(defocus && static_cast<int>(row_sigma_min_.size()) == size.height);
     const internal::LevelStack table = StackOf(camera_table_, nullptr, size.area(), size.width);
     float w;
     for (int y = 0; y < size.height; ++y) {
-      internal::FindLevel<internal::ScalarLanes>(table, row_min[y], &row_k_lo[y], &w);
-      internal::FindLevel<internal::ScalarLanes>(table, row_max[y], &row_k_hi[y], &w);
+      internal::FindLevelScalar(table, row_sigma_min_[y], &row_k_lo[y], &w);
+      internal::FindLevelScalar(table, row_sigma_max_[y], &row_k_hi[y], &w);
       row_k_hi[y] += 1;
     }
   }
@@ -323,9 +297,13 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
       y0 = y1;
     }
   }
+}
 
-  // Blend, noise, full well, gain and quantization, row by row; noise from a hash of (seed,
-  // pixel): the same bytes at any thread count.
+void IrSynthesizer::FinishImage(const Rig& rig, uint64_t seed, cv::Mat* ir) {
+  // Row by row; noise from a hash of (seed, pixel): the same bytes at any thread count.
+  const CameraOptics& optics = rig.optics;
+  const cv::Size size = blurred_.size();
+  const int count = static_cast<int>(camera_table_.sigmas.size());
   ir->create(size, CV_16U);
   internal::FinishArgs args;
   args.width = size.width;
@@ -337,7 +315,7 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
   args.full_well = static_cast<float>(optics.full_well_e);
   args.read = static_cast<float>(optics.read_noise_e);
   args.max_dn = optics.MaxDn();
-  const auto finish_row = KernelRows(kernel_).finish;
+  const auto finish_row = KernelFor(isa_)->finish;
   ParallelRows(options_.threads, size.height, [&](int row_begin, int row_end) {
     for (int y = row_begin; y < row_end; ++y) {
       internal::FinishRowData row;
@@ -349,25 +327,32 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
       finish_row(args, row);
     }
   });
+}
 
+void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, cv::Mat* ir,
+                               IrSynthesisStats* stats) {
+  const Stopwatch stopwatch;
+  ROMUNECT_CHECK(ir != nullptr);
+  ROMUNECT_CHECK(!geometry.layers.empty());
+  const cv::Size size(rig.camera.width, rig.camera.height);
+  for (const GeometryLayer& layer : geometry.layers) {
+    ROMUNECT_CHECK(layer.p_C.size() == size && layer.p_C.type() == CV_32FC3);
+    ROMUNECT_CHECK(layer.normal_C.size() == size && layer.normal_C.type() == CV_32FC3);
+    ROMUNECT_CHECK(layer.material.size() == size && layer.material.type() == CV_32S);
+    ROMUNECT_CHECK(layer.lit.size() == size && layer.lit.type() == CV_8U);
+  }
+  PreparePattern(rig);
+  const bool lens_sampled = ShadeLayers(rig, geometry);
+  // Camera blur: the focused lens' PSF everywhere, plus the defocus disk (sigma coc / 4) unless
+  // the layers already sampled the aperture. Only the levels some pixel blends are blurred.
+  const float s0 = static_cast<float>(rig.optics.psf_sigma_px);
+  const bool defocus = options_.camera_defocus && !lens_sampled && rig.optics.aperture_m > 0;
+  const float max_sigma = defocus ? DefocusSigmas(rig, geometry.layers[0]) : s0;
+  BlurCameraLevels(s0, max_sigma, defocus);
+  FinishImage(rig, seed, ir);
   if (stats != nullptr) {
-    *stats = IrSynthesisStats{};
-    const GeometryLayer& l0 = geometry.layers[0];
-    const int saturated_dn = std::min(args.max_dn, static_cast<int>(args.gain * args.full_well + 0.5f));
-    double sum = 0;
-    for (int y = 0; y < size.height; ++y) {
-      const int* m = l0.material.ptr<int>(y);
-      const uint8_t* lit = l0.lit.ptr<uint8_t>(y);
-      const uint16_t* v = ir->ptr<uint16_t>(y);
-      for (int x = 0; x < size.width; ++x) {
-        stats->pixels_hit += m[x] >= 0;
-        stats->pixels_lit += m[x] >= 0 && lit[x] != 0;
-        stats->pixels_saturated += v[x] >= saturated_dn;
-        sum += v[x];
-      }
-    }
-    stats->mean_dn = sum / size.area();
-    stats->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    *stats = CountPixels(geometry.layers[0], *ir, rig.optics);
+    stats->seconds = stopwatch.seconds();
   }
 }
 

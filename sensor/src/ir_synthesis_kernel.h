@@ -1,14 +1,19 @@
-// IR synthesis' per-row kernels (private to sensor/src): one template (ir_synthesis_rows.h),
-// instantiated per instruction set in ir_synthesis.cc (scalar), ir_synthesis_avx2.cc and
-// ir_synthesis_avx512.cc. The template performs the same IEEE operations in the same order in
-// every lane as the scalar instantiation does per pixel (no FMA contraction: the sensor target
-// builds with -ffp-contract=off), so every instruction set gives the same bytes (tested).
+// IR synthesis' per-row kernels (private to sensor/src): one template
+// (ir_synthesis_kernel_rows.h), instantiated per instruction set in
+// ir_synthesis_kernel_{scalar,avx2,avx512}.cc. The template performs the same IEEE operations
+// in the same order in every lane as the scalar instantiation does per pixel (no FMA
+// contraction: the sensor target builds with -ffp-contract=off), so every instruction set gives
+// the same bytes (tested). Dispatch: a table of the instruction sets compiled in
+// (ir_synthesis.cc), picked by ResolveKernel (docs/design.md, "SIMD kernels").
 //
 // This header holds what the synthesizer and the kernels share: plain pointers and constants,
-// no inline code, so that nothing is shared between units compiled for different targets.
+// no inline code of its own, so that nothing is shared between units compiled for different
+// targets; each kernel unit includes it before its target pragma.
 #pragma once
 
 #include <cstdint>
+
+#include "romunect/sensor/cpu_features.h"
 
 namespace romunect::ir_synthesis_internal {
 
@@ -95,17 +100,33 @@ struct DefocusRowData {
   float* hi = nullptr;
 };
 
+// The instantiations, one per instruction set (the ones compiled in: see the macros below).
 void ShadeRowScalar(const ShadeArgs& args, const ShadeRowData& row);
 void FinishRowScalar(const FinishArgs& args, const FinishRowData& row);
 void DefocusRowScalar(const DefocusArgs& args, const DefocusRowData& row);
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define ROMUNECT_IR_KERNEL_X86 1
 void ShadeRowAvx2(const ShadeArgs& args, const ShadeRowData& row);
 void FinishRowAvx2(const FinishArgs& args, const FinishRowData& row);
 void DefocusRowAvx2(const DefocusArgs& args, const DefocusRowData& row);
 void ShadeRowAvx512(const ShadeArgs& args, const ShadeRowData& row);
 void FinishRowAvx512(const FinishArgs& args, const FinishRowData& row);
 void DefocusRowAvx512(const DefocusArgs& args, const DefocusRowData& row);
-#endif
+
+// One entry of the synthesizer's dispatch table (ir_synthesis.cc, ResolveKernel).
+struct Kernel {
+  Isa isa;
+  void (*shade)(const ShadeArgs& args, const ShadeRowData& row);
+  void (*finish)(const FinishArgs& args, const FinishRowData& row);
+  void (*defocus)(const DefocusArgs& args, const DefocusRowData& row);
+};
+
+// The level pair of one sigma (FindLevel, one value at a time): the blur levels a row blends.
+void FindLevelScalar(const LevelStack& table, float sigma, int* k, float* w);
 
 }  // namespace romunect::ir_synthesis_internal
+
+// AVX2 and AVX-512 code is compiled under `#pragma GCC target` and runs only where the CPU
+// reports the instruction set.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define ROMUNECT_IR_KERNEL_AVX2 1
+#define ROMUNECT_IR_KERNEL_AVX512 1
+#endif

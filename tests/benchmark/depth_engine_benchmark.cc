@@ -96,14 +96,14 @@ void BM_DepthEngine(benchmark::State& state) {
   const double busiest_ms = 1e3 * busiest_s / static_cast<double>(state.iterations());
   state.counters["busiest_thread_cpu_ms"] = busiest_ms;
   Results()[name]["busiest_thread_cpu_ms"] = busiest_ms;
-  Results()[name]["kernel"] = MatchKernelName(engine.kernel());
+  Results()[name]["kernel"] = ToString(engine.isa());
 }
 BENCHMARK(BM_DepthEngine)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 
 // Each kernel this CPU runs, at 1 thread, in the same run (the same bytes: tests/sensor).
 void BM_DepthEngineKernel(benchmark::State& state) {
-  const MatchKernel kernel = static_cast<MatchKernel>(state.range(0));
-  if (!MatchKernelAvailable(kernel)) {
+  const Isa isa = static_cast<Isa>(state.range(0));
+  if (!CpuSupports(isa)) {
     state.SkipWithError("kernel not available on this CPU");
     return;
   }
@@ -111,16 +111,16 @@ void BM_DepthEngineKernel(benchmark::State& state) {
   DepthEngineOptions options = p.rig.depth_engine;
   options.threads = 1;
   DepthEngine engine(options, p.reference);
-  engine.set_kernel(kernel);
+  engine.set_isa(isa);
   DepthEngineOutput out;
   for (auto _ : state) {
     engine.Compute(p.ir, &out);
     benchmark::DoNotOptimize(out.raw.data);
   }
-  state.SetLabel(MatchKernelName(kernel));
+  state.SetLabel(ToString(isa));
 }
 BENCHMARK(BM_DepthEngineKernel)
-    ->DenseRange(static_cast<int>(MatchKernel::kScalar), static_cast<int>(MatchKernel::kAvx512))
+    ->DenseRange(static_cast<int>(Isa::kScalar), static_cast<int>(Isa::kAvx512))
     ->Unit(benchmark::kMillisecond)
     ->MeasureProcessCPUTime()
     ->UseRealTime();

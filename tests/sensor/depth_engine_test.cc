@@ -120,13 +120,14 @@ TEST(DepthEngineTest, EveryKernelAndThreadCountGivesTheSameBytes) {
     const cv::Mat ir = RenderIr(rig, scene, 9, &g);
     DepthEngineOutput first;
     int runs = 0;
-    for (MatchKernel kernel : {MatchKernel::kScalar, MatchKernel::kSse2, MatchKernel::kAvx2, MatchKernel::kAvx512}) {
-      if (!MatchKernelAvailable(kernel)) continue;
+    for (Isa isa : {Isa::kScalar, Isa::kSse2, Isa::kAvx2, Isa::kAvx512}) {
+      if (!CpuSupports(isa)) continue;
       for (int threads : {1, 2, 3}) {
         DepthEngineOptions options = rig.depth_engine;
         options.threads = threads;
         DepthEngine engine(options, Engine(preset).reference_ir());
-        engine.set_kernel(kernel);
+        engine.set_isa(isa);
+        EXPECT_EQ(engine.isa(), isa);
         DepthEngineOutput out;
         engine.Compute(ir, &out);
         ++runs;
@@ -134,7 +135,7 @@ TEST(DepthEngineTest, EveryKernelAndThreadCountGivesTheSameBytes) {
           first = out;
           continue;
         }
-        SCOPED_TRACE(preset + ", " + MatchKernelName(kernel) + ", " + std::to_string(threads) + " threads");
+        SCOPED_TRACE(preset + ", " + ToString(isa) + ", " + std::to_string(threads) + " threads");
         EXPECT_TRUE(testing::ImagesBitEqual(out.raw, first.raw));
         EXPECT_TRUE(testing::ImagesBitEqual(out.depth_m, first.depth_m));
         EXPECT_TRUE(testing::ImagesBitEqual(out.shift_px, first.shift_px));
@@ -153,7 +154,8 @@ TEST(DepthEngineTest, EveryKernelAndThreadCountGivesTheSameBytes) {
               static_cast<int>(ir.total()));
   }
 #if defined(__x86_64__)
-  EXPECT_TRUE(MatchKernelAvailable(MatchKernel::kSse2));  // the x86-64 baseline
+  EXPECT_TRUE(CpuSupports(Isa::kSse2));  // the x86-64 baseline
+  EXPECT_NE(DepthEngine(RigPreset("romunect").depth_engine, Engine("romunect").reference_ir()).isa(), Isa::kScalar);
 #endif
 }
 

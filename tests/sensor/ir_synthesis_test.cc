@@ -191,17 +191,18 @@ TEST(IrSynthesisTest, EveryKernelGivesTheScalarBytes) {
       options.noise = c.noise;
       options.camera_defocus = c.defocus;
       IrSynthesizer scalar(options);
-      scalar.set_kernel(IrKernel::kScalar);
+      scalar.set_isa(Isa::kScalar);
       cv::Mat ir_scalar;
       scalar.Synthesize(*c.rig, *c.geometry, 11, &ir_scalar, nullptr);
-      for (IrKernel kernel : {IrKernel::kAvx2, IrKernel::kAvx512}) {
-        if (!IrKernelAvailable(kernel)) continue;
-        SCOPED_TRACE(std::string(preset) + ", " + IrKernelName(kernel) + ", " + std::to_string(c.geometry->layers.size()) +
+      for (Isa isa : {Isa::kAvx2, Isa::kAvx512}) {
+        if (!CpuSupports(isa)) continue;
+        SCOPED_TRACE(std::string(preset) + ", " + ToString(isa) + ", " + std::to_string(c.geometry->layers.size()) +
                      " layers, " + std::to_string(c.geometry->materials.size()) + " materials, " +
                      std::to_string(c.rig->camera.width) + " wide, noise " + std::to_string(c.noise) + ", defocus " +
                      std::to_string(c.defocus));
         IrSynthesizer fast(options);
-        fast.set_kernel(kernel);
+        fast.set_isa(isa);
+        EXPECT_EQ(fast.isa(), isa);
         cv::Mat ir;
         fast.Synthesize(*c.rig, *c.geometry, 11, &ir, nullptr);
         EXPECT_TRUE(testing::ImagesBitEqual(ir, ir_scalar));
@@ -244,6 +245,18 @@ constexpr double kLevelBlendTolerance = 0.06;
 // that relies on OpenCV blurring a band of rows to the bytes the whole image has there (it takes
 // the rows around the band as its border). Checked at the levels' range of sigmas and at bands
 // touching the image's edges.
+// kAuto resolves to an instruction set the synthesizer implements; SSE2 is not one of them.
+TEST(IrSynthesisTest, IsaResolvesOrIsRefused) {
+  IrSynthesizer synth;
+  EXPECT_NE(synth.isa(), Isa::kAuto);
+  EXPECT_NE(synth.isa(), Isa::kSse2);
+  synth.set_isa(Isa::kScalar);
+  EXPECT_EQ(synth.isa(), Isa::kScalar);
+  synth.set_isa(Isa::kAuto);
+  EXPECT_NE(synth.isa(), Isa::kAuto);
+  EXPECT_DEATH(synth.set_isa(Isa::kSse2), "sse2");
+}
+
 TEST(IrSynthesisTest, ABandOfRowsBlursToTheWholeImagesBytes) {
   cv::Mat image(120, 160, CV_32F);
   cv::RNG rng(7);

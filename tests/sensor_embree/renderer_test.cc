@@ -341,14 +341,14 @@ TEST(RendererTest, EveryKernelWritesTheBytesOfThePortableOneAndOfEigen) {
     options.samples_per_pixel = std::abs(samples);
     options.adaptive = samples < 0;
     options.aperture_radius_m = 0.003;
-    options.kernel = RenderKernel::kSse2;
+    options.isa = Isa::kSse2;
     GeometryBuffer portable;
     const RenderStats stats = renderer.Render(pile.scene, camera, T_W_C, pile.T_C_P, options, &portable);
     EXPECT_LT(stats.lit, stats.hits);
-    for (RenderKernel kernel : {RenderKernel::kAvx2, RenderKernel::kAvx512, RenderKernel::kAuto}) {
-      options.kernel = kernel;
+    for (Isa isa : {Isa::kAvx2, Isa::kAvx512, Isa::kAuto}) {
+      options.isa = isa;
       if (!options.Problem().empty()) continue;  // not on this CPU
-      SCOPED_TRACE(RenderKernelName(kernel));
+      SCOPED_TRACE(ToString(isa));
       GeometryBuffer other;
       renderer.Render(pile.scene, camera, T_W_C, pile.T_C_P, options, &other);
       ExpectBitEqual(portable, other);
@@ -462,8 +462,10 @@ TEST(RendererTest, OptionsNameTheFieldValueAndRule) {
   o.edge_slope = 0.0;
   EXPECT_EQ(o.Problem(), "edge_slope = 0: must be positive");
   o = RenderOptions{};
-  o.kernel = RenderKernel::kSse2;
+  o.isa = Isa::kSse2;
   EXPECT_EQ(o.Problem(), "");  // every x86-64 CPU has it
+  o.isa = Isa::kScalar;
+  EXPECT_EQ(o.Problem(), "isa = scalar: the renderer implements sse2, avx2, avx512");
 }
 
 }  // namespace

@@ -1,18 +1,14 @@
 #include "romunect/sensor/embree/ray_scene.h"
 
-#include <chrono>
 #include <cstdio>
 #include <string>
 
 #include "ray_scene_impl.h"
 #include "romunect/sensor/check.h"
+#include "romunect/sensor/clock.h"
 
 namespace romunect::embree {
 namespace {
-
-double SecondsSince(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-}
 
 void ErrorCallback(void* /*user*/, RTCError code, const char* message) {
   std::fprintf(stderr, "embree error %d: %s\n", static_cast<int>(code), message ? message : "");
@@ -176,20 +172,20 @@ int RayScene::moving_count() const { return static_cast<int>(impl_->moving.size(
 
 void RayScene::Commit() {
   Impl& s = *impl_;
-  const auto start = std::chrono::steady_clock::now();
+  const Stopwatch stopwatch;
   if (s.static_dirty) {
     rtcCommitScene(s.static_part.scene.get());
     CheckDevice(s.device.get(), "rtcCommitScene(static)");
     s.static_dirty = false;
     ++s.stats.static_builds;
-    s.stats.static_build_s = SecondsSince(start);
+    s.stats.static_build_s = stopwatch.seconds();
   }
   if (s.top_dirty) {
     rtcCommitScene(s.top.get());
     CheckDevice(s.device.get(), "rtcCommitScene(top)");
     s.top_dirty = false;
   }
-  s.stats.last_commit_s = SecondsSince(start);
+  s.stats.last_commit_s = stopwatch.seconds();
 }
 
 bool RayScene::committed() const { return !impl_->static_dirty && !impl_->top_dirty; }

@@ -3,9 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
-#include <chrono>
 #include <cmath>
-#include <cstring>
 #include <limits>
 #include <sstream>
 #include <thread>
@@ -15,63 +13,41 @@
 #include <Eigen/Geometry>
 
 #include "ray_scene_impl.h"
+#include "renderer_kernel.h"
 #include "romunect/sensor/check.h"
+#include "romunect/sensor/clock.h"
 #include "romunect/sensor/cpu_features.h"
 
 namespace romunect::embree {
 namespace {
 
-constexpr int kPacket = 4;  // packets are 4 x 4 pixels: one RTCRayHit16
-constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+using renderer_internal::Counters;
+using renderer_internal::FrameSetup;
+using renderer_internal::kPacket;
+using renderer_internal::Lanes;
+using renderer_internal::RenderPacketFn;
+
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
-// A part rays can hit: the rotation taking its normals into C (row-major) and its geometries.
-struct PartSetup {
-  float R_C_part[9];
-  const std::vector<GeometryInfo>* info = nullptr;
+// The packet kernels compiled in (renderer_kernel.h), narrowest first.
+constexpr renderer_internal::Kernel kKernels[] = {
+#if ROMUNECT_RENDER_KERNEL_SSE2
+    {Isa::kSse2, &renderer_internal::RenderPacketSse2},
+#endif
+#if ROMUNECT_RENDER_KERNEL_AVX2
+    {Isa::kAvx2, &renderer_internal::RenderPacketAvx2},
+#endif
+#if ROMUNECT_RENDER_KERNEL_AVX512
+    {Isa::kAvx512, &renderer_internal::RenderPacketAvx512},
+#endif
 };
 
-// Per-frame constants shared by all threads (read only while tracing). Rotations are row-major.
-struct FrameSetup {
-  RTCScene static_scene = nullptr;  // the static part, in W, traced directly
-  // Instances of the moving parts for camera rays and for shadow rays; null where there are
-  // none or no such ray of the frame can meet any of them (MovingPartsOutOfReach).
-  RTCScene moving_camera = nullptr;
-  RTCScene moving_shadow = nullptr;
-  int width = 0, height = 0;
-  float R_W_C[9];
-  float t_W_C[3];
-  float p_P_C[3];  // projector centre in C
-  float p_P_W[3];  // projector centre in W
-  float shadow_bias_m = 0.0f;
-  float inv_focus_m = 0.0f;
-  std::vector<PartSetup> parts;  // the static part, then the moving ones by instance id
-  std::vector<LensSample> samples;
-  const std::vector<cv::Mat>* ray_tables = nullptr;  // one CV_32FC2 per sample
-};
+// The kernel for `requested` (ResolveIsa over kKernels); null where it is not compiled in or the
+// CPU lacks it.
+const renderer_internal::Kernel* KernelFor(Isa requested) { return ResolveKernel(requested, kKernels); }
 
-// Per-thread counters, a cache line each so that threads do not share one.
-struct alignas(64) Counters {
-  int64_t camera_rays = 0, hits = 0, shadow_rays = 0, lit = 0;
-};
-
-// Up to 16 samples traced together, each a pixel and a layer: a 4 x 4 block of one layer, or
-// in adaptive sampling the extra samples of the next marked pixels of a tile (packets cost
-// about the same however few of their lanes are in use, and a pixel's samples are coherent).
-struct Lanes {
-  int count = 0;
-  // A whole 4 x 4 block of one layer: lane 4 r + c is pixel (u[0] + c, v[0] + r) of layer[0],
-  // and only entries 0 are set.
-  bool block = false;
-  int u[16], v[16], layer[16];
-  void Add(int u_px, int v_px, int layer_index) {
-    u[count] = u_px;
-    v[count] = v_px;
-    layer[count] = layer_index;
-    ++count;
-  }
-};
-
+// The samples of one layer's 4 x 4 block at (u0, v0): the whole block, or at the image's border
+// the pixels inside it.
 Lanes Block(const FrameSetup& f, int layer_index, int u0, int v0) {
   Lanes lanes;
   if (u0 + kPacket <= f.width && v0 + kPacket <= f.height) {
@@ -85,58 +61,6 @@ Lanes Block(const FrameSetup& f, int layer_index, int u0, int v0) {
     if (u < f.width && v < f.height) lanes.Add(u, v, layer_index);
   }
   return lanes;
-}
-
-// The kernels: render_packet.inc on GCC vectors of each instruction set's register width.
-namespace sse2 {
-constexpr int kWidth = 4;
-using F = float __attribute__((vector_size(16)));
-using U = unsigned __attribute__((vector_size(16)));
-inline F Sqrt(F x) { return _mm_sqrt_ps(x); }
-#include "render_packet.inc"
-}  // namespace sse2
-
-#pragma GCC push_options
-#pragma GCC target("avx2")
-namespace avx2 {
-constexpr int kWidth = 8;
-using F = float __attribute__((vector_size(32)));
-using U = unsigned __attribute__((vector_size(32)));
-inline F Sqrt(F x) { return _mm256_sqrt_ps(x); }
-#include "render_packet.inc"
-}  // namespace avx2
-#pragma GCC pop_options
-
-#pragma GCC push_options
-#pragma GCC target("avx2,avx512f,avx512dq")
-// GCC 12 warns inside its own AVX-512 headers (their _mm512_undefined_* placeholders).
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wuninitialized"
-#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
-namespace avx512 {
-constexpr int kWidth = 16;
-using F = float __attribute__((vector_size(64)));
-using U = unsigned __attribute__((vector_size(64)));
-inline F Sqrt(F x) { return _mm512_sqrt_ps(x); }
-#include "render_packet.inc"
-}  // namespace avx512
-#pragma GCC diagnostic pop
-#pragma GCC pop_options
-
-using RenderPacketFn = void (*)(const FrameSetup&, const Lanes&, GeometryBuffer*, Counters*);
-
-RenderPacketFn KernelFor(RenderKernel kernel) {
-  if (kernel == RenderKernel::kAuto) {
-    kernel = CpuHasAvx512() ? RenderKernel::kAvx512 : CpuHasAvx2() ? RenderKernel::kAvx2 : RenderKernel::kSse2;
-  }
-  switch (kernel) {
-    case RenderKernel::kAvx512:
-      return &avx512::RenderPacket;
-    case RenderKernel::kAvx2:
-      return &avx2::RenderPacket;
-    default:
-      return &sse2::RenderPacket;
-  }
 }
 
 // Marks (1 in *refine, CV_8U) both pixels of every horizontal and vertical neighbour pair of
@@ -270,20 +194,6 @@ std::vector<std::array<bool, 2>> MovingPartsOutOfReach(const std::vector<Part>& 
 
 }  // namespace
 
-const char* RenderKernelName(RenderKernel kernel) {
-  switch (kernel) {
-    case RenderKernel::kAuto:
-      return "auto";
-    case RenderKernel::kAvx512:
-      return "avx512";
-    case RenderKernel::kAvx2:
-      return "avx2";
-    case RenderKernel::kSse2:
-      return "sse2";
-  }
-  return "?";
-}
-
 std::string RenderOptions::Problem() const {
   std::ostringstream s;
   if (samples_per_pixel != 1 && samples_per_pixel != 4) {
@@ -302,8 +212,17 @@ std::string RenderOptions::Problem() const {
     s << "adaptive = true: needs samples_per_pixel = 4 (the samples it adds at edges)";
   } else if (!(edge_slope > 0.0) || !std::isfinite(edge_slope)) {
     s << "edge_slope = " << edge_slope << ": must be positive";
-  } else if ((kernel == RenderKernel::kAvx512 && !CpuHasAvx512()) || (kernel == RenderKernel::kAvx2 && !CpuHasAvx2())) {
-    s << "kernel = " << RenderKernelName(kernel) << ": this CPU does not support it";
+  } else if (KernelFor(isa) == nullptr) {
+    s << "isa = " << ToString(isa) << ": ";
+    if (std::none_of(std::begin(kKernels), std::end(kKernels), [&](const auto& k) { return k.isa == isa; })) {
+      const char* separator = "the renderer implements ";
+      for (const renderer_internal::Kernel& k : kKernels) {
+        s << separator << ToString(k.isa);
+        separator = ", ";
+      }
+    } else {
+      s << "this CPU does not support it";
+    }
   }
   return s.str();
 }
@@ -342,6 +261,22 @@ struct GeometryRenderer::Cache {
   std::vector<cv::Mat> tables;
   std::vector<Eigen::Vector4d> table_bounds;  // RayTableBounds of each table
   cv::Mat refine;  // adaptive sampling: pixels that get the extra samples
+
+  // Ray tables depend only on the camera and the fixed pixel offsets: computed once.
+  void PrepareTables(const CameraModel& cam, const std::vector<LensSample>& samples) {
+    if (!valid || !(camera == cam)) {
+      *this = Cache();
+      valid = true;
+      camera = cam;
+    }
+    const int layers = static_cast<int>(samples.size());
+    for (int l = static_cast<int>(tables.size()); l < layers; ++l) {
+      offsets.push_back(samples[l].pixel_offset_px);
+      tables.push_back(OffsetRayTable(cam, samples[l].pixel_offset_px));
+      table_bounds.push_back(RayTableBounds(tables.back()));
+    }
+    for (int l = 0; l < layers; ++l) ROMUNECT_CHECK(offsets[l] == samples[l].pixel_offset_px);
+  }
 };
 
 GeometryRenderer::GeometryRenderer() : cache_(std::make_unique<Cache>()) {}
@@ -349,40 +284,17 @@ GeometryRenderer::~GeometryRenderer() = default;
 GeometryRenderer::GeometryRenderer(GeometryRenderer&&) noexcept = default;
 GeometryRenderer& GeometryRenderer::operator=(GeometryRenderer&&) noexcept = default;
 
-RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& camera,
-                                     const Pose& T_W_C, const Pose& T_C_P,
-                                     const RenderOptions& options, GeometryBuffer* out) {
-  const auto start = std::chrono::steady_clock::now();
-  ROMUNECT_CHECK(out != nullptr);
-  ROMUNECT_CHECK_MSG(options.Problem().empty(), options.Problem().c_str());
-  ROMUNECT_CHECK_MSG(camera.Problem().empty(), camera.Problem().c_str());
-  ROMUNECT_CHECK_MSG(scene.committed(), "RayScene::Commit() before rendering");
-  const RayScene::Impl& s = *scene.impl_;
+namespace {
 
+// The frame's constants in floats (FrameSetup), but the ray tables and the moving parts' scenes.
+FrameSetup SetUpFrame(const RayScene::Impl& s, const CameraModel& camera, const Pose& T_W_C, const Pose& T_C_P,
+                      const RenderOptions& options) {
   FrameSetup f;
   f.static_scene = s.static_part.scene.get();
   f.width = camera.width;
   f.height = camera.height;
   // Adaptive: sub-pixel samples through the pinhole; the lens' defocus is left to synthesis.
-  f.samples = QualitySamplePattern(options.samples_per_pixel,
-                                   options.adaptive ? 0.0 : options.aperture_radius_m);
-  const int layers = static_cast<int>(f.samples.size());
-
-  // Ray tables depend only on the camera and the fixed pixel offsets: computed once.
-  Cache& cache = *cache_;
-  if (!cache.valid || !(cache.camera == camera)) {
-    cache = Cache();
-    cache.valid = true;
-    cache.camera = camera;
-  }
-  for (int l = static_cast<int>(cache.tables.size()); l < layers; ++l) {
-    cache.offsets.push_back(f.samples[l].pixel_offset_px);
-    cache.tables.push_back(OffsetRayTable(camera, f.samples[l].pixel_offset_px));
-    cache.table_bounds.push_back(RayTableBounds(cache.tables.back()));
-  }
-  for (int l = 0; l < layers; ++l) ROMUNECT_CHECK(cache.offsets[l] == f.samples[l].pixel_offset_px);
-  f.ray_tables = &cache.tables;
-
+  f.samples = QualitySamplePattern(options.samples_per_pixel, options.adaptive ? 0.0 : options.aperture_radius_m);
   const Eigen::Matrix3d R_W_C = T_W_C.rotation();
   const Eigen::Matrix3d R_C_W = R_W_C.transpose();
   auto to_floats = [](const auto& m, float* to) {
@@ -404,44 +316,61 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
     to_floats(R_C_O, f.parts[1 + id].R_C_part);
     f.parts[1 + id].info = &part.geometries;
   }
-  // The moving parts are traced when at least one is within reach of the rays.
-  const std::vector<std::array<bool, 2>> out_of_reach =
-      MovingPartsOutOfReach(s.moving, T_W_C, T_C_P.translation(), f.samples, cache.table_bounds, f.inv_focus_m,
-                            options.shadow_bias_m);
+  return f;
+}
+
+// The moving parts are traced (f's moving_camera, moving_shadow) when at least one is within
+// reach of the rays; counts the parts out of reach into *stats.
+void SetMovingParts(const RayScene::Impl& s, const Pose& T_W_C, const Pose& T_C_P, const RenderOptions& options,
+                    const std::vector<Eigen::Vector4d>& table_bounds, FrameSetup* f, RenderStats* stats) {
+  const std::vector<std::array<bool, 2>> out_of_reach = MovingPartsOutOfReach(
+      s.moving, T_W_C, T_C_P.translation(), f->samples, table_bounds, f->inv_focus_m, options.shadow_bias_m);
   int64_t out_of_view = 0, out_of_shadows = 0;
   for (const auto& part : out_of_reach) {
     out_of_view += part[0];
     out_of_shadows += part[1];
   }
   const int64_t moving = static_cast<int64_t>(s.moving.size());
-  f.moving_camera = out_of_view < moving ? s.top.get() : nullptr;
-  f.moving_shadow = out_of_shadows < moving ? s.top.get() : nullptr;
-  out->materials = s.materials;
-  out->layers.resize(layers);
-  for (int l = 0; l < layers; ++l) {
+  f->moving_camera = out_of_view < moving ? s.top.get() : nullptr;
+  f->moving_shadow = out_of_shadows < moving ? s.top.get() : nullptr;
+  stats->moving_out_of_view = out_of_view;
+  stats->moving_out_of_shadows = out_of_shadows;
+}
+
+// One layer per sample, its Mats reused when they already have the right size.
+void PrepareLayers(const FrameSetup& f, const std::vector<IrMaterial>& materials, GeometryBuffer* out) {
+  out->materials = materials;
+  out->layers.resize(f.samples.size());
+  for (size_t l = 0; l < f.samples.size(); ++l) {
     GeometryLayer& layer = out->layers[l];
-    layer.p_C.create(camera.height, camera.width, CV_32FC3);
-    layer.normal_C.create(camera.height, camera.width, CV_32FC3);
-    layer.material.create(camera.height, camera.width, CV_32S);
-    layer.object_id.create(camera.height, camera.width, CV_32S);
-    layer.lit.create(camera.height, camera.width, CV_8U);
+    layer.p_C.create(f.height, f.width, CV_32FC3);
+    layer.normal_C.create(f.height, f.width, CV_32FC3);
+    layer.material.create(f.height, f.width, CV_32S);
+    layer.object_id.create(f.height, f.width, CV_32S);
+    layer.lit.create(f.height, f.width, CV_8U);
     layer.pixel_offset_px = f.samples[l].pixel_offset_px;
     layer.lens_offset_m = f.samples[l].lens_offset_m;
   }
+}
 
-  // Tiles are handed out in order through an atomic counter; every pixel's result depends
-  // only on its own rays and fixed packet layout, so any thread count gives the same bytes.
-  const int tile = options.tile_size_px;
-  const int tiles_x = (camera.width + tile - 1) / tile;
-  const int tiles_y = (camera.height + tile - 1) / tile;
-  const int tile_count = tiles_x * tiles_y;
-  const int thread_count = std::min(options.threads, tile_count);
-  std::vector<Counters> counters(thread_count);
-  const RenderPacketFn render_packet = KernelFor(options.kernel);
+// Traces a frame tile by tile on several threads. Tiles are handed out in order through an
+// atomic counter; every pixel's result depends only on its own rays and fixed packet layout, so
+// any thread count gives the same bytes.
+class TileTracer {
+ public:
+  TileTracer(const FrameSetup& f, int tile, int threads, RenderPacketFn render_packet, GeometryBuffer* out)
+      : f_(f),
+        tile_(tile),
+        tiles_x_((f.width + tile - 1) / tile),
+        tile_count_(tiles_x_ * ((f.height + tile - 1) / tile)),
+        counters_(std::min(threads, tile_count_)),
+        render_packet_(render_packet),
+        out_(out) {}
+
   // Traces layers [first, last) of every tile. With `refine` (adaptive), only the pixels it
   // marks, packed 16 to a packet in the tile's row order; the others repeat layer 0's sample
   // (the centre sample stands for the whole pixel).
-  auto trace = [&](int first, int last, const cv::Mat* refine) {
+  void Trace(int first, int last, const cv::Mat* refine) {
     std::atomic<int> next_tile{0};
     auto work = [&](int thread) {
       // Embree wants denormals flushed (its traversal slows down badly on them); every thread
@@ -449,70 +378,106 @@ RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& c
       const unsigned saved_mxcsr = _mm_getcsr();
       _MM_SET_FLUSH_ZERO_MODE(_MM_FLUSH_ZERO_ON);
       _MM_SET_DENORMALS_ZERO_MODE(_MM_DENORMALS_ZERO_ON);
-      for (int t = next_tile++; t < tile_count; t = next_tile++) {
-        const int tu = (t % tiles_x) * tile, tv = (t / tiles_x) * tile;
-        const int u_end = std::min(tu + tile, camera.width), v_end = std::min(tv + tile, camera.height);
-        const cv::Rect rect(tu, tv, u_end - tu, v_end - tv);
+      for (int t = next_tile++; t < tile_count_; t = next_tile++) {
+        const int tu = (t % tiles_x_) * tile_, tv = (t / tiles_x_) * tile_;
+        const cv::Rect rect(tu, tv, std::min(tu + tile_, f_.width) - tu, std::min(tv + tile_, f_.height) - tv);
         if (refine == nullptr) {
-          for (int l = first; l < last; ++l) {
-            for (int v = tv; v < v_end; v += kPacket) {
-              for (int u = tu; u < u_end; u += kPacket) {
-                render_packet(f, Block(f, l, u, v), out, &counters[thread]);
-              }
-            }
-          }
-          continue;
+          TraceBlocks(rect, first, last, &counters_[thread]);
+        } else {
+          TraceMarked(rect, first, last, *refine, &counters_[thread]);
         }
-        for (int l = first; l < last; ++l) CopySamples(out->layers[0], rect, &out->layers[l]);
-        // Marked pixels by 4 x 4 blocks, all their layers in a row, packed 16 samples a packet.
-        Lanes lanes;
-        for (int bv = tv; bv < v_end; bv += kPacket) {
-          for (int bu = tu; bu < u_end; bu += kPacket) {
-            for (int v = bv; v < std::min(bv + kPacket, v_end); ++v) {
-              const uint8_t* marked = refine->ptr<uint8_t>(v);
-              for (int u = bu; u < std::min(bu + kPacket, u_end); ++u) {
-                if (!marked[u]) continue;
-                for (int l = first; l < last; ++l) {
-                  lanes.Add(u, v, l);
-                  if (lanes.count == 16) {
-                    render_packet(f, lanes, out, &counters[thread]);
-                    lanes.count = 0;
-                  }
-                }
-              }
-            }
-          }
-        }
-        if (lanes.count > 0) render_packet(f, lanes, out, &counters[thread]);
       }
       _mm_setcsr(saved_mxcsr);
     };
     std::vector<std::thread> pool;
-    for (int i = 1; i < thread_count; ++i) pool.emplace_back(work, i);
+    for (int i = 1; i < static_cast<int>(counters_.size()); ++i) pool.emplace_back(work, i);
     work(0);
     for (auto& thread : pool) thread.join();
-  };
-  int64_t refined = 0;
-  if (options.adaptive) {
-    trace(0, 1, nullptr);
-    refined = MarkEdges(out->layers[0], camera.fx, options.edge_slope, &cache.refine);
-    trace(1, layers, &cache.refine);
-  } else {
-    trace(0, layers, nullptr);
   }
 
-  RenderStats stats;
-  for (const Counters& c : counters) {
-    stats.camera_rays += c.camera_rays;
-    stats.hits += c.hits;
-    stats.shadow_rays += c.shadow_rays;
-    stats.lit += c.lit;
+  void AddCounts(RenderStats* stats) const {
+    for (const Counters& c : counters_) {
+      stats->camera_rays += c.camera_rays;
+      stats->hits += c.hits;
+      stats->shadow_rays += c.shadow_rays;
+      stats->lit += c.lit;
+    }
   }
-  stats.refined_pixels = refined;
-  stats.moving_out_of_view = out_of_view;
-  stats.moving_out_of_shadows = out_of_shadows;
-  stats.seconds =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+
+ private:
+  // Every pixel of the tile, 4 x 4 blocks of one layer at a time.
+  void TraceBlocks(const cv::Rect& rect, int first, int last, Counters* counters) {
+    for (int l = first; l < last; ++l) {
+      for (int v = rect.y; v < rect.y + rect.height; v += kPacket) {
+        for (int u = rect.x; u < rect.x + rect.width; u += kPacket) {
+          render_packet_(f_, Block(f_, l, u, v), out_, counters);
+        }
+      }
+    }
+  }
+
+  // Marked pixels by 4 x 4 blocks, all their layers in a row, packed 16 samples a packet; the
+  // others copy layer 0.
+  void TraceMarked(const cv::Rect& rect, int first, int last, const cv::Mat& refine, Counters* counters) {
+    for (int l = first; l < last; ++l) CopySamples(out_->layers[0], rect, &out_->layers[l]);
+    const int u_end = rect.x + rect.width, v_end = rect.y + rect.height;
+    Lanes lanes;
+    for (int bv = rect.y; bv < v_end; bv += kPacket) {
+      for (int bu = rect.x; bu < u_end; bu += kPacket) {
+        for (int v = bv; v < std::min(bv + kPacket, v_end); ++v) {
+          const uint8_t* marked = refine.ptr<uint8_t>(v);
+          for (int u = bu; u < std::min(bu + kPacket, u_end); ++u) {
+            if (!marked[u]) continue;
+            for (int l = first; l < last; ++l) {
+              lanes.Add(u, v, l);
+              if (lanes.count == 16) {
+                render_packet_(f_, lanes, out_, counters);
+                lanes.count = 0;
+              }
+            }
+          }
+        }
+      }
+    }
+    if (lanes.count > 0) render_packet_(f_, lanes, out_, counters);
+  }
+
+  const FrameSetup& f_;
+  const int tile_, tiles_x_, tile_count_;
+  std::vector<Counters> counters_;  // per thread
+  const RenderPacketFn render_packet_;
+  GeometryBuffer* const out_;
+};
+
+}  // namespace
+
+RenderStats GeometryRenderer::Render(const RayScene& scene, const CameraModel& camera, const Pose& T_W_C,
+                                     const Pose& T_C_P, const RenderOptions& options, GeometryBuffer* out) {
+  const Stopwatch stopwatch;
+  ROMUNECT_CHECK(out != nullptr);
+  ROMUNECT_CHECK_MSG(options.Problem().empty(), options.Problem().c_str());
+  ROMUNECT_CHECK_MSG(camera.Problem().empty(), camera.Problem().c_str());
+  ROMUNECT_CHECK_MSG(scene.committed(), "RayScene::Commit() before rendering");
+  const RayScene::Impl& s = *scene.impl_;
+  FrameSetup f = SetUpFrame(s, camera, T_W_C, T_C_P, options);
+  Cache& cache = *cache_;
+  cache.PrepareTables(camera, f.samples);
+  f.ray_tables = &cache.tables;
+  RenderStats stats;
+  SetMovingParts(s, T_W_C, T_C_P, options, cache.table_bounds, &f, &stats);
+  PrepareLayers(f, s.materials, out);
+
+  const int layers = static_cast<int>(f.samples.size());
+  TileTracer tracer(f, options.tile_size_px, options.threads, KernelFor(options.isa)->render_packet, out);
+  if (options.adaptive) {
+    tracer.Trace(0, 1, nullptr);
+    stats.refined_pixels = MarkEdges(out->layers[0], camera.fx, options.edge_slope, &cache.refine);
+    tracer.Trace(1, layers, &cache.refine);
+  } else {
+    tracer.Trace(0, layers, nullptr);
+  }
+  tracer.AddCounts(&stats);
+  stats.seconds = stopwatch.seconds();
   return stats;
 }
 

@@ -4,12 +4,15 @@
 //
 // One idiom for every kernel family (renderer, IR synthesis, depth engine, fusion insertion and
 // extraction): the family's options hold an `Isa` (kAuto by default); the family implements a
-// fixed set of instruction sets, one translation unit each (<family>_<isa>.cc, compiled under
-// `#pragma GCC target`), and picks its function with ResolveIsa(). docs/design.md, "SIMD kernels".
+// fixed set of instruction sets, one translation unit each (<family>_kernel_<isa>.cc, compiled
+// under `#pragma GCC target`), lists those compiled in in a table and picks its entry with
+// ResolveKernel() (ResolveIsa over the table). docs/design.md, "SIMD kernels".
 #pragma once
 
+#include <cstddef>
 #include <initializer_list>
 #include <optional>
+#include <span>
 #include <string_view>
 
 namespace romunect {
@@ -28,6 +31,22 @@ bool CpuSupports(Isa isa);
 // kAuto gives the widest implemented one the CPU supports; a named one is returned when it is
 // implemented and supported, nullopt otherwise (the caller reports it as bad input).
 std::optional<Isa> ResolveIsa(Isa requested, std::initializer_list<Isa> implements);
+std::optional<Isa> ResolveIsa(Isa requested, std::span<const Isa> implements);
+
+// A family's dispatch: its table holds one entry (a struct with an `isa` member and the
+// family's function pointers) per instruction set compiled in; the entry ResolveIsa picks for
+// `requested` among them, or null when it refuses.
+template <class Kernel, std::size_t N>
+const Kernel* ResolveKernel(Isa requested, const Kernel (&table)[N]) {
+  Isa implements[N];
+  for (std::size_t i = 0; i < N; ++i) implements[i] = table[i].isa;
+  const std::optional<Isa> isa = ResolveIsa(requested, std::span<const Isa>(implements));
+  if (!isa) return nullptr;
+  for (const Kernel& kernel : table) {
+    if (kernel.isa == *isa) return &kernel;
+  }
+  return nullptr;
+}
 
 // Kept for callers that only ask the CPU.
 inline bool CpuHasAvx2() { return CpuSupports(Isa::kAvx2); }

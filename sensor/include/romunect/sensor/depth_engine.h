@@ -25,8 +25,9 @@
 // shadows and quantization come out of this process. The fast path keeps the search range in
 // signed 16-bit SIMD lanes and slides the window with running column and row sums (the cost per
 // pixel does not depend on the window size); flat pixels skip the search. It runs on `threads`
-// threads over row bands, on the best instruction set of the CPU (MatchKernel); results are the
-// same bytes at any thread count and on every kernel.
+// threads over row bands, on the widest instruction set the CPU has (Isa, cpu_features.h; the
+// engine implements scalar, SSE2, AVX2 and AVX-512); results are the same bytes at any thread
+// count and on every instruction set.
 #pragma once
 
 #include <string>
@@ -34,6 +35,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "romunect/sensor/cpu_features.h"
 #include "romunect/sensor/rig.h"
 
 namespace romunect {
@@ -64,13 +66,6 @@ struct DepthEngineOutput {
 // the stock geometry, without noise (CV_16U, 10 bits).
 cv::Mat ChipReferenceImage(const ChipGeometry& chip);
 
-// The code that runs the search. Every kernel gives the same bytes (tests/sensor compare them).
-enum class MatchKernel { kScalar, kSse2, kAvx2, kAvx512 };
-const char* MatchKernelName(MatchKernel kernel);  // "scalar", "sse2", "avx2", "avx512"
-// Compiled in, and supported by this CPU.
-bool MatchKernelAvailable(MatchKernel kernel);
-MatchKernel FastestMatchKernel();
-
 class DepthEngine {
  public:
   // Renders the chip's reference image once (ChipReferenceImage).
@@ -83,9 +78,11 @@ class DepthEngine {
   void Compute(const cv::Mat& ir, DepthEngineOutput* out);
 
   const DepthEngineOptions& options() const { return options_; }
-  // The kernel Compute uses: FastestMatchKernel() unless set. set_kernel needs an available one.
-  MatchKernel kernel() const { return kernel_; }
-  void set_kernel(MatchKernel kernel);
+  // The instruction set of the search Compute runs: ResolveIsa() of the one set (kAuto unless
+  // set). set_isa needs kAuto or one the engine implements and the CPU supports; every one gives
+  // the same bytes (tests/sensor compare them).
+  Isa isa() const { return isa_; }
+  void set_isa(Isa isa);
   const cv::Mat& reference_ir() const { return reference_ir_; }
   // The raw value of shift s = 0 (the reference plane), unrounded: raw_offset - 8 f b / Z_ref.
   double RawAtReference() const;
@@ -101,7 +98,7 @@ class DepthEngine {
 
  private:
   DepthEngineOptions options_;
-  MatchKernel kernel_;
+  Isa isa_;  // resolved
   cv::Mat reference_ir_;
   cv::Mat frame_norm_, frame_sigma_;
   int raw_at_reference_rounded_ = 0;

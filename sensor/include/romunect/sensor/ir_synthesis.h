@@ -14,6 +14,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "romunect/sensor/cpu_features.h"
 #include "romunect/sensor/geometry_buffer.h"
 #include "romunect/sensor/rig.h"
 
@@ -26,14 +27,6 @@ struct IrSynthesisOptions {
 
   std::string Problem() const;
 };
-
-// The code that shades and finishes the pixels. Every kernel gives the same bytes (tests/sensor
-// compare them).
-enum class IrKernel { kScalar, kAvx2, kAvx512 };
-const char* IrKernelName(IrKernel kernel);  // "scalar", "avx2", "avx512"
-// Compiled in, and supported by this CPU.
-bool IrKernelAvailable(IrKernel kernel);
-IrKernel FastestIrKernel();
 
 struct IrSynthesisStats {
   int pixels_hit = 0;        // rays that hit a surface (layer 0)
@@ -57,9 +50,11 @@ class IrSynthesizer {
   // Expected electrons per pixel of the last frame, before noise and clipping (CV_32F).
   const cv::Mat& expected_electrons() const { return blurred_; }
 
-  // The kernel Synthesize uses: FastestIrKernel() unless set. set_kernel needs an available one.
-  IrKernel kernel() const { return kernel_; }
-  void set_kernel(IrKernel kernel);
+  // The instruction set of the code that shades and finishes the pixels: ResolveIsa() of the
+  // one set (kAuto unless set). set_isa needs kAuto or one the synthesizer implements (scalar,
+  // AVX2, AVX-512) and the CPU supports; every one gives the same bytes (tests/sensor compare them).
+  Isa isa() const { return isa_; }
+  void set_isa(Isa isa);
 
  private:
   // Blur levels (sigmas increasing) and where to start looking for a sigma's pair of levels
@@ -78,9 +73,19 @@ class IrSynthesizer {
   // material_table_ holds `materials`.
   void ShadeLayer(const Rig& rig, const GeometryLayer& layer, const std::vector<IrMaterial>& materials,
                   const GeometryLayer* base, const cv::Mat* base_electrons, cv::Mat* electrons) const;
+  // Synthesize's steps, in order. The radiance of every layer, averaged into electrons_; returns
+  // whether the layers sampled the lens aperture.
+  bool ShadeLayers(const Rig& rig, const GeometryBuffer& geometry);
+  // The camera blur sigma per pixel (sigma_map_) from layer 0's depths, its range per row
+  // (row_sigma_min_, row_sigma_max_); returns the largest.
+  float DefocusSigmas(const Rig& rig, const GeometryLayer& layer0);
+  // The blur levels of the camera (camera_table_), each blurred over the rows that read it.
+  void BlurCameraLevels(float psf_sigma, float max_sigma, bool defocus);
+  // The blend of the levels, noise, full well, gain and quantization into *ir.
+  void FinishImage(const Rig& rig, uint64_t seed, cv::Mat* ir);
 
   IrSynthesisOptions options_;
-  IrKernel kernel_;
+  Isa isa_;  // resolved
   // Cached per rig: the displayed image blurred at increasing sigmas (projector pixels), each
   // with a zero border of one pixel, stacked level after level in one CV_32F image.
   PatternSpec cached_pattern_;
@@ -93,6 +98,7 @@ class IrSynthesizer {
   // pattern's (camera_levels_ views them).
   std::vector<float> material_table_;
   cv::Mat electrons_, layer0_electrons_, blurred_, sigma_map_, camera_stack_;
+  std::vector<float> row_sigma_min_, row_sigma_max_;  // per row, with defocus
   std::vector<cv::Mat> camera_levels_;
   LevelTable camera_table_;
 };

@@ -23,16 +23,12 @@
 #include <opencv2/core.hpp>
 
 #include "romunect/sensor/camera_model.h"
+#include "romunect/sensor/cpu_features.h"
 #include "romunect/sensor/embree/ray_scene.h"
 #include "romunect/sensor/geometry_buffer.h"
 #include "romunect/sensor/pose.h"
 
 namespace romunect::embree {
-
-// The instruction set of the renderer's own per-ray work around the Embree calls (Embree picks
-// its own). Every kernel gives the same bytes; kAuto takes the widest the CPU has.
-enum class RenderKernel { kAuto, kAvx512, kAvx2, kSse2 };
-const char* RenderKernelName(RenderKernel kernel);
 
 struct RenderOptions {
   int samples_per_pixel = 1;        // 1 (pinhole) or 4 (quality mode, thin lens)
@@ -45,7 +41,10 @@ struct RenderOptions {
   // Adaptive: neighbouring depths further apart than this many pixel footprints (z / fx) mark
   // a depth edge; 4 = surfaces steeper than 76 degrees to the view count as edges.
   double edge_slope = 4.0;
-  RenderKernel kernel = RenderKernel::kAuto;  // a named one must be supported by the CPU
+  // The instruction set of the renderer's own per-ray work around the Embree calls (Embree picks
+  // its own): kAuto, or one the renderer implements (sse2, avx2, avx512) and the CPU supports.
+  // Every one gives the same bytes.
+  Isa isa = Isa::kAuto;
 
   // Why the options are unusable, or "" (names the field, its value and the rule).
   std::string Problem() const;

@@ -1,7 +1,7 @@
 // The IR synthesis row kernels on AVX2: 8 pixels per vector, masks as all-ones lanes.
 // Compiled for AVX2 under a pragma, not a build flag, and called only where the CPU reports it
-// (ir_synthesis.cc). Standard headers and the shared structs come before the pragma so that
-// their inline functions stay baseline code.
+// (ir_synthesis.cc's dispatch). Standard headers and the shared structs come before the pragma
+// so that their inline functions stay baseline code.
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -11,12 +11,12 @@
 #include "ir_synthesis_kernel.h"
 #include "romunect/sensor/pattern.h"
 
-#if ROMUNECT_IR_KERNEL_X86
+#if ROMUNECT_IR_KERNEL_AVX2
 #include <immintrin.h>
 
 #pragma GCC push_options
 #pragma GCC target("avx2")
-#include "ir_synthesis_rows.h"
+#include "ir_synthesis_kernel_rows.h"
 
 namespace romunect::ir_synthesis_internal {
 namespace {
@@ -194,4 +194,4 @@ void DefocusRowAvx2(const DefocusArgs& args, const DefocusRowData& row) { Defocu
 }  // namespace romunect::ir_synthesis_internal
 
 #pragma GCC pop_options
-#endif  // ROMUNECT_IR_KERNEL_X86
+#endif  // ROMUNECT_IR_KERNEL_AVX2

@@ -1,6 +1,6 @@
 // The IR synthesis row kernels as one template over a lane type L (ir_synthesis_kernel.h):
 // ScalarLanes below (one pixel: F = float, I = int32_t, M = bool), and the AVX2 and AVX-512
-// lanes of ir_synthesis_avx2.cc / ir_synthesis_avx512.cc. L provides
+// lanes of ir_synthesis_kernel_avx2.cc / ir_synthesis_kernel_avx512.cc. L provides
 //   F, I, M: float, int32 and mask lanes, F and I with the arithmetic operators and
 //     comparisons (giving M); M with & and !; F from a float and I from an int32 broadcast;
 //   Load, LoadU8 (zero-extended), LoadXyz (three interleaved floats), Store, StoreU16 (low 16

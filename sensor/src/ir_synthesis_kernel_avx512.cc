@@ -11,7 +11,7 @@
 #include "ir_synthesis_kernel.h"
 #include "romunect/sensor/pattern.h"
 
-#if ROMUNECT_IR_KERNEL_X86
+#if ROMUNECT_IR_KERNEL_AVX512
 #include <immintrin.h>
 
 #pragma GCC push_options
@@ -20,7 +20,7 @@
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wuninitialized"
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
-#include "ir_synthesis_rows.h"
+#include "ir_synthesis_kernel_rows.h"
 
 namespace romunect::ir_synthesis_internal {
 namespace {
@@ -169,4 +169,4 @@ void DefocusRowAvx512(const DefocusArgs& args, const DefocusRowData& row) { Defo
 
 #pragma GCC diagnostic pop
 #pragma GCC pop_options
-#endif  // ROMUNECT_IR_KERNEL_X86
+#endif  // ROMUNECT_IR_KERNEL_AVX512
