@@ -30,7 +30,7 @@ check_folder(fusion "${backends}" "fusion runs on real frames: sensor model only
 check_folder(calib "${backends}" "calib runs on real frames: sensor model only")
 check_folder(fusion "[<\"]romunect/calib/" "fusion and calib are siblings")
 # The hardware path sees no simulator: live frames reach it through feed_abi.h and dlopen.
-check_folder(sensor/openni2 "[<\"](mujoco/|mujoco\\.h|embree3/|romunect/sim/|romunect/sim_feed/)" "sensor/openni2 loads the simulator's feed through feed_abi.h only")
+check_folder(sensor/openni2 "[<\"](mujoco/|mujoco\\.h|embree3/|romunect/sim/|romunect/sim/openni2_feed/)" "sensor/openni2 loads the simulator's feed through feed_abi.h only")
 check_folder(calib "[<\"]romunect/fusion/" "fusion and calib are siblings")
 # sim implements calib's hardware port (CalibrationHardware, romunect/calib/chain.h) for the
 # simulated rig: the port's header, which also declares the chain whose result the rig is

@@ -8,7 +8,7 @@
 #include <memory>
 
 #include "commands.h"
-#include "romunect/jobs/calibrate.h"
+#include "romunect/tools/jobs/calibrate.h"
 
 namespace romunect::tools {
 namespace {

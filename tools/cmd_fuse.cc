@@ -4,7 +4,7 @@
 #include <memory>
 
 #include "commands.h"
-#include "romunect/jobs/fuse.h"
+#include "romunect/tools/jobs/fuse.h"
 
 namespace romunect::tools {
 

@@ -4,7 +4,7 @@
 #include <string>
 
 #include "commands.h"
-#include "romunect/jobs/info.h"
+#include "romunect/tools/jobs/info.h"
 
 namespace romunect::tools {
 

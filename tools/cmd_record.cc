@@ -5,7 +5,7 @@
 #include <string>
 
 #include "commands.h"
-#include "romunect/jobs/record.h"
+#include "romunect/tools/jobs/record.h"
 
 namespace romunect::tools {
 

@@ -5,7 +5,7 @@
 #include <string>
 
 #include "commands.h"
-#include "romunect/jobs/render.h"
+#include "romunect/tools/jobs/render.h"
 #include "romunect/sensor/mesh.h"
 
 namespace romunect::tools {

@@ -3,7 +3,7 @@
 #include <memory>
 
 #include "commands.h"
-#include "romunect/jobs/scan.h"
+#include "romunect/tools/jobs/scan.h"
 
 namespace romunect::tools {
 

@@ -7,9 +7,9 @@
 
 #include <benchmark/benchmark.h>
 
-#include "romunect/openni2/depth_units.h"
-#include "romunect/openni2/openni2_source.h"
-#include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/openni2/depth_units.h"
+#include "romunect/sensor/openni2/openni2_source.h"
+#include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/testing/test_support.h"
 
 namespace romunect::openni2 {

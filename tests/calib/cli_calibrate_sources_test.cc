@@ -9,8 +9,8 @@
 #include <opencv2/core.hpp>
 
 #include "romunect/calib/calibration_file.h"
-#include "romunect/openni2/pose_log.h"
-#include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/openni2/pose_log.h"
+#include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/testing/test_support.h"
 #include "synthetic.h"

@@ -9,8 +9,8 @@
 #include <nlohmann/json.hpp>
 
 #include "romunect/fusion/voting_grid.h"
-#include "romunect/jobs/fuse.h"
-#include "romunect/jobs/fusion_loop.h"
+#include "romunect/tools/jobs/fuse.h"
+#include "romunect/tools/jobs/fusion_loop.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/testing/analytic_bin.h"

@@ -2,7 +2,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
-#include "romunect/jobs/info.h"
+#include "romunect/tools/jobs/info.h"
 #include "romunect/testing/test_support.h"
 
 namespace romunect::jobs {

@@ -6,8 +6,8 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
-#include "romunect/jobs/record.h"
-#include "romunect/jobs/render.h"
+#include "romunect/tools/jobs/record.h"
+#include "romunect/tools/jobs/render.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/testing/test_support.h"

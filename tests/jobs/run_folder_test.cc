@@ -5,7 +5,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
-#include "romunect/jobs/run_folder.h"
+#include "romunect/tools/jobs/run_folder.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/testing/test_support.h"
 

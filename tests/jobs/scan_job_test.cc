@@ -7,8 +7,8 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
-#include "romunect/jobs/fuse.h"
-#include "romunect/jobs/scan.h"
+#include "romunect/tools/jobs/fuse.h"
+#include "romunect/tools/jobs/scan.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/testing/test_support.h"
 

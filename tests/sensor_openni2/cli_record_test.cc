@@ -3,8 +3,8 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
-#include "romunect/openni2/depth_units.h"
-#include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/openni2/depth_units.h"
+#include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/testing/test_support.h"
 

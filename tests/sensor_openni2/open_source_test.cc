@@ -1,8 +1,8 @@
-#include "romunect/openni2/open_source.h"
+#include "romunect/sensor/openni2/open_source.h"
 
 #include <gtest/gtest.h>
 
-#include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/testing/test_support.h"

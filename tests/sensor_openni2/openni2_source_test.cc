@@ -1,7 +1,7 @@
 // OpenNI2Source against the virtual device and OpenNI2's file driver: every frame of a small
 // frame directory must come back through libOpenNI2 bit for bit (depth after the wire's
 // quantization, IR and microsecond timestamps exactly).
-#include "romunect/openni2/openni2_source.h"
+#include "romunect/sensor/openni2/openni2_source.h"
 
 #include <chrono>
 #include <cmath>
@@ -10,8 +10,8 @@
 
 #include <gtest/gtest.h>
 
-#include "romunect/openni2/depth_units.h"
-#include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/openni2/depth_units.h"
+#include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"

@@ -1,4 +1,4 @@
-#include "romunect/openni2/pose_log.h"
+#include "romunect/sensor/openni2/pose_log.h"
 
 #include <gtest/gtest.h>
 

@@ -1,7 +1,7 @@
 // The live twin through OpenNI2: the virtual device loads the simulator's feed library
 // (libRomunectSimFeed.so) and OpenNI2Source reads its frames through libOpenNI2; they must equal
 // the simulator's own frames read directly, bit for bit at the device's depth unit.
-#include "romunect/sim_feed/sim_feed.h"
+#include "romunect/sim/openni2_feed/sim_feed.h"
 
 #include <cmath>
 #include <string>
@@ -9,10 +9,10 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
-#include "romunect/openni2/depth_units.h"
-#include "romunect/openni2/open_source.h"
-#include "romunect/openni2/openni2_source.h"
-#include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/openni2/depth_units.h"
+#include "romunect/sensor/openni2/open_source.h"
+#include "romunect/sensor/openni2/openni2_source.h"
+#include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/testing/test_support.h"
 

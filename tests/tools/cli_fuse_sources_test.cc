@@ -14,9 +14,9 @@
 #include <nlohmann/json.hpp>
 
 #include "romunect/calib/calibration_file.h"
-#include "romunect/openni2/depth_units.h"
-#include "romunect/openni2/pose_log.h"
-#include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/openni2/depth_units.h"
+#include "romunect/sensor/openni2/pose_log.h"
+#include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/image_io.h"

@@ -1,10 +1,10 @@
-// A feed library (romunect/openni2/feed_abi.h, e.g. the live simulator's libRomunectSimFeed.so)
+// A feed library (romunect/sensor/openni2/feed_abi.h, e.g. the live simulator's libRomunectSimFeed.so)
 // as a FrameSource: the driver plug-in dlopens it and presents its frames as a device.
 #pragma once
 
 #include <string>
 
-#include "romunect/openni2/feed_abi.h"
+#include "romunect/sensor/openni2/feed_abi.h"
 #include "romunect/sensor/camera_model.h"
 #include "romunect/sensor/frame.h"
 #include "romunect/sensor/frame_source.h"

@@ -1,6 +1,6 @@
 // libRomunectVirtual.so.0: an OpenNI2 driver plug-in that presents a FrameSource as a PS1080-like
 // device: a frame directory, or the frames of a feed library (feed_abi.h, e.g. the live
-// simulator) (device_content.h; romunect/openni2/virtual_device.h documents URIs and behaviour).
+// simulator) (device_content.h; romunect/sensor/openni2/virtual_device.h documents URIs and behaviour).
 //
 // Threads: OpenNI2 calls in from the application's threads; in realtime pace one producer thread
 // per device sends frames. One mutex per device guards the streams and the frame cursor and is
@@ -30,8 +30,8 @@
 #include <Driver/OniDriverAPI.h>
 #include <PS1080.h>
 
-#include "romunect/openni2/depth_units.h"
-#include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/openni2/depth_units.h"
+#include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/rig.h"

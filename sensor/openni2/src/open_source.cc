@@ -1,4 +1,4 @@
-#include "romunect/openni2/open_source.h"
+#include "romunect/sensor/openni2/open_source.h"
 
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"

@@ -1,4 +1,4 @@
-#include "romunect/openni2/openni2_source.h"
+#include "romunect/sensor/openni2/openni2_source.h"
 
 #include <dlfcn.h>
 
@@ -14,7 +14,7 @@
 #include <OpenNI.h>
 #include <PS1080.h>
 
-#include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/errors.h"

@@ -5,7 +5,7 @@
 #include <optional>
 #include <string>
 
-#include "romunect/openni2/virtual_device.h"
+#include "romunect/sensor/openni2/virtual_device.h"
 
 namespace romunect::openni2 {
 

@@ -1,11 +1,11 @@
-// libRomunectSimFeed.so's C ABI (romunect/openni2/feed_abi.h) over SimFeed. No exception
+// libRomunectSimFeed.so's C ABI (romunect/sensor/openni2/feed_abi.h) over SimFeed. No exception
 // crosses it: each becomes a message in the caller's buffer.
 #include <cstdio>
 #include <exception>
 #include <memory>
 
-#include "romunect/openni2/feed_abi.h"
-#include "romunect/sim_feed/sim_feed.h"
+#include "romunect/sensor/openni2/feed_abi.h"
+#include "romunect/sim/openni2_feed/sim_feed.h"
 
 namespace {
 

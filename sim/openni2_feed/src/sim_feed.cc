@@ -1,4 +1,4 @@
-#include "romunect/sim_feed/sim_feed.h"
+#include "romunect/sim/openni2_feed/sim_feed.h"
 
 #include <algorithm>
 #include <cstdlib>

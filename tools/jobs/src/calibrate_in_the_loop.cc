@@ -8,10 +8,10 @@
 #include <opencv2/imgproc.hpp>
 
 #include "romunect/calib/chain.h"
-#include "romunect/jobs/calibrate.h"
-#include "romunect/jobs/output_folder.h"
-#include "romunect/jobs/rig_argument.h"
-#include "romunect/jobs/text.h"
+#include "romunect/tools/jobs/calibrate.h"
+#include "romunect/tools/jobs/output_folder.h"
+#include "romunect/tools/jobs/rig_argument.h"
+#include "romunect/tools/jobs/text.h"
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/image_io.h"

@@ -1,4 +1,4 @@
-#include "romunect/jobs/calibrate.h"
+#include "romunect/tools/jobs/calibrate.h"
 
 #include <cstdio>
 #include <functional>
@@ -10,7 +10,7 @@
 #include "romunect/calib/depth_correction.h"
 #include "romunect/calib/hand_eye.h"
 #include "romunect/calib/intrinsics.h"
-#include "romunect/openni2/open_source.h"
+#include "romunect/sensor/openni2/open_source.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
 

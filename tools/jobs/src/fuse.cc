@@ -1,4 +1,4 @@
-#include "romunect/jobs/fuse.h"
+#include "romunect/tools/jobs/fuse.h"
 
 #include <cmath>
 #include <cstdio>
@@ -13,10 +13,10 @@
 #include "romunect/calib/calibration_file.h"
 #include "romunect/fusion/metrics.h"
 #include "romunect/fusion/voting_grid.h"
-#include "romunect/jobs/fusion_loop.h"
-#include "romunect/jobs/output_folder.h"
-#include "romunect/jobs/text.h"
-#include "romunect/openni2/open_source.h"
+#include "romunect/tools/jobs/fusion_loop.h"
+#include "romunect/tools/jobs/output_folder.h"
+#include "romunect/tools/jobs/text.h"
+#include "romunect/sensor/openni2/open_source.h"
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/errors.h"

@@ -1,4 +1,4 @@
-#include "romunect/jobs/fusion_loop.h"
+#include "romunect/tools/jobs/fusion_loop.h"
 
 #include "romunect/fusion/frame_inserter.h"
 #include "romunect/sensor/check.h"

@@ -1,9 +1,9 @@
-#include "romunect/jobs/info.h"
+#include "romunect/tools/jobs/info.h"
 
 #include <algorithm>
 #include <limits>
 
-#include "romunect/jobs/text.h"
+#include "romunect/tools/jobs/text.h"
 #include "romunect/sensor/frame_io.h"
 
 namespace romunect::jobs {

@@ -1,4 +1,4 @@
-#include "romunect/jobs/output_folder.h"
+#include "romunect/tools/jobs/output_folder.h"
 
 #include <unistd.h>
 

@@ -1,4 +1,4 @@
-#include "romunect/jobs/record.h"
+#include "romunect/tools/jobs/record.h"
 
 #include <unistd.h>
 
@@ -13,9 +13,9 @@
 #include <nlohmann/json.hpp>
 
 #include "romunect/calib/calibration_file.h"
-#include "romunect/jobs/output_folder.h"
-#include "romunect/openni2/open_source.h"
-#include "romunect/openni2/openni2_source.h"
+#include "romunect/tools/jobs/output_folder.h"
+#include "romunect/sensor/openni2/open_source.h"
+#include "romunect/sensor/openni2/openni2_source.h"
 #include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"

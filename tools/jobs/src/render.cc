@@ -1,4 +1,4 @@
-#include "romunect/jobs/render.h"
+#include "romunect/tools/jobs/render.h"
 
 #include <algorithm>
 #include <cmath>
@@ -8,8 +8,8 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "romunect/jobs/rig_argument.h"
-#include "romunect/jobs/text.h"
+#include "romunect/tools/jobs/rig_argument.h"
+#include "romunect/tools/jobs/text.h"
 #include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/embree/ray_scene.h"
 #include "romunect/sensor/embree/renderer.h"

@@ -1,4 +1,4 @@
-#include "romunect/jobs/rig_argument.h"
+#include "romunect/tools/jobs/rig_argument.h"
 
 #include <filesystem>
 

@@ -1,8 +1,8 @@
-#include "romunect/jobs/run_folder.h"
+#include "romunect/tools/jobs/run_folder.h"
 
 #include <system_error>
 
-#include "romunect/jobs/output_folder.h"
+#include "romunect/tools/jobs/output_folder.h"
 #include "romunect/sensor/errors.h"
 
 namespace romunect::jobs {

@@ -1,4 +1,4 @@
-#include "romunect/jobs/scan.h"
+#include "romunect/tools/jobs/scan.h"
 
 #include <unistd.h>
 
@@ -14,9 +14,9 @@
 #include "romunect/fusion/metrics.h"
 #include "romunect/fusion/outputs.h"
 #include "romunect/fusion/voting_grid.h"
-#include "romunect/jobs/fusion_loop.h"
-#include "romunect/jobs/rig_argument.h"
-#include "romunect/jobs/run_folder.h"
+#include "romunect/tools/jobs/fusion_loop.h"
+#include "romunect/tools/jobs/rig_argument.h"
+#include "romunect/tools/jobs/run_folder.h"
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"

@@ -1,4 +1,4 @@
-#include "romunect/jobs/scan_report.h"
+#include "romunect/tools/jobs/scan_report.h"
 
 #include <algorithm>
 #include <cmath>
@@ -12,7 +12,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "romunect/fusion/outputs.h"
-#include "romunect/jobs/text.h"
+#include "romunect/tools/jobs/text.h"
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/image_io.h"
 

@@ -1,4 +1,4 @@
-#include "romunect/jobs/text.h"
+#include "romunect/tools/jobs/text.h"
 
 #include <cstdarg>
 #include <cstdio>

@@ -20,7 +20,7 @@
 #include <string>
 #include <vector>
 
-#include "romunect/openni2/depth_units.h"
+#include "romunect/sensor/openni2/depth_units.h"
 #include "romunect/sensor/camera_model.h"
 #include "romunect/sensor/frame_source.h"
 

@@ -4,7 +4,7 @@
 // transaction (RunFolder); its files are scan_report.h's.
 #pragma once
 
-#include "romunect/jobs/scan_report.h"
+#include "romunect/tools/jobs/scan_report.h"
 
 namespace romunect::jobs {
 

@@ -14,8 +14,8 @@
 #include <memory>
 #include <string>
 
-#include "romunect/openni2/openni2_source.h"
-#include "romunect/openni2/pose_log.h"
+#include "romunect/sensor/openni2/openni2_source.h"
+#include "romunect/sensor/openni2/pose_log.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/frame_source.h"
 

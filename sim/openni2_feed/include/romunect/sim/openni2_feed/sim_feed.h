@@ -1,4 +1,4 @@
-// The live twin as an OpenNI2 device: a frame feed (romunect/openni2/feed_abi.h) over the
+// The live twin as an OpenNI2 device: a frame feed (romunect/sensor/openni2/feed_abi.h) over the
 // simulator's Scanner, so the virtual device's driver plug-in presents simulated frames live as
 // they are rendered (URI romunect-sim:?key=value&...; docs/hardware.md). This folder sits above
 // sim/ and sensor/openni2/: the driver loads libRomunectSimFeed.so with dlopen and sees only
