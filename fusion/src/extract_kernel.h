@@ -1,10 +1,10 @@
 // The column kernels of extraction (private to fusion/src): the highest vote of a column's hit
 // range, and whether the range holds a positive vote. One translation unit per instruction set,
 // extract_kernel_{scalar,sse2,avx2}.cc, the AVX2 one compiled under `#pragma GCC target` and
-// called only where the CPU reports it (voting_grid.cc picks the functions). Every instruction set
-// gives the same answers (tests/fusion compares them with the reference). Declarations only: no
-// inline function is shared between units compiled for different instruction sets.
-// docs/design.md, "SIMD kernels".
+// called only where the CPU reports it (voting_grid.cc lists them in its dispatch table). Every
+// instruction set gives the same answers (tests/fusion compares them with the reference).
+// Declarations only: no inline function is shared between units compiled for different
+// instruction sets. docs/design.md, "SIMD kernels".
 #pragma once
 
 #include "romunect/fusion/voting_grid.h"
@@ -26,6 +26,13 @@ bool AnyPositiveAvx2(const Vote* votes, int lo, int hi);
 // The AVX2 kernels load 16 votes at a time from lo or later, never before lo, and may read up to
 // this many votes past hi: the grid's mapping leaves room for them after its last column.
 inline constexpr int kAvx2ReadPastHi = 15;
+
+// One entry of extraction's dispatch table (voting_grid.cc, ResolveKernel).
+struct Kernel {
+  Isa isa;
+  MaxVoteFn max_vote;
+  AnyPositiveFn any_positive;
+};
 
 }  // namespace romunect::fusion::extract_internal
 

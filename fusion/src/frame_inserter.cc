@@ -4,14 +4,15 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdlib>
+#include <iterator>
 #include <new>
-#include <optional>
 #include <sstream>
 #include <vector>
 
 #include "insert_kernel.h"
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/clock.h"
+#include "romunect/sensor/cpu_features.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/parallel_rows.h"
 
@@ -31,47 +32,32 @@ using insert_internal::TileRays;
 using insert_internal::WalkContext;
 using insert_internal::WalkRaysFn;
 
-// The instruction set the inserter runs for `requested`, among those this build implements.
-std::optional<Isa> ResolveInsertIsa(Isa requested) {
-  return ResolveIsa(requested, {
-                                   Isa::kScalar,
+// The insertion kernels compiled in (insert_kernel.h), narrowest first. AVX-512 inserts a slab
+// with its own lane setup; its walk, unused then, is AVX2's.
+constexpr insert_internal::Kernel kKernels[] = {
+    {Isa::kScalar, &insert_internal::WalkRaysScalar, nullptr, 1},
 #if ROMUNECT_FUSION_KERNEL_SSE2
-                                   Isa::kSse2,
+    {Isa::kSse2, &insert_internal::WalkRaysSse2, nullptr, insert_internal::kSse2BlockVotes},
 #endif
 #if ROMUNECT_FUSION_KERNEL_AVX2
-                                   Isa::kAvx2,
+    {Isa::kAvx2, &insert_internal::WalkRaysAvx2, nullptr, insert_internal::kAvx2BlockVotes},
 #endif
 #if ROMUNECT_FUSION_KERNEL_AVX512
-                                   Isa::kAvx512,
+    {Isa::kAvx512, &insert_internal::WalkRaysAvx2, &insert_internal::InsertSlabAvx512,
+     insert_internal::kAvx512BlockVotes},
 #endif
-                               });
-}
+};
 
-// The walk of the kernels without a lane setup, for `isa` (resolved) and columns of nz votes: a
-// narrower one where a column is shorter than a block (the votes do not depend on the kernel).
-WalkRaysFn WalkRaysFor(Isa isa, int nz) {
-#if ROMUNECT_FUSION_KERNEL_AVX2
-  if ((isa == Isa::kAvx512 || isa == Isa::kAvx2) && nz >= insert_internal::kAvx2BlockVotes) {
-    return &insert_internal::WalkRaysAvx2;
-  }
-#endif
-#if ROMUNECT_FUSION_KERNEL_SSE2
-  if (isa != Isa::kScalar && nz >= insert_internal::kSse2BlockVotes) return &insert_internal::WalkRaysSse2;
-#endif
-  (void)isa;
-  (void)nz;
-  return &insert_internal::WalkRaysScalar;
-}
+// The kernels for `requested` (ResolveIsa over kKernels); null where they are not compiled in or
+// the CPU lacks them.
+const insert_internal::Kernel* KernelFor(Isa requested) { return ResolveKernel(requested, kKernels); }
 
-// The insertion of one thread's slab with a lane setup of its own (AVX-512, for columns of at
-// least its block), or null: the other kernels set a frame up once and walk it per slab.
-InsertSlabFn InsertSlabFor(Isa isa, int nz) {
-#if ROMUNECT_FUSION_KERNEL_AVX512
-  if (isa == Isa::kAvx512 && nz >= insert_internal::kAvx512BlockVotes) return &insert_internal::InsertSlabAvx512;
-#endif
-  (void)isa;
-  (void)nz;
-  return nullptr;
+// The entry that runs for `kernel` (one of kKernels) on columns of nz votes: it, or where a column
+// is shorter than its block the widest narrower entry whose block fits (the votes do not depend on
+// the kernel). The scalar entry fits every column.
+const insert_internal::Kernel& KernelForColumns(const insert_internal::Kernel* kernel, int nz) {
+  while (kernel != std::begin(kKernels) && nz < kernel->min_nz) --kernel;
+  return *kernel;
 }
 
 // The frame's hits, after its misses: +1 each, saturating, and the columns' hit bounds.
@@ -220,7 +206,7 @@ std::string InserterOptions::Problem() const {
   if (threads < 1 || threads > 256) {
     return "threads = " + std::to_string(threads) + ": must be in [1, 256]";
   }
-  if (!ResolveInsertIsa(isa)) {
+  if (KernelFor(isa) == nullptr) {
     return std::string("isa = ") + ToString(isa) +
            (CpuSupports(isa) ? ": the inserter has no kernel for it in this build" : ": this CPU does not support it");
   }
@@ -231,11 +217,11 @@ std::string InserterOptions::Problem() const {
 // chunk of tile rows in the setup, its slab of rows [slab[t], slab[t + 1]) in the walk, its
 // counts (chunk_stats[t]: the pixels of its chunk, the votes of its slab) and its CPU time.
 struct FrameInserter::Workspace {
-  Workspace(VotingGrid* grid_in, int threads_in, Isa isa)
+  Workspace(VotingGrid* grid_in, int threads_in, const insert_internal::Kernel& kernel)
       : grid(grid_in),
         threads(threads_in),
-        walk_rays(WalkRaysFor(isa, grid_in->nz())),
-        insert_slab(InsertSlabFor(isa, grid_in->nz())),
+        walk_rays(kernel.walk_rays),
+        insert_slab(kernel.insert_slab),
         pool(threads_in) {
     chunk_begin.assign(threads, 0);
     hits.resize(threads);
@@ -482,8 +468,9 @@ FrameInserter::FrameInserter(VotingGrid* grid, const InserterOptions& options) :
   ROMUNECT_CHECK(grid != nullptr);
   const std::string problem = options.Problem();
   if (!problem.empty()) throw InputError("fusion inserter", "options", problem);
-  isa_ = *ResolveInsertIsa(options.isa);
-  ws_ = std::make_unique<Workspace>(grid, options.threads, isa_);
+  const insert_internal::Kernel* kernel = KernelFor(options.isa);  // not null: Problem() is empty
+  isa_ = kernel->isa;
+  ws_ = std::make_unique<Workspace>(grid, options.threads, KernelForColumns(kernel, grid->nz()));
 }
 
 FrameInserter::~FrameInserter() = default;

@@ -1,8 +1,9 @@
 // The insertion kernels (private to fusion/src): the column walk of frame_inserter.h, one
 // translation unit per instruction set, insert_kernel_{scalar,sse2,avx2,avx512}.cc, each compiled
 // under `#pragma GCC target` where it needs more than the x86-64 baseline and called only where the
-// CPU reports it (frame_inserter.cc picks the function). The walk's own code is ray_walk.inc,
-// included by every unit into its anonymous namespace after that unit's vote-block operations.
+// CPU reports it (frame_inserter.cc lists them in its dispatch table). The walk's own code is
+// ray_walk.inc, included by every unit into its anonymous namespace after that unit's vote-block
+// operations.
 //
 // This header holds what frame_inserter.cc and the kernels share: plain structs, constants and
 // declarations. Every unit includes it before its pragma, so its few inline functions are
@@ -170,6 +171,16 @@ using InsertSlabFn = void (*)(const SetupFrame& f, const cv::Mat& depth_m, TileR
                               InsertStats* counts, SegmentBounds* bounds, uint32_t* weight);
 void InsertSlabAvx512(const SetupFrame& f, const cv::Mat& depth_m, TileRays* tile, WalkContext* c,
                       InsertStats* counts, SegmentBounds* bounds, uint32_t* weight);
+
+// One entry of the inserter's dispatch table (frame_inserter.cc, ResolveKernel): the walk of set-up
+// rays, the slab insertion with a lane setup (null: none), and the shortest column, in votes, that
+// both need (one block). A shorter column takes the widest narrower entry whose block fits.
+struct Kernel {
+  Isa isa;
+  WalkRaysFn walk_rays;
+  InsertSlabFn insert_slab;
+  int min_nz;
+};
 
 }  // namespace romunect::fusion::insert_internal
 

@@ -8,7 +8,6 @@
 #include <cstdlib>
 #include <cstring>
 #include <limits>
-#include <optional>
 #include <sstream>
 
 #include "extract_kernel.h"
@@ -36,38 +35,21 @@ size_t PhysicalMemoryBytes() {
   return static_cast<size_t>(pages) * static_cast<size_t>(page);
 }
 
-using extract_internal::AnyPositiveFn;
-using extract_internal::MaxVoteFn;
-
-// The instruction set extraction runs for `requested`, among those this build implements.
-std::optional<Isa> ResolveExtractIsa(Isa requested) {
-  return ResolveIsa(requested, {
-                                   Isa::kScalar,
+// The column kernels compiled in (extract_kernel.h), narrowest first. SSE2 has no search of its
+// own for a positive vote.
+constexpr extract_internal::Kernel kKernels[] = {
+    {Isa::kScalar, &extract_internal::MaxVoteScalar, &extract_internal::AnyPositiveScalar},
 #if ROMUNECT_FUSION_EXTRACT_SSE2
-                                   Isa::kSse2,
+    {Isa::kSse2, &extract_internal::MaxVoteSse2, &extract_internal::AnyPositiveScalar},
 #endif
 #if ROMUNECT_FUSION_EXTRACT_AVX2
-                                   Isa::kAvx2,
+    {Isa::kAvx2, &extract_internal::MaxVoteAvx2, &extract_internal::AnyPositiveAvx2},
 #endif
-                               });
-}
-
-// The column kernels of `isa` (resolved): SSE2 has no search of its own for a positive vote.
-struct ColumnKernels {
-  MaxVoteFn max_vote = &extract_internal::MaxVoteScalar;
-  AnyPositiveFn any_positive = &extract_internal::AnyPositiveScalar;
 };
-ColumnKernels ColumnKernelsFor(Isa isa) {
-  ColumnKernels k;
-#if ROMUNECT_FUSION_EXTRACT_SSE2
-  if (isa == Isa::kSse2) k.max_vote = &extract_internal::MaxVoteSse2;
-#endif
-#if ROMUNECT_FUSION_EXTRACT_AVX2
-  if (isa == Isa::kAvx2) k = ColumnKernels{&extract_internal::MaxVoteAvx2, &extract_internal::AnyPositiveAvx2};
-#endif
-  (void)isa;
-  return k;
-}
+
+// The kernels for `requested` (ResolveIsa over kKernels); null where they are not compiled in or
+// the CPU lacks them.
+const extract_internal::Kernel* KernelFor(Isa requested) { return ResolveKernel(requested, kKernels); }
 
 // The mapping of `bytes` of votes: 64 bytes more, so that a 16-lane load at the last column's top
 // (the AVX2 column kernels of extraction: up to 15 votes past the hit range) stays inside it.
@@ -180,13 +162,13 @@ void VotingGrid::Clear() {
 
 cv::Mat ExtractHeightMap(const VotingGrid& grid, Isa isa, int threads) {
   ROMUNECT_CHECK(threads >= 1);
-  const std::optional<Isa> resolved = ResolveExtractIsa(isa);
-  if (!resolved) {
+  const extract_internal::Kernel* kernel = KernelFor(isa);
+  if (kernel == nullptr) {
     throw InputError("fusion extraction", "isa",
                      std::string(ToString(isa)) + (CpuSupports(isa) ? ": no extraction kernel for it in this build"
                                                                     : ": this CPU does not support it"));
   }
-  const MaxVoteFn max_vote = ColumnKernelsFor(*resolved).max_vote;
+  const extract_internal::MaxVoteFn max_vote = kernel->max_vote;
   constexpr int kPrefetchColumns = 16;
   cv::Mat height(grid.ny(), grid.nx(), CV_32F);
   const float nan = std::numeric_limits<float>::quiet_NaN();
@@ -222,7 +204,7 @@ CompletenessTracker::CompletenessTracker(const VotingGrid& grid)
 
 double CompletenessTracker::Update(const cv::Rect& changed_columns) {
   ROMUNECT_CHECK((changed_columns & cv::Rect(0, 0, grid_.nx(), grid_.ny())) == changed_columns);
-  const AnyPositiveFn any_positive = ColumnKernelsFor(*ResolveExtractIsa(Isa::kAuto)).any_positive;
+  const extract_internal::AnyPositiveFn any_positive = KernelFor(Isa::kAuto)->any_positive;
   // The search starts at a column's highest hit, a column's length (nz votes) from the last one: a
   // stride the caches do not fetch ahead by themselves, so it is fetched 8 columns ahead.
   constexpr int kAhead = 8;
