@@ -15,14 +15,16 @@ namespace {
 
 void AddFileOptions(CLI::App* cmd, jobs::CalibrationFileOptions* o) {
   cmd->add_option("--output", o->output, "Calibration file to write or update (cv::FileStorage YAML)");
-  cmd->add_flag("--overwrite-worse", o->overwrite_worse, "Replace an existing file even when the new result is worse (says so)");
+  cmd->add_flag("--overwrite-worse", o->overwrite_worse,
+                "Replace an existing file even when the new result is worse (says so)");
   cmd->add_flag("--maps-as-exr", o->maps_as_exr, "Write depth maps as EXR files beside the YAML");
 }
 
 // --poses and --pose-offset; the returned option tells a given offset of 0 from none.
 CLI::Option* AddPoseOptions(CLI::App* cmd, jobs::PoseLogOptions* o) {
   cmd->add_option("--poses", o->log, "CSV pose log of T_B_H, for an .oni file or a device");
-  return cmd->add_option("--pose-offset", o->offset_s, "With --poses: seconds added to frame times to get pose-log times");
+  return cmd->add_option("--pose-offset", o->offset_s,
+                         "With --poses: seconds added to frame times to get pose-log times");
 }
 
 }  // namespace
@@ -31,10 +33,12 @@ void AddCalibrateCommand(CLI::App& app) {
   auto* calibrate = app.add_subcommand("calibrate", "Calibrate the sensor: intrinsics, hand-eye, depth correction");
   calibrate->require_subcommand(0, 1);
   auto loop = std::make_shared<jobs::InTheLoopOptions>();
-  calibrate->add_option("--out", loop->out, "No step named: output folder of the in-the-loop run (default calibration)");
+  calibrate->add_option("--out", loop->out,
+                        "No step named: output folder of the in-the-loop run (default calibration)");
   calibrate->add_option("--seed", loop->seed, "Seed of the simulated rig's nominal errors, noise and view jitter");
   calibrate->add_option("--rig", loop->rig, "Rig preset (romunect, kinect-v1) or rig JSON file (default romunect)");
-  calibrate->add_option("--views", loop->views, "Board views for the intrinsics (default 20)")->check(CLI::Range(3, 200));
+  calibrate->add_option("--views", loop->views, "Board views for the intrinsics (default 20)")
+      ->check(CLI::Range(3, 200));
   calibrate->add_option("--stations", loop->stations, "Hand-eye stations (default 15)")->check(CLI::Range(3, 200));
   calibrate->add_option("--planes", loop->planes, "Reference-plane captures for the depth step (default 12)")
       ->check(CLI::Range(2, 200));

@@ -10,7 +10,8 @@ namespace romunect::tools {
 
 void AddFuseCommand(CLI::App& app) {
   auto* cmd = app.add_subcommand(
-      "fuse", "Fuse the depth maps of a frame directory, an .oni recording or a live OpenNI2 device into one height map");
+      "fuse",
+      "Fuse the depth maps of a frame directory, an .oni recording or a live OpenNI2 device into one height map");
   auto o = std::make_shared<jobs::FuseOptions>();
   cmd->add_option("SOURCE", o->source,
                   "Frame directory (frames.json with depth and T_W_C per frame), FILE.oni, oni://[URI] or "
@@ -18,16 +19,17 @@ void AddFuseCommand(CLI::App& app) {
       ->required();
   cmd->add_option("--out", o->out, "Output folder (default: SOURCE_fused beside a directory or .oni file)");
   cmd->add_option("--gt", o->gt, "Ground-truth height map (EXR, same box and voxel) for RMSE/MAE");
-  auto* box = cmd->add_option("--box", o->box,
-                  "Fusion box in world metres: xmin,ymin,zmin,xmax,ymax,zmax (default: the frame directory's "
-                  "region_W, as romunect scan records it, else -0.075,-0.04,-0.004,0.075,0.04,0.06)");
+  auto* box =
+      cmd->add_option("--box", o->box,
+                      "Fusion box in world metres: xmin,ymin,zmin,xmax,ymax,zmax (default: the frame directory's "
+                      "region_W, as romunect scan records it, else -0.075,-0.04,-0.004,0.075,0.04,0.06)");
   cmd->add_option("--voxel", o->voxel_m, "Voxel size in metres (default 0.00025)");
   cmd->add_option("--threads", o->threads, "Insertion threads (default 1)");
   cmd->add_option("--max-memory-mb", o->max_memory_mb, "Refuse grids larger than this (default 16384)");
   cmd->add_option("--poses,--pose-log", o->poses,
                   ".oni/device: CSV pose log of T_B_H (time_s,x_m,y_m,z_m,qw,qx,qy,qz; docs/hardware.md)");
-  auto* pose_offset =
-      cmd->add_option("--pose-offset", o->pose_offset_s, ".oni/device: seconds added to frame times to get pose-log times");
+  auto* pose_offset = cmd->add_option("--pose-offset", o->pose_offset_s,
+                                      ".oni/device: seconds added to frame times to get pose-log times");
   cmd->add_option("--calibration", o->calibration,
                   ".oni/device: romunect calibration file: T_H_C turns flange poses into camera poses (world = robot "
                   "base), and its camera is the frames' camera");

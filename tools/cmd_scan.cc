@@ -11,12 +11,14 @@ void AddScanCommand(CLI::App& app) {
   auto* cmd = app.add_subcommand(
       "scan", "The main job: a simulated arm scans a bin while approaching, fuses every frame, then picks");
   auto o = std::make_shared<jobs::ScanJobOptions>();
-  auto* scene = cmd->add_option("--scene", o->scene, "MJCF scene with the arm and a bin (default: scenes/default/scene.xml)");
+  auto* scene = cmd->add_option("--scene", o->scene,
+                                "MJCF scene with the arm and a bin (default: scenes/default/scene.xml)");
   auto* objects = cmd->add_option("--objects", o->objects, "Objects in the random pile")->capture_default_str();
-  auto* saved = cmd->add_option("--saved-scene", o->saved_scene,
-                                "A run folder's scene.json (its scene and settled pile): the same pile without settling");
-  auto* meshes = cmd->add_option("--mesh", o->meshes,
-                                 "A user mesh (.stl, .obj) dropped into the pile besides the --objects; repeat for more");
+  auto* saved =
+      cmd->add_option("--saved-scene", o->saved_scene,
+                      "A run folder's scene.json (its scene and settled pile): the same pile without settling");
+  auto* meshes = cmd->add_option(
+      "--mesh", o->meshes, "A user mesh (.stl, .obj) dropped into the pile besides the --objects; repeat for more");
   // A saved scene names its MJCF scene and objects itself.
   saved->excludes(scene)->excludes(objects)->excludes(meshes);
   cmd->add_option("--mesh-unit", o->mesh_unit_m, "Metres per --mesh file unit (0.001: millimetres)")

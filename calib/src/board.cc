@@ -10,8 +10,7 @@ namespace romunect::calib {
 std::string BoardSpec::Problem() const {
   // Up to 100 corners a side: OpenCV's corner search has no use for more, and the count fits.
   if (cols < 3 || rows < 3 || cols > 100 || rows > 100) {
-    return "board has " + std::to_string(cols) + " x " + std::to_string(rows) +
-           " inner corners; need 3 to 100 a side";
+    return "board has " + std::to_string(cols) + " x " + std::to_string(rows) + " inner corners; need 3 to 100 a side";
   }
   if (!std::isfinite(square_m) || square_m <= 0.0) {
     return "square_m is " + std::to_string(square_m) + "; must be a positive length in metres";
@@ -37,7 +36,8 @@ BoardSpec ParseBoardSize(const std::string& text, double square_m, const std::st
   // Digits, 'x', digits: sscanf's %d would overflow on long numbers (undefined behaviour).
   const size_t x = text.find_first_of("xX");
   auto side = [&](const std::string& digits, int* value) {
-    if (digits.empty() || digits.size() > 6 || digits.find_first_not_of("0123456789") != std::string::npos) return false;
+    if (digits.empty() || digits.size() > 6 || digits.find_first_not_of("0123456789") != std::string::npos)
+      return false;
     *value = std::stoi(digits);
     return true;
   };

@@ -63,8 +63,7 @@ Pose ReadPose(const cv::FileNode& root, const std::string& key, const std::strin
   return PoseFromRowMajor(row_major);
 }
 
-double ReadReal(const cv::FileNode& root, const std::string& key, const std::string& source,
-                const std::string& path) {
+double ReadReal(const cv::FileNode& root, const std::string& key, const std::string& source, const std::string& path) {
   const cv::FileNode node = root[key];
   if (node.empty()) throw InputError(source, path, "missing");
   if (!node.isReal() && !node.isInt()) throw InputError(source, path, "must be a number");
@@ -110,8 +109,9 @@ cv::Mat ReadMap(const cv::FileNode& depth, const std::string& name, const fs::pa
   for (int r = 0; r < map.rows; ++r) {
     for (int c = 0; c < map.cols; ++c) {
       if (std::isinf(map.at<float>(r, c))) {
-        throw InputError(source, field, "infinite at pixel (" + std::to_string(c) + ", " + std::to_string(r) +
-                                            "); NaN marks an unfitted pixel");
+        throw InputError(source, field,
+                         "infinite at pixel (" + std::to_string(c) + ", " + std::to_string(r) +
+                             "); NaN marks an unfitted pixel");
       }
     }
   }
@@ -220,7 +220,8 @@ SaveReport SaveCalibration(const fs::path& path, Calibration calibration, const 
       fs.writeComment("Camera in hand and board in base: 4x4, metres, p_H = T_H_C * p_C.");
       fs << "T_H_C" << PoseToMat(c.T_H_C);
       fs << "T_B_K" << PoseToMat(c.T_B_K);
-      fs << "depth_model" << "{";
+      fs << "depth_model"
+         << "{";
       fs << "kind" << (has_maps ? DepthCorrectionModelName(c.depth->model) : "none");
       fs << "chip_focal_px" << c.chip.camera.fx;
       fs << "chip_baseline_m" << c.chip.baseline_m;
@@ -235,7 +236,8 @@ SaveReport SaveCalibration(const fs::path& path, Calibration calibration, const 
         }
       }
       fs << "}";
-      fs << "residuals" << "{";
+      fs << "residuals"
+         << "{";
       for (const ResidualField& f : kResidualFields) fs << f.name << c.residuals.*(f.member);
       fs << "}";
     }
@@ -292,7 +294,8 @@ Calibration ReadWholeCalibration(const cv::FileNode& root, const fs::path& path)
   if (residuals.empty() || !residuals.isMap()) throw InputError(source, "residuals", "missing or not a map");
   for (const ResidualField& f : kResidualFields) {
     const double v = ReadReal(residuals, f.name, source, std::string("residuals.") + f.name);
-    if (v < 0.0 && v != -1.0) throw InputError(source, std::string("residuals.") + f.name, "must be >= 0, or -1 for a step not run");
+    if (v < 0.0 && v != -1.0)
+      throw InputError(source, std::string("residuals.") + f.name, "must be >= 0, or -1 for a step not run");
     c.residuals.*(f.member) = v;
   }
   return c;
@@ -326,7 +329,8 @@ Calibration LoadDeviceCalibration(const fs::path& path) {
 
 std::string HandEyeWarning(const Calibration& calibration, const std::string& path) {
   if (calibration.residuals.hand_eye_rms_px < 0.0 && calibration.T_H_C.isApprox(Pose::Identity(), 0.0)) {
-    return path + ": T_H_C is the identity and has no hand-eye residual: not calibrated yet? (`romunect calibrate hand-eye`)";
+    return path +
+           ": T_H_C is the identity and has no hand-eye residual: not calibrated yet? (`romunect calibrate hand-eye`)";
   }
   if (const double t = calibration.T_H_C.translation().norm(); t > kHandEyeMaxTranslationM) {
     std::ostringstream s;

@@ -68,8 +68,8 @@ BoardCaptures CaptureBoardViews(CalibrationHardware* hw, const ChainOptions& opt
     for (int k = 0; k < 2; ++k) {
       ViewPlanOptions plan_options;
       plan_options.view_count = std::max(3, (count + 1 - k) / 2);  // the planner needs 3
-      plan_options.distance_m = options.view_distance_m * (k == 0 ? 1.0 - options.view_distance_spread
-                                                                   : 1.0 + options.view_distance_spread);
+      plan_options.distance_m = options.view_distance_m *
+                                (k == 0 ? 1.0 - options.view_distance_spread : 1.0 + options.view_distance_spread);
       plan_options.max_tilt_rad = options.max_tilt_rad;
       plan_options.margin_px = options.margin_px;
       plan_options.seed = options.seed + static_cast<unsigned>(k);
@@ -123,7 +123,8 @@ std::string ChainOptions::Problem() const {
   } else if (stations < 3) {
     s << "stations = " << stations << ": need at least 3 (hand-eye)";
   } else if (depth_planes < std::max(2, depth.min_planes)) {
-    s << "depth_planes = " << depth_planes << ": need at least " << std::max(2, depth.min_planes) << " (the depth step)";
+    s << "depth_planes = " << depth_planes << ": need at least " << std::max(2, depth.min_planes)
+      << " (the depth step)";
   } else if (!(view_distance_spread >= 0 && view_distance_spread < 0.5)) {
     s << "view_distance_spread = " << view_distance_spread << ": must be in [0, 0.5)";
   } else if (!(view_distance_m > 0) || !(homography_distance_m > 0)) {
@@ -138,11 +139,10 @@ std::string ChainOptions::Problem() const {
     s << "feature_pattern.kind = " << PatternKindName(feature_pattern.kind) << ": must be feature-grid";
   } else {
     // the nested options, each under its name
-    for (const auto& [name, problem] : {std::pair{"feature_pattern.", feature_pattern.Problem()},
-                                        std::pair{"intrinsics.", intrinsics.Problem()},
-                                        std::pair{"hand_eye.", hand_eye.Problem()},
-                                        std::pair{"homography.", homography.Problem()},
-                                        std::pair{"depth.", depth.Problem()}}) {
+    for (const auto& [name, problem] :
+         {std::pair{"feature_pattern.", feature_pattern.Problem()}, std::pair{"intrinsics.", intrinsics.Problem()},
+          std::pair{"hand_eye.", hand_eye.Problem()}, std::pair{"homography.", homography.Problem()},
+          std::pair{"depth.", depth.Problem()}}) {
       if (!problem.empty()) return name + problem;
     }
   }
@@ -150,9 +150,10 @@ std::string ChainOptions::Problem() const {
 }
 
 std::optional<Eigen::Vector2d> ProjectorPixelToCamera(const Rig& rig, const CameraModel& camera, const Pose& T_C_K,
-                                                 const Eigen::Vector2d& q_P) {
+                                                      const Eigen::Vector2d& q_P) {
   const ProjectorModel& p = rig.projector;
-  const Eigen::Vector3d dir_C = rig.T_C_P.linear() * Eigen::Vector3d((q_P.x() - p.cx) / p.fx, (q_P.y() - p.cy) / p.fy, 1.0);
+  const Eigen::Vector3d dir_C = rig.T_C_P.linear() *
+                                Eigen::Vector3d((q_P.x() - p.cx) / p.fx, (q_P.y() - p.cy) / p.fy, 1.0);
   const Eigen::Vector3d o_C = rig.T_C_P.translation();
   const Eigen::Vector3d n_C = T_C_K.linear().col(2);
   const double denom = n_C.dot(dir_C);
@@ -165,7 +166,8 @@ std::optional<Eigen::Vector2d> ProjectorPixelToCamera(const Rig& rig, const Came
 Eigen::Vector2d ChipReferencePx(const ChipGeometry& chip, const Eigen::Vector2d& x_pattern) {
   // Parallel stock axes, projector at +b along x: a pure horizontal offset f b / Z_ref.
   const double sx = chip.camera.fx / chip.projector.fx, sy = chip.camera.fy / chip.projector.fy;
-  return {sx * (x_pattern.x() - chip.projector.cx) + chip.camera.cx + chip.FocalTimesBaseline() / chip.reference_distance_m,
+  return {sx * (x_pattern.x() - chip.projector.cx) + chip.camera.cx +
+              chip.FocalTimesBaseline() / chip.reference_distance_m,
           sy * (x_pattern.y() - chip.projector.cy) + chip.camera.cy};
 }
 
@@ -238,7 +240,8 @@ std::vector<cv::Point2f> DetectProjectedDots(const cv::Mat& ir, const std::vecto
       }
       c = Eigen::Vector2d(sx / sw, sy / sw);
     }
-    if (ok && (c - p).norm() <= max_offset_px) out[i] = cv::Point2f(static_cast<float>(c.x()), static_cast<float>(c.y()));
+    if (ok && (c - p).norm() <= max_offset_px)
+      out[i] = cv::Point2f(static_cast<float>(c.x()), static_cast<float>(c.y()));
   }
   return out;
 }
@@ -257,8 +260,8 @@ void IntrinsicsStep(const BoardCaptures& board, const CalibrationSetup& setup, c
     }
   }
   double zhang_s = 0.0;
-  result->intrinsics =
-      Timed(&zhang_s, [&] { return CalibrateIntrinsics(views, setup.board, image_size, options.intrinsics); });
+  result->intrinsics = Timed(&zhang_s,
+                             [&] { return CalibrateIntrinsics(views, setup.board, image_size, options.intrinsics); });
   result->times.intrinsics_s += zhang_s;
   say(result->intrinsics.BriefReport() + " (" + std::to_string(static_cast<int>(1e3 * zhang_s)) + " ms CPU)");
 }
@@ -287,10 +290,15 @@ void ChooseHomographyPoints(const ChipGeometry& chip, const ChainOptions& option
 class HomographyObserver {
  public:
   HomographyObserver(CalibrationHardware* hw, const ChainOptions& options, const CameraModel& camera,
-                     const std::vector<Eigen::Vector2d>& pattern_P, const Pose& T_C_K_nominal,
-                     const ChainProgress& say, ChainTimes* times)
-      : hw_(*hw), options_(options), camera_(camera), pattern_P_(pattern_P), T_C_K_nominal_(T_C_K_nominal),
-        say_(say), times_(*times) {}
+                     const std::vector<Eigen::Vector2d>& pattern_P, const Pose& T_C_K_nominal, const ChainProgress& say,
+                     ChainTimes* times)
+      : hw_(*hw),
+        options_(options),
+        camera_(camera),
+        pattern_P_(pattern_P),
+        T_C_K_nominal_(T_C_K_nominal),
+        say_(say),
+        times_(*times) {}
 
   std::vector<cv::Point2f> operator()(const Eigen::Matrix3d& H) {
     const std::vector<Eigen::Vector2d> predicted = Predict(H);
@@ -302,9 +310,10 @@ class HomographyObserver {
     times_.hardware_s += wall.seconds();
     std::vector<cv::Point2f> dots = DetectProjectedDots(ir, predicted, spacing_px / 6.0, 0.35 * spacing_px);
     Refit(H, dots);
-    say_("  capture: " + std::to_string(std::count_if(dots.begin(), dots.end(), [](const cv::Point2f& d) {
-           return std::isfinite(d.x);
-         })) + " of " + std::to_string(dots.size()) + " features found");
+    say_("  capture: " +
+         std::to_string(
+             std::count_if(dots.begin(), dots.end(), [](const cv::Point2f& d) { return std::isfinite(d.x); })) +
+         " of " + std::to_string(dots.size()) + " features found");
     return dots;
   }
 
@@ -394,13 +403,14 @@ void HomographyStep(CalibrationHardware* hw, const ChainOptions& options, const 
   const bool reached = hw->MoveHand(setup.T_B_K_nominal * T_K_C * setup.T_H_C_nominal.inverse()).has_value();
   result->times.hardware_s += move.seconds();
   if (!reached) {
-    throw InputError(kSource, "homography station", "the pose over the plate's reference area is out of reach; "
-                                                    "move the plate closer to the robot");
+    throw InputError(kSource, "homography station",
+                     "the pose over the plate's reference area is out of reach; "
+                     "move the plate closer to the robot");
   }
   ChooseHomographyPoints(setup.nominal_rig.depth_engine.chip, options, image_size, result);
   const Eigen::Matrix3d H_initial = IdealPrewarp(setup.nominal_rig, options.homography_distance_m);
-  HomographyObserver observer(hw, options, result->intrinsics.camera, result->homography_pattern, T_K_C.inverse(),
-                              say, &result->times);
+  HomographyObserver observer(hw, options, result->intrinsics.camera, result->homography_pattern, T_K_C.inverse(), say,
+                              &result->times);
   const double start = ProcessCpuSeconds();
   result->homography = CalibrateProjectorHomography(
       result->homography_pattern, result->homography_target, result->intrinsics.camera, H_initial,
@@ -475,11 +485,11 @@ void HandEyeStep(const BoardCaptures& board, const CalibrationSetup& setup, cons
   const double limit_px = std::max(1.0, 5.0 * result->intrinsics.rms_px);
   if (result->hand_eye.rms_px > limit_px) DropHandEyeOutliers(setup, options, say, &stations, result);
   if (result->hand_eye.rms_px > limit_px) {
-    throw InputError(kSource, "hand-eye", "the stations do not agree (reprojection RMS " +
-                                              std::to_string(result->hand_eye.rms_px) + " px against " +
-                                              std::to_string(result->intrinsics.rms_px) +
-                                              " px for the views alone): check the reported hand poses and "
-                                              "the board's corner order");
+    throw InputError(kSource, "hand-eye",
+                     "the stations do not agree (reprojection RMS " + std::to_string(result->hand_eye.rms_px) +
+                         " px against " + std::to_string(result->intrinsics.rms_px) +
+                         " px for the views alone): check the reported hand poses and "
+                         "the board's corner order");
   }
   result->hand_eye_stations = stations;
 }
@@ -489,8 +499,8 @@ void HandEyeStep(const BoardCaptures& board, const CalibrationSetup& setup, cons
 // The camera over the reference area for plane i of the depth step: distances spread over
 // [near, far], tilts turned by the golden angle so the planes cross each pixel at varied depths.
 Pose DepthPlaneT_K_C(const CalibrationSetup& setup, const ChainOptions& options, int i) {
-  const double distance_m =
-      options.depth_near_m + (options.depth_far_m - options.depth_near_m) * i / (options.depth_planes - 1);
+  const double distance_m = options.depth_near_m +
+                            (options.depth_far_m - options.depth_near_m) * i / (options.depth_planes - 1);
   const double phi = 2.39996 * i;
   const double tilt = options.depth_max_tilt_rad * (i % 2 == 0 ? 1.0 : 0.5);
   const Eigen::Matrix3d R_K_C = (Eigen::AngleAxisd(tilt * std::cos(phi), Eigen::Vector3d::UnitX()) *

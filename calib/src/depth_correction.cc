@@ -30,7 +30,8 @@ std::string DepthCorrectionOptions::Problem() const {
   if (min_planes < 2) return "min_planes is " + std::to_string(min_planes) + "; a line needs at least 2";
   if (!(min_plane_coverage >= 0.0 && min_plane_coverage <= 1.0)) return "min_plane_coverage must be in [0, 1]";
   if (!(min_depth_spread_m >= 0.0)) return "min_depth_spread_m must be >= 0";
-  if (!(std::isfinite(chip.FocalTimesBaseline()) && chip.FocalTimesBaseline() > 0.0 && std::isfinite(chip.raw_offset))) {
+  if (!(std::isfinite(chip.FocalTimesBaseline()) && chip.FocalTimesBaseline() > 0.0 &&
+        std::isfinite(chip.raw_offset))) {
     return "chip needs a positive finite focal length times baseline and a finite raw_offset";
   }
   return "";
@@ -41,8 +42,8 @@ std::string DepthCorrectionResult::BriefReport() const {
   std::snprintf(line, sizeof(line),
                 "depth correction: %d pixels fitted (%d not); exact model (1/Z affine in raw) RMS "
                 "%.4f mm, max %.4f mm; paper's affine model RMS %.4f mm, max %.4f mm",
-                fitted_pixels, unfitted_pixels, inverse_rms_m * 1e3, inverse_max_m * 1e3,
-                affine_rms_m * 1e3, affine_max_m * 1e3);
+                fitted_pixels, unfitted_pixels, inverse_rms_m * 1e3, inverse_max_m * 1e3, affine_rms_m * 1e3,
+                affine_max_m * 1e3);
   return line;
 }
 
@@ -217,8 +218,7 @@ DepthCorrectionResult FitDepthCorrection(const CameraModel& camera, const std::v
   if (static_cast<int>(captures.size()) < options.min_planes) {
     throw InputError(kSource, "captures",
                      std::to_string(captures.size()) + " plane captures; need at least " +
-                         std::to_string(options.min_planes) +
-                         " at different distances over the measuring range");
+                         std::to_string(options.min_planes) + " at different distances over the measuring range");
   }
   const std::vector<cv::Mat> truth = TruthDepths(camera, captures, options);
   const std::vector<cv::Mat> chip_depth = ChipDepths(captures, options.chip);

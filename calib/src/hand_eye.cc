@@ -51,8 +51,8 @@ Pose MeanPose(const std::vector<Pose>& poses) {
   return MakePose(svd.matrixU() * D * svd.matrixV().transpose(), t / poses.size());
 }
 
-double ReprojectionRms(const std::vector<HandEyeStation>& stations, const CameraModel& camera,
-                       const BoardSpec& board, const Pose& T_H_C, const Pose& T_B_K) {
+double ReprojectionRms(const std::vector<HandEyeStation>& stations, const CameraModel& camera, const BoardSpec& board,
+                       const Pose& T_H_C, const Pose& T_B_K) {
   const std::vector<Eigen::Vector3d> corners = board.CornersK();
   double sum = 0.0;
   size_t n = 0;
@@ -167,8 +167,8 @@ void CheckMotion(const std::vector<HandEyeStation>& stations, const HandEyeOptio
     throw InputError(kSource, "stations",
                      "the hand does not rotate between stations (pure translation): the camera's "
                      "rotation and position in the hand are unobservable; rotate the hand by "
-                     "more than " + std::to_string(options.min_rotation_rad / kDeg) +
-                         " deg about at least two different axes");
+                     "more than " +
+                         std::to_string(options.min_rotation_rad / kDeg) + " deg about at least two different axes");
   }
   double spread = 0.0;
   for (size_t i = 0; i < axes.size(); ++i) {
@@ -178,10 +178,11 @@ void CheckMotion(const std::vector<HandEyeStation>& stations, const HandEyeOptio
   }
   if (spread < options.min_axis_spread_rad) {
     throw InputError(kSource, "stations",
-                     "all hand rotations are about one axis (axes within " +
-                         std::to_string(spread / kDeg) + " deg): the camera's position along that "
+                     "all hand rotations are about one axis (axes within " + std::to_string(spread / kDeg) +
+                         " deg): the camera's position along that "
                          "axis is unobservable; add stations rotated about a second axis, at "
-                         "least " + std::to_string(options.min_axis_spread_rad / kDeg) + " deg apart");
+                         "least " +
+                         std::to_string(options.min_axis_spread_rad / kDeg) + " deg apart");
   }
 }
 
@@ -204,8 +205,8 @@ std::string HandEyeResult::BriefReport() const {
   std::snprintf(line, sizeof(line),
                 "hand-eye: initial %s (largest station-pair rotation %.1f deg), RMS %.3f px -> %.3f px "
                 "after %d iterations; T_H_C translation [%.5f %.5f %.5f] m, rotation %.3f deg",
-                initial_method.c_str(), max_pair_rotation_rad / kDeg, initial_rms_px, rms_px,
-                iterations, t.x(), t.y(), t.z(), RotationAngleRad(T_H_C) / kDeg);
+                initial_method.c_str(), max_pair_rotation_rad / kDeg, initial_rms_px, rms_px, iterations, t.x(), t.y(),
+                t.z(), RotationAngleRad(T_H_C) / kDeg);
   return line;
 }
 
@@ -213,15 +214,15 @@ Pose EstimateBoardPose(const BoardView& view, const CameraModel& camera, const B
   std::vector<cv::Point3f> object;
   for (const Eigen::Vector3d& p : board.CornersK()) object.emplace_back(p.x(), p.y(), p.z());
   cv::Mat rvec, tvec;
-  cv::solvePnP(object, view.corners_px, cv::Mat(camera.CameraMatrix()), camera.DistortionVector(), rvec, tvec,
-               false, cv::SOLVEPNP_ITERATIVE);
+  cv::solvePnP(object, view.corners_px, cv::Mat(camera.CameraMatrix()), camera.DistortionVector(), rvec, tvec, false,
+               cv::SOLVEPNP_ITERATIVE);
   cv::Mat R;
   cv::Rodrigues(rvec, R);
   return FromCv(R, tvec);
 }
 
-Pose OpenCvHandEye(const std::vector<HandEyeStation>& stations, const CameraModel& camera,
-                   const BoardSpec& board, HandEyeInitialMethod method) {
+Pose OpenCvHandEye(const std::vector<HandEyeStation>& stations, const CameraModel& camera, const BoardSpec& board,
+                   HandEyeInitialMethod method) {
   std::vector<cv::Mat> R_B_H, t_B_H, R_C_K, t_C_K;
   for (const HandEyeStation& s : stations) {
     R_B_H.push_back(ToCv(Eigen::Matrix3d(s.T_B_H.linear())));
@@ -232,8 +233,7 @@ Pose OpenCvHandEye(const std::vector<HandEyeStation>& stations, const CameraMode
   }
   cv::Mat R_H_C, t_H_C;
   cv::calibrateHandEye(R_B_H, t_B_H, R_C_K, t_C_K, R_H_C, t_H_C,
-                       method == HandEyeInitialMethod::kPark ? cv::CALIB_HAND_EYE_PARK
-                                                             : cv::CALIB_HAND_EYE_TSAI);
+                       method == HandEyeInitialMethod::kPark ? cv::CALIB_HAND_EYE_PARK : cv::CALIB_HAND_EYE_TSAI);
   return FromCv(R_H_C, t_H_C);
 }
 

@@ -61,8 +61,8 @@ Pose PoseFromRvecTvec(const cv::Mat& rvec, const cv::Mat& tvec) {
   return MakePose(R_e, Eigen::Vector3d(tvec.at<double>(0), tvec.at<double>(1), tvec.at<double>(2)));
 }
 
-double SquaredReprojection(const BoardView& view, const BoardSpec& board, const cv::Mat& K,
-                           const cv::Mat& dist, const cv::Mat& rvec, const cv::Mat& tvec) {
+double SquaredReprojection(const BoardView& view, const BoardSpec& board, const cv::Mat& K, const cv::Mat& dist,
+                           const cv::Mat& rvec, const cv::Mat& tvec) {
   std::vector<cv::Point2f> projected;
   cv::projectPoints(ObjectPoints(board), rvec, tvec, K, dist, projected);
   double sum = 0.0;
@@ -82,8 +82,8 @@ struct CvCalibration {
 
 // guess: start from this solution (the held-out folds start from the full fit: they converge
 // in a few iterations instead of 100).
-CvCalibration RunCalibrateCamera(const std::vector<const BoardView*>& views, const BoardSpec& board,
-                                 cv::Size size, DistortionModel model, const CvCalibration* guess = nullptr) {
+CvCalibration RunCalibrateCamera(const std::vector<const BoardView*>& views, const BoardSpec& board, cv::Size size,
+                                 DistortionModel model, const CvCalibration* guess = nullptr) {
   const std::vector<cv::Point3f> object = ObjectPoints(board);
   std::vector<std::vector<cv::Point3f>> object_points(views.size(), object);
   std::vector<std::vector<cv::Point2f>> image_points;
@@ -105,17 +105,16 @@ CvCalibration RunCalibrateCamera(const std::vector<const BoardView*>& views, con
                                 criteria);
   out.per_view_errors.create(static_cast<int>(views.size()), 1, CV_64F);
   for (size_t i = 0; i < views.size(); ++i) {
-    out.per_view_errors.at<double>(static_cast<int>(i)) =
-        std::sqrt(SquaredReprojection(*views[i], board, out.K, out.dist, out.rvecs[i], out.tvecs[i]) /
-                  views[i]->corners_px.size());
+    out.per_view_errors.at<double>(static_cast<int>(i)) = std::sqrt(
+        SquaredReprojection(*views[i], board, out.K, out.dist, out.rvecs[i], out.tvecs[i]) /
+        views[i]->corners_px.size());
   }
   return out;
 }
 
 }  // namespace
 
-std::optional<std::vector<cv::Point2f>> DetectBoard(const cv::Mat& image, const BoardSpec& board,
-                                                    std::string* reason) {
+std::optional<std::vector<cv::Point2f>> DetectBoard(const cv::Mat& image, const BoardSpec& board, std::string* reason) {
   ROMUNECT_CHECK(reason != nullptr);
   if (image.empty()) {
     *reason = "empty image";
@@ -128,15 +127,16 @@ std::optional<std::vector<cv::Point2f>> DetectBoard(const cv::Mat& image, const 
   // finds or misses a board in 1-7 ms; where it misses (strong tilts, blur) the sector-based
   // detector finds it in 40-70 ms; adaptive thresholding, which cost 2-3 s per miss, runs last.
   // All three end in the same cornerSubPix refinement below.
-  bool found = cv::findChessboardCorners(grey, pattern, corners, cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_FAST_CHECK);
+  bool found = cv::findChessboardCorners(grey, pattern, corners,
+                                         cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_FAST_CHECK);
   if (!found) found = cv::findChessboardCornersSB(grey, pattern, corners, 0);
   if (!found) {
     found = cv::findChessboardCorners(
         grey, pattern, corners, cv::CALIB_CB_ADAPTIVE_THRESH | cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_FAST_CHECK);
   }
   if (!found || static_cast<int>(corners.size()) != board.corner_count()) {
-    *reason = "board " + std::to_string(board.cols) + "x" + std::to_string(board.rows) +
-              " not found completely (" + std::to_string(corners.size()) +
+    *reason = "board " + std::to_string(board.cols) + "x" + std::to_string(board.rows) + " not found completely (" +
+              std::to_string(corners.size()) +
               " corners); is the whole board in view and the size given as inner corners?";
     return std::nullopt;
   }
@@ -182,8 +182,8 @@ DetectedViews DetectBoardInFolder(const fs::path& dir, const BoardSpec& board) {
     } else if (image.size() != out.image_size) {
       throw InputError(file.string(), "size",
                        std::to_string(image.cols) + "x" + std::to_string(image.rows) +
-                           " differs from the first image's " + std::to_string(out.image_size.width) +
-                           "x" + std::to_string(out.image_size.height) +
+                           " differs from the first image's " + std::to_string(out.image_size.width) + "x" +
+                           std::to_string(out.image_size.height) +
                            "; all views must come from one camera at one resolution");
     }
     std::string reason;
@@ -211,15 +211,15 @@ std::string IntrinsicsResult::BriefReport() const {
   std::snprintf(line, sizeof(line),
                 "intrinsics: %zu views, RMS %.3f px, held-out %.3f px; fx %.2f fy %.2f cx %.2f cy %.2f "
                 "k [%.4f %.4f %.5f %.5f %.4f]; coverage %.0f %% cells, tilt spread x %.1f deg y %.1f deg",
-                per_view_rms_px.size(), rms_px, holdout_rms_px, camera.fx, camera.fy, camera.cx,
-                camera.cy, camera.distortion[0], camera.distortion[1], camera.distortion[2],
-                camera.distortion[3], camera.distortion[4], 100.0 * coverage.cell_fraction,
-                coverage.tilt_x_spread_rad * 180.0 / M_PI, coverage.tilt_y_spread_rad * 180.0 / M_PI);
+                per_view_rms_px.size(), rms_px, holdout_rms_px, camera.fx, camera.fy, camera.cx, camera.cy,
+                camera.distortion[0], camera.distortion[1], camera.distortion[2], camera.distortion[3],
+                camera.distortion[4], 100.0 * coverage.cell_fraction, coverage.tilt_x_spread_rad * 180.0 / M_PI,
+                coverage.tilt_y_spread_rad * 180.0 / M_PI);
   return line;
 }
 
-IntrinsicsResult CalibrateIntrinsics(const std::vector<BoardView>& views, const BoardSpec& board,
-                                     cv::Size image_size, const IntrinsicsOptions& options) {
+IntrinsicsResult CalibrateIntrinsics(const std::vector<BoardView>& views, const BoardSpec& board, cv::Size image_size,
+                                     const IntrinsicsOptions& options) {
   if (const std::string p = options.Problem(); !p.empty()) throw InputError(kSource, "options", p);
   if (const std::string p = board.Problem(); !p.empty()) throw InputError(kSource, "board", p);
   if (image_size.width <= 0 || image_size.height <= 0) {
@@ -281,8 +281,8 @@ IntrinsicsResult CalibrateIntrinsics(const std::vector<BoardView>& views, const 
   return result;
 }
 
-Coverage MeasureCoverage(const std::vector<BoardView>& views, const std::vector<Pose>& T_C_K,
-                         cv::Size image_size, int cells_x, int cells_y) {
+Coverage MeasureCoverage(const std::vector<BoardView>& views, const std::vector<Pose>& T_C_K, cv::Size image_size,
+                         int cells_x, int cells_y) {
   ROMUNECT_CHECK(views.size() == T_C_K.size());
   ROMUNECT_CHECK(cells_x > 0 && cells_y > 0);
   std::vector<char> hit(static_cast<size_t>(cells_x) * cells_y, 0);

@@ -36,8 +36,8 @@ struct TargetResidual {
     const T u_ideal = (F_(0, 0) * q[0] + F_(0, 1) * q[1] + F_(0, 2)) / w;
     const T v_ideal = (F_(1, 0) * q[0] + F_(1, 1) * q[1] + F_(1, 2)) / w;
     T u, v;
-    internal::DistortAndProject(camera_, (u_ideal - camera_.cx) / camera_.fx,
-                                (v_ideal - camera_.cy) / camera_.fy, &u, &v);
+    internal::DistortAndProject(camera_, (u_ideal - camera_.cx) / camera_.fx, (v_ideal - camera_.cy) / camera_.fy, &u,
+                                &v);
     residual[0] = u - x_C_.x();
     residual[1] = v - x_C_.y();
     return true;
@@ -80,21 +80,23 @@ std::string ProjectorHomographyOptions::Problem() const {
 
 std::string ProjectorHomographyResult::BriefReport() const {
   char line[200];
-  std::snprintf(line, sizeof(line), "projector homography: %d captures, last observed RMS %.3f px, "
-                "predicted %.3f px, %s", captures, observed_rms_px.empty() ? -1.0 : observed_rms_px.back(),
-                predicted_rms_px, converged ? "converged" : "not converged");
+  std::snprintf(line, sizeof(line),
+                "projector homography: %d captures, last observed RMS %.3f px, "
+                "predicted %.3f px, %s",
+                captures, observed_rms_px.empty() ? -1.0 : observed_rms_px.back(), predicted_rms_px,
+                converged ? "converged" : "not converged");
   return line;
 }
 
 ProjectorHomographyStep SolveProjectorHomography(const std::vector<Eigen::Vector2d>& pattern_P,
                                                  const std::vector<Eigen::Vector2d>& target_C,
                                                  const std::vector<ProjectorCapture>& captures,
-                                                 const CameraModel& camera,
-                                                 const ProjectorHomographyOptions& options) {
+                                                 const CameraModel& camera, const ProjectorHomographyOptions& options) {
   if (const std::string p = options.Problem(); !p.empty()) throw InputError(kSource, "options", p);
   if (pattern_P.size() != target_C.size()) {
-    throw InputError(kSource, "target_C", std::to_string(target_C.size()) + " targets for " +
-                                              std::to_string(pattern_P.size()) + " pattern points");
+    throw InputError(kSource, "target_C",
+                     std::to_string(target_C.size()) + " targets for " + std::to_string(pattern_P.size()) +
+                         " pattern points");
   }
   if (captures.empty()) throw InputError(kSource, "captures", "none; project the pattern once first");
   // F_img from every capture: shown projector pixel -> undistorted camera pixel.
@@ -103,8 +105,8 @@ ProjectorHomographyStep SolveProjectorHomography(const std::vector<Eigen::Vector
     const ProjectorCapture& cap = captures[k];
     if (cap.detected_px.size() != pattern_P.size()) {
       throw InputError(kSource, "captures[" + std::to_string(k) + "]",
-                       std::to_string(cap.detected_px.size()) + " detections for " +
-                           std::to_string(pattern_P.size()) + " pattern points (use NaN for missed ones)");
+                       std::to_string(cap.detected_px.size()) + " detections for " + std::to_string(pattern_P.size()) +
+                           " pattern points (use NaN for missed ones)");
     }
     for (size_t i = 0; i < pattern_P.size(); ++i) {
       const cv::Point2f d = cap.detected_px[i];
@@ -116,9 +118,9 @@ ProjectorHomographyStep SolveProjectorHomography(const std::vector<Eigen::Vector
     }
   }
   if (static_cast<int>(shown.size()) < options.min_points) {
-    throw InputError(kSource, "captures", std::to_string(shown.size()) + " detected features; need at least " +
-                                              std::to_string(options.min_points) +
-                                              ": is the projected grid on the plane and in focus?");
+    throw InputError(kSource, "captures",
+                     std::to_string(shown.size()) + " detected features; need at least " +
+                         std::to_string(options.min_points) + ": is the projected grid on the plane and in focus?");
   }
   const cv::Mat F_cv = cv::findHomography(shown, seen, 0);
   if (F_cv.empty()) throw InputError(kSource, "captures", "the detected features do not define a homography");
@@ -200,8 +202,9 @@ ProjectorHomographyResult CalibrateProjectorHomography(
     const double change_px = [&] {
       double worst = 0.0;
       for (const Eigen::Vector2d& x : pattern_P) {
-        worst = std::max(worst, (PredictCamera(camera, step.F_img, step.H_P_rec, x) -
-                                 PredictCamera(camera, step.F_img, H, x)).norm());
+        worst = std::max(
+            worst,
+            (PredictCamera(camera, step.F_img, step.H_P_rec, x) - PredictCamera(camera, step.F_img, H, x)).norm());
       }
       return worst;
     }();

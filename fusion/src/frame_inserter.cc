@@ -196,9 +196,9 @@ void InsertStats::Add(const InsertStats& o) {
 std::string InsertStats::BriefReport() const {
   std::ostringstream s;
   s << frames << " frame(s), " << pixels << " pixels: " << rays << " rays, " << no_measurement
-    << " without measurement, " << invalid_depth << " invalid (NaN/inf/negative) skipped; "
-    << rays_missing_box << " rays miss the box, " << points_outside_box << " points outside it; "
-    << hits << " hits, " << misses << " misses";
+    << " without measurement, " << invalid_depth << " invalid (NaN/inf/negative) skipped; " << rays_missing_box
+    << " rays miss the box, " << points_outside_box << " points outside it; " << hits << " hits, " << misses
+    << " misses";
   return s.str();
 }
 
@@ -274,10 +274,10 @@ struct FrameInserter::Workspace {
   std::vector<std::vector<size_t>> tile_end;         // per chunk: each tile's end in its rays
   std::vector<InsertStats> chunk_stats;
   std::vector<SegmentBounds> chunk_bounds;
-  std::vector<double> cpu_s;          // per thread, all phases of the frame: its critical path
-  std::vector<uint32_t> row_weight;   // threads x ny: rays per row, for balancing slabs (lane setups: thread 0's)
-  std::vector<int> slab;              // threads + 1 row boundaries
-  bool slab_balanced = false;         // slab holds a frame's balance (lane setups: the last frame's)
+  std::vector<double> cpu_s;         // per thread, all phases of the frame: its critical path
+  std::vector<uint32_t> row_weight;  // threads x ny: rays per row, for balancing slabs (lane setups: thread 0's)
+  std::vector<int> slab;             // threads + 1 row boundaries
+  bool slab_balanced = false;        // slab holds a frame's balance (lane setups: the last frame's)
 };
 
 // The camera's per-pixel rays, and the buffers sized by its pixels, when the camera changes.
@@ -329,8 +329,8 @@ SetupFrame FrameInserter::Workspace::Frame(const Pose& T_W_C) const {
 
 // Thread `thread`'s walk of rows [ya, yb), its hits into its own list.
 WalkContext FrameInserter::Workspace::Context(const SetupFrame& f, int thread, int ya, int yb) const {
-  return WalkContext{f.o_g[0], f.o_g[1], f.o_g[2], f.n[0], f.n[1], f.n[2], ya, yb, grid->mutable_column(0),
-                     hits[thread].get(), 0, 0};
+  return WalkContext{f.o_g[0],           f.o_g[1], f.o_g[2], f.n[0], f.n[1], f.n[2], ya, yb, grid->mutable_column(0),
+                     hits[thread].get(), 0,        0};
 }
 
 // A walk's hits, after the frame's misses in its rows (voting_grid.h), and its votes counted.
@@ -409,8 +409,8 @@ void FrameInserter::Workspace::SetUpChunk(const SetupFrame& f, const cv::Mat& de
   size_t count = 0;
   for (int tv = v0; tv < v1; tv += kTile) {
     for (int tu = 0; tu < width; tu += kTile) {
-      count += SetUpTileRays(f, depth_m, tu, std::min(tu + kTile, width), tv, std::min(tv + kTile, v1), out + count,
-                             &s, &bounds, weight);
+      count += SetUpTileRays(f, depth_m, tu, std::min(tu + kTile, width), tv, std::min(tv + kTile, v1), out + count, &s,
+                             &bounds, weight);
       if (walk_now) {
         walk_rays(out, count, &context);
         count = 0;
@@ -475,8 +475,7 @@ FrameInserter::FrameInserter(VotingGrid* grid, const InserterOptions& options) :
 
 FrameInserter::~FrameInserter() = default;
 
-void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, const Pose& T_W_C,
-                           InsertStats* stats) {
+void FrameInserter::Insert(const CameraModel& camera, const cv::Mat& depth_m, const Pose& T_W_C, InsertStats* stats) {
   ROMUNECT_CHECK(depth_m.type() == CV_32FC1);
   ROMUNECT_CHECK(depth_m.rows == camera.height && depth_m.cols == camera.width);
   Workspace& ws = *ws_;

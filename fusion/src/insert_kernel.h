@@ -63,9 +63,9 @@ inline constexpr size_t kHitSlack = 8;
 struct WalkContext {
   double ox, oy, oz;  // camera centre, grid units
   int nx, ny, nz;
-  int ya, yb;         // this thread's rows [ya, yb)
+  int ya, yb;  // this thread's rows [ya, yb)
   Vote* votes;
-  HitRecord* hits;    // this thread's hits (in its rows): room for one per pixel, plus kHitSlack
+  HitRecord* hits;  // this thread's hits (in its rows): room for one per pixel, plus kHitSlack
   size_t hit_count;
   size_t misses;
 };
@@ -169,8 +169,8 @@ void WalkRaysAvx2(const RaySetup* rays, size_t count, WalkContext* c);  // four 
 // *bounds, counts rays per row into `weight` (ny counters; may be null). Needs nz >= 32.
 using InsertSlabFn = void (*)(const SetupFrame& f, const cv::Mat& depth_m, TileRays* tile, WalkContext* c,
                               InsertStats* counts, SegmentBounds* bounds, uint32_t* weight);
-void InsertSlabAvx512(const SetupFrame& f, const cv::Mat& depth_m, TileRays* tile, WalkContext* c,
-                      InsertStats* counts, SegmentBounds* bounds, uint32_t* weight);
+void InsertSlabAvx512(const SetupFrame& f, const cv::Mat& depth_m, TileRays* tile, WalkContext* c, InsertStats* counts,
+                      SegmentBounds* bounds, uint32_t* weight);
 
 // One entry of the inserter's dispatch table (frame_inserter.cc, ResolveKernel): the walk of set-up
 // rays, the slab insertion with a lane setup (null: none), and the shortest column, in votes, that

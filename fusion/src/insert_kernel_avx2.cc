@@ -52,8 +52,8 @@ constexpr LaneSubsets kLaneSubsets;
 
 // The lanes' walk state, in memory while lanes are refilled (the loop keeps it in registers).
 struct alignas(32) LaneState {
-  double tx[4], ty[4], px[4], py[4], sx[4], sy[4], inv_x[4], inv_y[4], dz[4], t_exit[4], iz[4], x_stop[4],
-      y_stop[4], by[4];
+  double tx[4], ty[4], px[4], py[4], sx[4], sy[4], inv_x[4], inv_y[4], dz[4], t_exit[4], iz[4], x_stop[4], y_stop[4],
+      by[4];
   int64_t col[4], step_x[4], step_y[4];
   double inv_z[4];
   int bx[4];
@@ -254,18 +254,21 @@ inline void WalkRaysInLanesT(const RaySetup* rays, size_t count, WalkContext* c)
     __m256d last = _mm256_max_pd(_mm256_min_pd(z_floor, iz), zero);
     const __m256d off = _mm256_andnot_pd(sign_bit, _mm256_sub_pd(_mm256_sub_pd(z, z_floor), half));
     const int settle = _mm256_movemask_pd(_mm256_and_pd(_mm256_cmp_pd(off, near, _CMP_GT_OQ), alive));
-    if (settle != 0) [[unlikely]] last = SettleLanes(settle, last, t_column, iz, s, *c);
+    if (settle != 0) [[unlikely]]
+      last = SettleLanes(settle, last, t_column, iz, s, *c);
     // Misses [last, iz] of the column, in the lanes with a ray in the thread's rows: one block
     // from `last` where they fit in it (almost always), else ApplyMisses.
     __m256d use = alive;
     if constexpr (!kAllRows) {
       const __m256d row = _mm256_sub_pd(py, by);
-      use = _mm256_and_pd(use, _mm256_and_pd(_mm256_cmp_pd(row, row_a, _CMP_GE_OQ), _mm256_cmp_pd(row, row_b, _CMP_LT_OQ)));
+      use = _mm256_and_pd(use,
+                          _mm256_and_pd(_mm256_cmp_pd(row, row_a, _CMP_GE_OQ), _mm256_cmp_pd(row, row_b, _CMP_LT_OQ)));
     }
     const __m256d run = _mm256_sub_pd(_mm256_add_pd(iz, one), last);
     const __m256d fits = _mm256_and_pd(_mm256_cmp_pd(run, lanes, _CMP_LE_OQ), _mm256_cmp_pd(last, top, _CMP_LE_OQ));
     const int other = _mm256_movemask_pd(_mm256_andnot_pd(fits, use));
-    if (other != 0) [[unlikely]] ApplyLongRuns(other, last, iz, col, c);
+    if (other != 0) [[unlikely]]
+      ApplyLongRuns(other, last, iz, col, c);
     const __m256d block_lanes = _mm256_and_pd(fits, use);
     run_misses = _mm256_add_pd(run_misses, _mm256_and_pd(run, block_lanes));
     const __m256i first = _mm256_cvtepi32_epi64(_mm256_cvttpd_epi32(last));
@@ -282,7 +285,8 @@ inline void WalkRaysInLanesT(const RaySetup* rays, size_t count, WalkContext* c)
                                                                      _mm256_castsi256_pd(step_x), step_is_x)));
     tx = _mm256_blendv_pd(tx, _mm256_mul_pd(_mm256_sub_pd(px, ox), inv_x), step_is_x);
     ty = _mm256_blendv_pd(_mm256_mul_pd(_mm256_sub_pd(py, oy), inv_y), ty, step_is_x);
-    const int out = _mm256_movemask_pd(_mm256_or_pd(_mm256_cmp_pd(px, x_stop, _CMP_EQ_OQ), _mm256_cmp_pd(py, y_stop, _CMP_EQ_OQ)));
+    const int out = _mm256_movemask_pd(
+        _mm256_or_pd(_mm256_cmp_pd(px, x_stop, _CMP_EQ_OQ), _mm256_cmp_pd(py, y_stop, _CMP_EQ_OQ)));
     if (out != 0) [[unlikely]] {
       // Lanes that left the grid (or the thread's rows) have no last column: new rays.
       store();

@@ -115,7 +115,8 @@ inline void WalkGroup(const LaneGroup& g, __mmask8 lanes, WalkContext* c) {
       _mm512_store_pd(a_iz, iz);
       for (unsigned m = settle; m != 0; m &= m - 1) {
         const int l = __builtin_ctz(m);
-        a_last[l] = SettleLastZ<-1>(static_cast<int>(a_last[l]), static_cast<int>(a_iz[l]), nz, c->oz, g.inv_z[l], a_t[l]);
+        a_last[l] = SettleLastZ<-1>(static_cast<int>(a_last[l]), static_cast<int>(a_iz[l]), nz, c->oz, g.inv_z[l],
+                                    a_t[l]);
       }
       last = _mm512_load_pd(a_last);
     }
@@ -151,7 +152,8 @@ inline void WalkGroup(const LaneGroup& g, __mmask8 lanes, WalkContext* c) {
     _mm512_store_si512(block_at, _mm512_mask_add_epi64(idle_lines, block_lanes, votes,
                                                        _mm512_slli_epi64(_mm512_add_epi64(offset, lo64), 1)));
     _mm256_store_si256(reinterpret_cast<__m256i*>(block_bits),
-                       _mm512_cvtepi64_epi32(_mm512_maskz_sub_epi64(block_lanes, _mm512_sllv_epi64(one64, run64), one64)));
+                       _mm512_cvtepi64_epi32(
+                           _mm512_maskz_sub_epi64(block_lanes, _mm512_sllv_epi64(one64, run64), one64)));
     for (int l = 0; l < kGroupLanes; ++l) {
       const __mmask32 k = block_bits[l];
       const __m512i v = _mm512_maskz_loadu_epi16(k, block_at[l]);
@@ -248,8 +250,8 @@ inline size_t SetUpTile(const SetupFrame& f, int count, TileRays* t, WalkContext
       const __m512d tb = _mm512_mul_pd(_mm512_set1_pd(static_cast<double>(f.n[a]) - f.o_g[a]), inv[a]);
       const __mmask8 swap = _mm512_cmp_pd_mask(ta, tb, _CMP_GT_OQ);
       const __m512d lo = _mm512_mask_blend_pd(swap, ta, tb), hi = _mm512_mask_blend_pd(swap, tb, ta);
-      t0 = _mm512_mask_blend_pd(_mm512_mask_cmp_pd_mask(moves, t0, lo, _CMP_LT_OQ), t0, lo);   // std::max(t0, lo)
-      t1 = _mm512_mask_blend_pd(_mm512_mask_cmp_pd_mask(moves, hi, t1, _CMP_LT_OQ), t1, hi);   // std::min(t1, hi)
+      t0 = _mm512_mask_blend_pd(_mm512_mask_cmp_pd_mask(moves, t0, lo, _CMP_LT_OQ), t0, lo);  // std::max(t0, lo)
+      t1 = _mm512_mask_blend_pd(_mm512_mask_cmp_pd_mask(moves, hi, t1, _CMP_LT_OQ), t1, hi);  // std::min(t1, hi)
       if (!(f.o_g[a] >= 0.0 && f.o_g[a] < f.n[a])) outside_slab |= static_cast<__mmask8>(~moves);
     }
     const __mmask8 enters = _mm512_mask_cmp_pd_mask(valid & ~outside_slab, t0, t1, _CMP_LT_OQ);
@@ -268,10 +270,10 @@ inline size_t SetUpTile(const SetupFrame& f, int count, TileRays* t, WalkContext
     if (!kAllRows || weight != nullptr) {
       const __m512d last_row = _mm512_set1_pd(f.n[1] - 1.0);
       auto clamp_row = [&](__m512d y) { return _mm512_min_pd(_mm512_max_pd(y, zero), last_row); };
-      const __m512d lo = clamp_row(_mm512_sub_pd(
-          _mm512_roundscale_pd(_mm512_min_pd(y_a, y_b), _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC), one));
-      const __m512d hi = clamp_row(_mm512_add_pd(
-          _mm512_roundscale_pd(_mm512_max_pd(y_a, y_b), _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC), one));
+      const __m512d lo = clamp_row(
+          _mm512_sub_pd(_mm512_roundscale_pd(_mm512_min_pd(y_a, y_b), _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC), one));
+      const __m512d hi = clamp_row(
+          _mm512_add_pd(_mm512_roundscale_pd(_mm512_max_pd(y_a, y_b), _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC), one));
       _mm512_store_pd(row_lo, lo);
       _mm512_store_pd(row_hi, hi);
       if (!kAllRows) {
@@ -293,8 +295,10 @@ inline size_t SetUpTile(const SetupFrame& f, int count, TileRays* t, WalkContext
     const __m512d x0 = StartIndexLanes(x_a, f.n[0]);
     const __m512d y0 = StartIndexLanes(y_a, f.n[1]);
     const __m512d z0 = StartIndexLanes(_mm512_add_pd(oz, _mm512_mul_pd(t0, dg[2])), f.n[2]);
-    const __mmask8 x_up = _mm512_cmp_pd_mask(dg[0], zero, _CMP_GT_OQ), x_down = _mm512_cmp_pd_mask(dg[0], zero, _CMP_LT_OQ);
-    const __mmask8 y_up = _mm512_cmp_pd_mask(dg[1], zero, _CMP_GT_OQ), y_down = _mm512_cmp_pd_mask(dg[1], zero, _CMP_LT_OQ);
+    const __mmask8 x_up = _mm512_cmp_pd_mask(dg[0], zero, _CMP_GT_OQ),
+                   x_down = _mm512_cmp_pd_mask(dg[0], zero, _CMP_LT_OQ);
+    const __mmask8 y_up = _mm512_cmp_pd_mask(dg[1], zero, _CMP_GT_OQ),
+                   y_down = _mm512_cmp_pd_mask(dg[1], zero, _CMP_LT_OQ);
     const __m512d sx = _mm512_mask_blend_pd(x_down, _mm512_maskz_mov_pd(x_up, one), _mm512_set1_pd(-1.0));
     const __m512d sy = _mm512_mask_blend_pd(y_down, _mm512_maskz_mov_pd(y_up, one), _mm512_set1_pd(-1.0));
     const __m512d px = _mm512_mask_add_pd(x0, x_up, x0, one), py = _mm512_mask_add_pd(y0, y_up, y0, one);
@@ -418,10 +422,13 @@ inline void VoteLines(const SetupFrame& f, const cv::Mat& depth_m, int u0, int u
   const double z_high = std::min(f.o_g[2], static_cast<double>(nz));
   if (!(z_low < z_high) || !(z_high > 0.0)) return;
   z_low = std::max(z_low, 0.0);
-  auto clamp_index = [](double x, int lo, int hi) { return static_cast<int>(std::clamp(std::floor(x), double(lo), double(hi))); };
+  auto clamp_index = [](double x, int lo, int hi) {
+    return static_cast<int>(std::clamp(std::floor(x), double(lo), double(hi)));
+  };
   for (int level = static_cast<int>(z_low) / kLevelVotes; level * kLevelVotes < z_high; ++level) {
     double x_lo = std::numeric_limits<double>::infinity(), x_hi = -x_lo, y_lo = x_lo, y_hi = -x_lo;
-    for (const double z : {std::max(z_low, double(level * kLevelVotes)), std::min(z_high, double((level + 1) * kLevelVotes))}) {
+    for (const double z :
+         {std::max(z_low, double(level * kLevelVotes)), std::min(z_high, double((level + 1) * kLevelVotes))}) {
       for (const auto& d : dir) {
         const double s = (z - f.o_g[2]) / d[2];
         x_lo = std::min(x_lo, f.o_g[0] + s * d[0]);
@@ -447,8 +454,8 @@ inline void TileLines(const SetupFrame& f, const cv::Mat& depth_m, int u0, int u
   const ptrdiff_t row_bytes = ptrdiff_t{16} * f.width;
   const uintptr_t first = reinterpret_cast<uintptr_t>(f.ray_C + 2 * (static_cast<size_t>(v0) * f.width + u0)) / 64;
   const uintptr_t last = reinterpret_cast<uintptr_t>(f.ray_C + 2 * (static_cast<size_t>(v0) * f.width + u1) - 1) / 64;
-  out->Add(reinterpret_cast<const void*>(first * 64), v1 - v0, static_cast<int>(last - first + 1 + (row_bytes % 64 != 0)),
-           row_bytes, 64);
+  out->Add(reinterpret_cast<const void*>(first * 64), v1 - v0,
+           static_cast<int>(last - first + 1 + (row_bytes % 64 != 0)), row_bytes, 64);
 }
 
 // One thread's insertion of a tile, pixels [u0, u1) x [v0, v1): classify the pixels, set the
@@ -461,8 +468,7 @@ inline void TileLines(const SetupFrame& f, const cv::Mat& depth_m, int u0, int u
 // Counts into *s, widens *bounds, counts rays per row into `weight` (may be null).
 template <bool kAllRows>
 inline void InsertTile(const SetupFrame& f, const cv::Mat& depth_m, int u0, int u1, int v0, int v1, TileRays* t,
-                       WalkContext* c, InsertStats* s, SegmentBounds* bounds, uint32_t* weight,
-                       TileAhead* ahead) {
+                       WalkContext* c, InsertStats* s, SegmentBounds* bounds, uint32_t* weight, TileAhead* ahead) {
   // The tile's valid pixels in row order, 16 at a time: 0 is no measurement; NaN, inf and
   // negative depths are invalid; a compress into a register and a plain store keep the others
   // (at most 16 past the last kept pixel: within kSlots).
@@ -475,7 +481,8 @@ inline void InsertTile(const SetupFrame& f, const cv::Mat& depth_m, int u0, int 
       const __mmask16 in = FirstLanes16(u1 - u);
       const __m512 d = _mm512_maskz_loadu_ps(in, row + u);
       const __mmask16 none = _mm512_mask_cmp_ps_mask(in, d, zero, _CMP_EQ_OQ);
-      const __mmask16 valid = _mm512_mask_cmp_ps_mask(_mm512_mask_cmp_ps_mask(in, d, zero, _CMP_GT_OQ), d, inf, _CMP_LT_OQ);
+      const __mmask16 valid = _mm512_mask_cmp_ps_mask(_mm512_mask_cmp_ps_mask(in, d, zero, _CMP_GT_OQ), d, inf,
+                                                      _CMP_LT_OQ);
       s->no_measurement += __builtin_popcount(none);
       s->invalid_depth += __builtin_popcount(in & ~none & ~valid);
       const __m512i pixel = _mm512_add_epi32(_mm512_set1_epi32(v * f.width + u), iota);
@@ -502,7 +509,8 @@ inline void InsertTile(const SetupFrame& f, const cv::Mat& depth_m, int u0, int 
   for (int k = 0; k < groups; ++k) {
     ahead->Prefetch(ahead_per_group);
     const __m256i kk = _mm256_set1_epi32(k);
-    const __mmask8 lanes = static_cast<__mmask8>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(sizes, kk))));
+    const __mmask8 lanes = static_cast<__mmask8>(
+        _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(sizes, kk))));
     const __m256i index = _mm256_add_epi32(base, kk);
     auto gather = [&](const double* from, double* to) {
       _mm512_store_pd(to, _mm512_mask_i32gather_pd(_mm512_setzero_pd(), lanes, index, from, 8));
@@ -521,7 +529,8 @@ inline void InsertTile(const SetupFrame& f, const cv::Mat& depth_m, int u0, int 
     gather(t->inv_z, group.inv_z);
     _mm512_store_si512(group.column, _mm512_mask_i32gather_epi64(_mm512_setzero_si512(), lanes, index, t->column, 8));
     group.ends_inside = _mm512_mask_test_epi64_mask(
-        lanes, _mm512_mask_i32gather_epi64(_mm512_setzero_si512(), lanes, index, t->ends_inside, 8), _mm512_set1_epi64(1));
+        lanes, _mm512_mask_i32gather_epi64(_mm512_setzero_si512(), lanes, index, t->ends_inside, 8),
+        _mm512_set1_epi64(1));
     WalkGroup<kAllRows>(group, lanes, c);
   }
 }
@@ -550,8 +559,8 @@ void InsertTiles(const SetupFrame& f, const cv::Mat& depth_m, TileRays* tile, Wa
 
 }  // namespace
 
-void InsertSlabAvx512(const SetupFrame& f, const cv::Mat& depth_m, TileRays* tile, WalkContext* c,
-                      InsertStats* counts, SegmentBounds* bounds, uint32_t* weight) {
+void InsertSlabAvx512(const SetupFrame& f, const cv::Mat& depth_m, TileRays* tile, WalkContext* c, InsertStats* counts,
+                      SegmentBounds* bounds, uint32_t* weight) {
   if (c->ya == 0 && c->yb == c->ny) {
     InsertTiles<true>(f, depth_m, tile, c, counts, bounds, weight);
   } else {

@@ -136,8 +136,7 @@ cv::Mat HeightMapPicture(const cv::Mat& height_m, const HeightMapGeometry& geome
   return canvas;
 }
 
-void WriteHeightMapPly(const std::filesystem::path& path, const cv::Mat& height_m,
-                       const HeightMapGeometry& geometry) {
+void WriteHeightMapPly(const std::filesystem::path& path, const cv::Mat& height_m, const HeightMapGeometry& geometry) {
   ROMUNECT_CHECK(height_m.type() == CV_32FC1);
   std::vector<float> xyz;
   for (int r = 0; r < height_m.rows; ++r) {
@@ -186,8 +185,7 @@ void WriteCompletenessPlot(const std::filesystem::path& path, const std::vector<
   if (n > 1) Text(canvas, std::to_string(n), cv::Point(left + pw - 10, top + ph + 18), 0.4);
   Text(canvas, "frames", cv::Point(left + pw / 2 - 20, top + ph + 38), 0.45);
   if (n > 0) {
-    Text(canvas, Format("final %.1f %%", 100.0 * completeness.back()), cv::Point(left + pw - 130, top + ph - 10),
-         0.45);
+    Text(canvas, Format("final %.1f %%", 100.0 * completeness.back()), cv::Point(left + pw - 130, top + ph - 10), 0.45);
   }
   WritePicture(path, canvas);
 }

@@ -61,7 +61,8 @@ static_assert(extract_internal::kAvx2ReadPastHi * sizeof(Vote) <= 64);
 // keeps the TLB's working set small) and 18 % faster at two, but cost +12 MB resident on the
 // benchmark (the whole grid at 2 MB granularity), so the grid stays on normal pages.
 Vote* MapVotes(size_t bytes, bool prefault) {
-  void* p = mmap(nullptr, MappedBytes(bytes), PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
+  void* p = mmap(nullptr, MappedBytes(bytes), PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1,
+                 0);
   if (p == MAP_FAILED) return nullptr;
   if (prefault) madvise(p, bytes, MADV_POPULATE_WRITE);  // advice only (Linux >= 5.14)
   return static_cast<Vote*>(p);
@@ -80,8 +81,9 @@ std::string GridOptions::Problem() const {
   for (int a = 0; a < 3; ++a) {
     const double n = std::ceil((max_W[a] - min_W[a]) / voxel_m - 1e-6);
     if (n > 65535.0) {
-      s << "box " << "xyz"[a] << " extent " << (max_W[a] - min_W[a]) << " m at voxel_m = " << voxel_m
-        << " gives " << n << " voxels: at most 65535 per axis";
+      s << "box "
+        << "xyz"[a] << " extent " << (max_W[a] - min_W[a]) << " m at voxel_m = " << voxel_m << " gives " << n
+        << " voxels: at most 65535 per axis";
       return s.str();
     }
   }
@@ -182,7 +184,8 @@ cv::Mat ExtractHeightMap(const VotingGrid& grid, Isa isa, int threads) {
         // the grid's memory, not the maximum, bounds extraction).
         if (ix + kPrefetchColumns < grid.nx()) {
           const size_t ahead = c + kPrefetchColumns;
-          if (grid.hit_lo(ahead) <= grid.hit_hi(ahead)) __builtin_prefetch(grid.column(ix + kPrefetchColumns, iy) + grid.hit_lo(ahead));
+          if (grid.hit_lo(ahead) <= grid.hit_hi(ahead))
+            __builtin_prefetch(grid.column(ix + kPrefetchColumns, iy) + grid.hit_lo(ahead));
         }
         const int lo = grid.hit_lo(c), hi = grid.hit_hi(c);
         row[ix] = nan;

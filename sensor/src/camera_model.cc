@@ -13,8 +13,7 @@ namespace romunect {
 namespace {
 
 // Distorted coordinates and their 2x2 Jacobian with respect to (x_n, y_n).
-Eigen::Vector2d DistortWithJacobian(const std::array<double, 5>& d, const Eigen::Vector2d& xy,
-                                    Eigen::Matrix2d* J) {
+Eigen::Vector2d DistortWithJacobian(const std::array<double, 5>& d, const Eigen::Vector2d& xy, Eigen::Matrix2d* J) {
   const double k1 = d[0], k2 = d[1], p1 = d[2], p2 = d[3], k3 = d[4];
   const double x = xy.x(), y = xy.y();
   const double r2 = x * x + y * y;
@@ -138,9 +137,7 @@ cv::Mat CameraModel::RayTable() const {
   return table;
 }
 
-cv::Matx33d CameraModel::CameraMatrix() const {
-  return cv::Matx33d(fx, 0, cx, 0, fy, cy, 0, 0, 1);
-}
+cv::Matx33d CameraModel::CameraMatrix() const { return cv::Matx33d(fx, 0, cx, 0, fy, cy, 0, 0, 1); }
 
 cv::Mat CameraModel::DistortionVector() const {
   cv::Mat d(1, 5, CV_64F);

@@ -140,8 +140,8 @@ void PrefilterRowsIn(const cv::Mat& ir, int window_px, int y_begin, int y_end, c
     cv::Mat sigma_mat(1, W, CV_32F, sigma_row);
     cv::sqrt(sigma_mat, sigma_mat);  // SIMD, correctly rounded (std::sqrt's errno path is not)
     for (int x = 0; x < W; ++x) {
-      const float value =
-          128.f + kNormScale * (static_cast<float>(v[x]) - mean[x]) / std::max(sigma_row[x], kSigmaFloorDn);
+      const float value = 128.f +
+                          kNormScale * (static_cast<float>(v[x]) - mean[x]) / std::max(sigma_row[x], kSigmaFloorDn);
       // Clamped to [0, 255], rounded half up; written so that GCC vectorizes it (the same
       // floats as clamp(value, 0, 255) + 0.5).
       n[x] = static_cast<uint8_t>(static_cast<int32_t>(std::min(std::max(value + 0.5f, 0.5f), 255.5f)));
@@ -176,8 +176,7 @@ void DepthEngine::Prefilter(const cv::Mat& ir, int window_px, cv::Mat* normalize
   PrefilterRows(ir, window_px, SquaresFit32Bits(ir, window_px), 0, ir.rows, normalized, local_sigma);
 }
 
-DepthEngine::DepthEngine(const DepthEngineOptions& options)
-    : DepthEngine(options, ChipReferenceImage(options.chip)) {}
+DepthEngine::DepthEngine(const DepthEngineOptions& options) : DepthEngine(options, ChipReferenceImage(options.chip)) {}
 
 DepthEngine::DepthEngine(const DepthEngineOptions& options, const cv::Mat& reference_ir)
     : options_(options), isa_(KernelFor(Isa::kAuto)->isa) {
@@ -252,8 +251,8 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
   ROMUNECT_CHECK(out != nullptr);
   const CameraModel& cam = options_.chip.camera;
   if (ir.type() != CV_16UC1) {
-    throw InputError("depth engine", "ir", "expected a 16-bit single-channel image (CV_16U), found type " +
-                                               std::to_string(ir.type()));
+    throw InputError("depth engine", "ir",
+                     "expected a 16-bit single-channel image (CV_16U), found type " + std::to_string(ir.type()));
   }
   if (ir.cols != cam.width || ir.rows != cam.height) {
     throw InputError("depth engine", "ir",
@@ -441,8 +440,8 @@ cv::Mat ApplyDepthCorrection(const DepthCorrection& correction, const cv::Mat& r
 }
 
 DepthCorrection FitDepthCorrection(DepthCorrectionModel model, const std::vector<cv::Mat>& raw,
-                                   const std::vector<cv::Mat>& chip_depth_m,
-                                   const std::vector<cv::Mat>& truth_depth_m, const DepthFitOptions& options) {
+                                   const std::vector<cv::Mat>& chip_depth_m, const std::vector<cv::Mat>& truth_depth_m,
+                                   const DepthFitOptions& options) {
   ROMUNECT_CHECK(!raw.empty() && raw.size() == chip_depth_m.size() && raw.size() == truth_depth_m.size());
   const cv::Size size = raw[0].size();
   for (size_t i = 0; i < raw.size(); ++i) {
@@ -485,8 +484,7 @@ DepthCorrection FitDepthCorrection(DepthCorrectionModel model, const std::vector
     for (int x = 0; x < size.width; ++x) {
       const size_t k = static_cast<size_t>(y) * size.width + x;
       double a, b;
-      if (count[k] < options.min_samples || z_hi[k] - z_lo[k] < options.min_depth_spread_m ||
-          !fit[k].Solve(&a, &b)) {
+      if (count[k] < options.min_samples || z_hi[k] - z_lo[k] < options.min_depth_spread_m || !fit[k].Solve(&a, &b)) {
         continue;
       }
       c.a.at<double>(y, x) = a;

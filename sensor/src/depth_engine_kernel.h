@@ -30,9 +30,9 @@
 namespace romunect::depth_engine_internal {
 
 inline constexpr int kLanesPerBlock = 32;
-inline constexpr int kMaxBlocks = 8;  // search_range_px <= 256
+inline constexpr int kMaxBlocks = 8;        // search_range_px <= 256
 inline constexpr int16_t kCostMax = 32767;  // above any window cost (11 x 11 x 255 = 30855)
-inline constexpr uint16_t kRawNone = 2047;   // kRawInvalid (depth_engine.h), kept free of its includes
+inline constexpr uint16_t kRawNone = 2047;  // kRawInvalid (depth_engine.h), kept free of its includes
 
 struct KernelStats {
   int valid = 0, flat = 0, weak = 0, ambiguous = 0, out_of_range = 0, border = 0;
@@ -46,11 +46,11 @@ struct KernelArgs {
   int min_shift_px = 0;
   const uint8_t* obs = nullptr;  // prefiltered frame, CV_8U
   size_t obs_step = 0;
-  const float* sigma = nullptr;  // raw local standard deviation (DN), CV_32F
-  size_t sigma_step = 0;         // in floats
+  const float* sigma = nullptr;      // raw local standard deviation (DN), CV_32F
+  size_t sigma_step = 0;             // in floats
   const uint8_t* ref_rev = nullptr;  // reversed, padded reference rows: index p as above
   size_t ref_step = 0;
-  const uint8_t* outside = nullptr;  // per p: 0xFF where the reference has no column x - s
+  const uint8_t* outside = nullptr;    // per p: 0xFF where the reference has no column x - s
   int clean_begin = 0, clean_end = 0;  // columns x whose shifts j < D all have a reference column
   float min_texture = 0.f;
   int max_best_cost = 0;  // weak above this window cost
@@ -63,7 +63,7 @@ struct KernelArgs {
   size_t raw_step = 0;  // in uint16
   float* depth_m = nullptr;
   float* shift_px = nullptr;
-  size_t float_step = 0;  // in floats, depth and shift
+  size_t float_step = 0;       // in floats, depth and shift
   int16_t* scratch = nullptr;  // KernelScratchSize(width, blocks) values
   int y_begin = 0, y_end = 0;
 };

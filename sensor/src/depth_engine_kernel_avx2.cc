@@ -50,10 +50,18 @@ struct Avx2Lanes {
     _mm256_storeu_si256(reinterpret_cast<__m256i*>(p), a.v[0]);
     _mm256_storeu_si256(reinterpret_cast<__m256i*>(p + 16), a.v[1]);
   }
-  static I16 Add(const I16& a, const I16& b) { return I16{{_mm256_add_epi16(a.v[0], b.v[0]), _mm256_add_epi16(a.v[1], b.v[1])}}; }
-  static I16 Sub(const I16& a, const I16& b) { return I16{{_mm256_sub_epi16(a.v[0], b.v[0]), _mm256_sub_epi16(a.v[1], b.v[1])}}; }
-  static I16 Min(const I16& a, const I16& b) { return I16{{_mm256_min_epi16(a.v[0], b.v[0]), _mm256_min_epi16(a.v[1], b.v[1])}}; }
-  static I16 Or(const I16& a, const I16& b) { return I16{{_mm256_or_si256(a.v[0], b.v[0]), _mm256_or_si256(a.v[1], b.v[1])}}; }
+  static I16 Add(const I16& a, const I16& b) {
+    return I16{{_mm256_add_epi16(a.v[0], b.v[0]), _mm256_add_epi16(a.v[1], b.v[1])}};
+  }
+  static I16 Sub(const I16& a, const I16& b) {
+    return I16{{_mm256_sub_epi16(a.v[0], b.v[0]), _mm256_sub_epi16(a.v[1], b.v[1])}};
+  }
+  static I16 Min(const I16& a, const I16& b) {
+    return I16{{_mm256_min_epi16(a.v[0], b.v[0]), _mm256_min_epi16(a.v[1], b.v[1])}};
+  }
+  static I16 Or(const I16& a, const I16& b) {
+    return I16{{_mm256_or_si256(a.v[0], b.v[0]), _mm256_or_si256(a.v[1], b.v[1])}};
+  }
   static int HorizontalMin(const I16& a) {
     const __m256i m = _mm256_min_epi16(a.v[0], a.v[1]);
     const __m128i h = _mm_min_epi16(_mm256_castsi256_si128(m), _mm256_extracti128_si256(m, 1));

@@ -42,8 +42,8 @@ inline void RefineRow(const KernelArgs& a, const int16_t* code, const int16_t* b
     const float c0 = best_cost[x], cm = cost_minus[x], cp = cost_plus[x];
     const float denom = 2.f * (cm + cp - 2.f * c0);
     const float delta = denom > 0.f ? (cm - cp) / denom : 0.f;
-    const long s8 =
-        static_cast<long>(std::floor(8.f * (static_cast<float>(a.min_shift_px + best_j[x]) + delta) + 0.5f));
+    const long s8 = static_cast<long>(
+        std::floor(8.f * (static_cast<float>(a.min_shift_px + best_j[x]) + delta) + 0.5f));
     const long raw = a.raw_at_reference - s8;
     if (raw < 0 || raw >= a.raw_limit) {
       ++stats->out_of_range;

@@ -20,7 +20,8 @@ struct ScalarLanes {
   static constexpr int Lane(int k) { return k; }
   static U8 AbsDiff(uint8_t obs, const uint8_t* ref) {
     U8 out;
-    for (int k = 0; k < kLanesPerBlock; ++k) out.v[k] = static_cast<uint8_t>(obs > ref[k] ? obs - ref[k] : ref[k] - obs);
+    for (int k = 0; k < kLanesPerBlock; ++k)
+      out.v[k] = static_cast<uint8_t>(obs > ref[k] ? obs - ref[k] : ref[k] - obs);
     return out;
   }
   static U8 OrBytes(const U8& a, const uint8_t* bytes) {
@@ -28,16 +29,30 @@ struct ScalarLanes {
     for (int k = 0; k < kLanesPerBlock; ++k) out.v[k] = static_cast<uint8_t>(a.v[k] | bytes[k]);
     return out;
   }
-  static I16 Widen(const U8& a) { return Map([&](int k) { return a.v[k]; }); }
-  static I16 WidenDiff(const U8& a, const U8& b) { return Map([&](int k) { return a.v[k] - b.v[k]; }); }
-  static I16 Load(const int16_t* p) { return Map([&](int k) { return p[k]; }); }
+  static I16 Widen(const U8& a) {
+    return Map([&](int k) { return a.v[k]; });
+  }
+  static I16 WidenDiff(const U8& a, const U8& b) {
+    return Map([&](int k) { return a.v[k] - b.v[k]; });
+  }
+  static I16 Load(const int16_t* p) {
+    return Map([&](int k) { return p[k]; });
+  }
   static void Store(int16_t* p, const I16& a) {
     for (int k = 0; k < kLanesPerBlock; ++k) p[k] = a.v[k];
   }
-  static I16 Add(const I16& a, const I16& b) { return Map([&](int k) { return a.v[k] + b.v[k]; }); }
-  static I16 Sub(const I16& a, const I16& b) { return Map([&](int k) { return a.v[k] - b.v[k]; }); }
-  static I16 Min(const I16& a, const I16& b) { return Map([&](int k) { return a.v[k] < b.v[k] ? a.v[k] : b.v[k]; }); }
-  static I16 Or(const I16& a, const I16& b) { return Map([&](int k) { return a.v[k] | b.v[k]; }); }
+  static I16 Add(const I16& a, const I16& b) {
+    return Map([&](int k) { return a.v[k] + b.v[k]; });
+  }
+  static I16 Sub(const I16& a, const I16& b) {
+    return Map([&](int k) { return a.v[k] - b.v[k]; });
+  }
+  static I16 Min(const I16& a, const I16& b) {
+    return Map([&](int k) { return a.v[k] < b.v[k] ? a.v[k] : b.v[k]; });
+  }
+  static I16 Or(const I16& a, const I16& b) {
+    return Map([&](int k) { return a.v[k] | b.v[k]; });
+  }
   static int HorizontalMin(const I16& a) {
     int m = a.v[0];
     for (int k = 1; k < kLanesPerBlock; ++k) m = a.v[k] < m ? a.v[k] : m;
@@ -49,8 +64,12 @@ struct ScalarLanes {
     for (int k = 0; k < kLanesPerBlock; ++k) mask |= static_cast<uint32_t>(pred(a.v[k])) << k;
     return mask;
   }
-  static uint32_t EqualMask(const I16& a, int value) { return Mask(a, [&](int v) { return v == value; }); }
-  static uint32_t LessMask(const I16& a, int value) { return Mask(a, [&](int v) { return v < value; }); }
+  static uint32_t EqualMask(const I16& a, int value) {
+    return Mask(a, [&](int v) { return v == value; });
+  }
+  static uint32_t LessMask(const I16& a, int value) {
+    return Mask(a, [&](int v) { return v < value; });
+  }
 };
 
 }  // namespace

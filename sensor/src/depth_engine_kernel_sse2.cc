@@ -42,14 +42,24 @@ struct Sse2Lanes {
                 _mm_unpackhi_epi8(a.v[1], zero)}};
   }
   static I16 WidenDiff(const U8& a, const U8& b) { return Sub(Widen(a), Widen(b)); }
-  static I16 Load(const int16_t* p) { return Map([&](int i) { return LoadU(p + 8 * i); }); }
+  static I16 Load(const int16_t* p) {
+    return Map([&](int i) { return LoadU(p + 8 * i); });
+  }
   static void Store(int16_t* p, const I16& a) {
     for (int i = 0; i < 4; ++i) _mm_storeu_si128(reinterpret_cast<__m128i*>(p + 8 * i), a.v[i]);
   }
-  static I16 Add(const I16& a, const I16& b) { return Map([&](int i) { return _mm_add_epi16(a.v[i], b.v[i]); }); }
-  static I16 Sub(const I16& a, const I16& b) { return Map([&](int i) { return _mm_sub_epi16(a.v[i], b.v[i]); }); }
-  static I16 Min(const I16& a, const I16& b) { return Map([&](int i) { return _mm_min_epi16(a.v[i], b.v[i]); }); }
-  static I16 Or(const I16& a, const I16& b) { return Map([&](int i) { return _mm_or_si128(a.v[i], b.v[i]); }); }
+  static I16 Add(const I16& a, const I16& b) {
+    return Map([&](int i) { return _mm_add_epi16(a.v[i], b.v[i]); });
+  }
+  static I16 Sub(const I16& a, const I16& b) {
+    return Map([&](int i) { return _mm_sub_epi16(a.v[i], b.v[i]); });
+  }
+  static I16 Min(const I16& a, const I16& b) {
+    return Map([&](int i) { return _mm_min_epi16(a.v[i], b.v[i]); });
+  }
+  static I16 Or(const I16& a, const I16& b) {
+    return Map([&](int i) { return _mm_or_si128(a.v[i], b.v[i]); });
+  }
   static int HorizontalMin(const I16& a) {
     __m128i m = _mm_min_epi16(_mm_min_epi16(a.v[0], a.v[1]), _mm_min_epi16(a.v[2], a.v[3]));
     m = _mm_min_epi16(m, _mm_shuffle_epi32(m, 0x4E));

@@ -80,8 +80,8 @@ std::string Describe(const cv::Mat& m) {
 void CheckImage(const cv::Mat& image, const CameraModel& camera, int type, const fs::path& path) {
   if (image.cols != camera.width || image.rows != camera.height) {
     std::ostringstream s;
-    s << "expected " << camera.width << " x " << camera.height
-      << " (the camera in frames.json), found " << image.cols << " x " << image.rows;
+    s << "expected " << camera.width << " x " << camera.height << " (the camera in frames.json), found " << image.cols
+      << " x " << image.rows;
     throw InputError(path.string(), "image size", s.str());
   }
   if (image.type() != type) {
@@ -91,8 +91,7 @@ void CheckImage(const cv::Mat& image, const CameraModel& camera, int type, const
 }
 
 // Depth must be finite and non-negative (0 = no measurement).
-void CheckDepthValues(cv::Mat* depth, const fs::path& path, InvalidDepthPolicy policy,
-                      size_t* skipped) {
+void CheckDepthValues(cv::Mat* depth, const fs::path& path, InvalidDepthPolicy policy, size_t* skipped) {
   for (int v = 0; v < depth->rows; ++v) {
     float* row = depth->ptr<float>(v);
     for (int u = 0; u < depth->cols; ++u) {
@@ -175,15 +174,15 @@ FrameDirectoryManifest ReadFrameDirectoryManifest(const fs::path& dir) {
     }
     record.T_W_C = ReadPose(entry, "T_W_C");
     record.T_B_H = ReadPose(entry, "T_B_H");
-    record.extra_json = ExtraKeys(entry.value(), {"index", "time_s", "depth", "ir", "raw",
-                                                  "gt_depth", "T_W_C", "T_B_H"});
+    record.extra_json = ExtraKeys(entry.value(),
+                                  {"index", "time_s", "depth", "ir", "raw", "gt_depth", "T_W_C", "T_B_H"});
     manifest.frames.push_back(std::move(record));
   }
   return manifest;
 }
 
-Frame LoadFrame(const fs::path& dir, const FrameDirectoryManifest& manifest, size_t i,
-                InvalidDepthPolicy policy, size_t* skipped_pixels) {
+Frame LoadFrame(const fs::path& dir, const FrameDirectoryManifest& manifest, size_t i, InvalidDepthPolicy policy,
+                size_t* skipped_pixels) {
   ROMUNECT_CHECK(i < manifest.frames.size());
   const FrameRecord& record = manifest.frames[i];
   Frame frame;
@@ -217,8 +216,8 @@ void WriteFrameDirectoryManifest(const fs::path& dir, const FrameDirectoryManife
   document["format"] = kFrameDirectoryFormat;
   document["version"] = kFrameDirectoryVersion;
   const CameraModel& c = manifest.camera;
-  document["camera"] = {{"width", c.width}, {"height", c.height}, {"fx", c.fx}, {"fy", c.fy},
-                        {"cx", c.cx},       {"cy", c.cy},         {"distortion", c.distortion}};
+  document["camera"] = {{"width", c.width}, {"height", c.height},        {"fx", c.fx}, {"fy", c.fy}, {"cx", c.cx},
+                        {"cy", c.cy},       {"distortion", c.distortion}};
   if (const std::optional<WorldBox>& r = manifest.region_W) {
     document["region_W"] = {r->min_W.x(), r->min_W.y(), r->min_W.z(), r->max_W.x(), r->max_W.y(), r->max_W.z()};
   }
@@ -246,8 +245,7 @@ void FrameDirectoryWriter::CheckCanWrite(const fs::path& dir) {
   }
 }
 
-FrameDirectoryWriter::FrameDirectoryWriter(const fs::path& dir, const CameraModel& camera,
-                                           ImageCompression compression)
+FrameDirectoryWriter::FrameDirectoryWriter(const fs::path& dir, const CameraModel& camera, ImageCompression compression)
     : dir_(dir), compression_(compression) {
   ROMUNECT_CHECK(camera.Problem().empty());
   CheckCanWrite(dir);
@@ -257,9 +255,7 @@ FrameDirectoryWriter::FrameDirectoryWriter(const fs::path& dir, const CameraMode
   manifest_.camera = camera;
 }
 
-void FrameDirectoryWriter::SetExtraJson(const std::string& extra_json) {
-  manifest_.extra_json = extra_json;
-}
+void FrameDirectoryWriter::SetExtraJson(const std::string& extra_json) { manifest_.extra_json = extra_json; }
 
 void FrameDirectoryWriter::SetRegion(const WorldBox& region_W) {
   ROMUNECT_CHECK_MSG(region_W.Problem().empty(), region_W.Problem().c_str());
@@ -270,8 +266,7 @@ void FrameDirectoryWriter::Add(const Frame& frame, const std::string& extra_json
   ROMUNECT_CHECK(!finished_);
   const CameraModel& c = manifest_.camera;
   auto check = [&](const cv::Mat& m, int type) {
-    ROMUNECT_CHECK_MSG(m.empty() || (m.cols == c.width && m.rows == c.height && m.type() == type),
-                       Describe(m).c_str());
+    ROMUNECT_CHECK_MSG(m.empty() || (m.cols == c.width && m.rows == c.height && m.type() == type), Describe(m).c_str());
   };
   check(frame.ir, CV_16U);
   check(frame.raw, CV_16U);

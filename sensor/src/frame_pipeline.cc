@@ -153,7 +153,7 @@ void PipelineEngine::RunStage(size_t index) {
     if (stopping_ || self.input.empty()) break;  // stopped, or the stream has ended
     Entry entry = std::move(self.input.front());
     self.input.pop_front();
-    changed_.notify_all();  // room in this queue
+    changed_.notify_all();                                         // room in this queue
     if (failed_at_ >= 0 && entry.sequence > failed_at_) continue;  // after a failure: dropped
     lock.unlock();
     std::exception_ptr failure;

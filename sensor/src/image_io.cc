@@ -22,8 +22,8 @@
 #include <ImfInputFile.h>
 #include <ImfOutputFile.h>
 #include <ImfVecAttribute.h>
-#include <opencv2/imgcodecs.hpp>
 #include <zlib.h>
+#include <opencv2/imgcodecs.hpp>
 
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/errors.h"
@@ -84,12 +84,13 @@ void EncodePng16Stored(const cv::Mat& image, std::string* raw, std::string* png)
   for (size_t at = 0; at < raw->size(); at += 65535) {
     const uint16_t len = static_cast<uint16_t>(std::min<size_t>(65535, raw->size() - at));
     const char stored[5] = {at + len >= raw->size() ? '\x01' : '\x00',  // BFINAL, BTYPE 00 (stored)
-                            static_cast<char>(len & 0xFF), static_cast<char>(len >> 8),
-                            static_cast<char>(~len & 0xFF), static_cast<char>((~len >> 8) & 0xFF)};
+                            static_cast<char>(len & 0xFF), static_cast<char>(len >> 8), static_cast<char>(~len & 0xFF),
+                            static_cast<char>((~len >> 8) & 0xFF)};
     png->append(stored, 5);
     png->append(*raw, at, len);
   }
-  PutBe32(png, static_cast<uint32_t>(adler32(1, reinterpret_cast<const Bytef*>(raw->data()), static_cast<uInt>(raw->size()))));
+  PutBe32(png, static_cast<uint32_t>(
+                   adler32(1, reinterpret_cast<const Bytef*>(raw->data()), static_cast<uInt>(raw->size()))));
   PutBe32(png, static_cast<uint32_t>(crc32(0, reinterpret_cast<const Bytef*>(png->data() + type_at),
                                            static_cast<uInt>(png->size() - type_at))));
   PutPngChunk(png, "IEND", nullptr, 0);
@@ -116,10 +117,10 @@ void EncodeExrUncompressed(const cv::Mat& depth, std::string* out) {
   PutLe32(&exr, 2);         // version 2, single-part scanline
   std::string channels = "Z";
   channels.push_back('\0');
-  PutLe32(&channels, 2);  // FLOAT
+  PutLe32(&channels, 2);     // FLOAT
   channels.append(4, '\0');  // pLinear, reserved
-  PutLe32(&channels, 1);  // x sampling
-  PutLe32(&channels, 1);  // y sampling
+  PutLe32(&channels, 1);     // x sampling
+  PutLe32(&channels, 1);     // y sampling
   channels.push_back('\0');
   std::string window;
   for (const int v : {0, 0, width - 1, height - 1}) PutLe32(&window, static_cast<uint32_t>(v));
@@ -211,7 +212,8 @@ void WriteFrameFileAtomically(const fs::path& path, const std::string& bytes) {
   WriteAtomically(path, [&](const fs::path& tmp) {
     const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC | O_DIRECT, 0644);
     if (fd < 0) {
-      if (errno != EINVAL) throw InputError(path.string(), "", std::string("cannot write file: ") + std::strerror(errno));
+      if (errno != EINVAL)
+        throw InputError(path.string(), "", std::string("cannot write file: ") + std::strerror(errno));
       WritePlain(tmp, bytes, path);  // no direct I/O on this filesystem (tmpfs, say)
       return;
     }
@@ -291,7 +293,8 @@ void WriteCompactExr(const fs::path& path, const cv::Mat& depth, const HeightMap
     try {
       Imf::Header header(continuous.cols, continuous.rows);
       if (geometry != nullptr) {
-        header.insert(kMinAttribute, Imf::V3dAttribute(Imath::V3d(geometry->min_x_m, geometry->min_y_m, geometry->min_z_m)));
+        header.insert(kMinAttribute,
+                      Imf::V3dAttribute(Imath::V3d(geometry->min_x_m, geometry->min_y_m, geometry->min_z_m)));
         header.insert(kVoxelAttribute, Imf::DoubleAttribute(geometry->voxel_m));
       }
       // ZIP at level 1: on a scan's frames 15-40 % faster than the default level for a few
@@ -301,8 +304,8 @@ void WriteCompactExr(const fs::path& path, const cv::Mat& depth, const HeightMap
       header.channels().insert("Z", Imf::Channel(Imf::FLOAT));
       Imf::OutputFile file(tmp.c_str(), header);
       Imf::FrameBuffer buffer;
-      buffer.insert("Z", Imf::Slice(Imf::FLOAT, const_cast<char*>(continuous.ptr<char>()),
-                                    sizeof(float), sizeof(float) * continuous.cols));
+      buffer.insert("Z", Imf::Slice(Imf::FLOAT, const_cast<char*>(continuous.ptr<char>()), sizeof(float),
+                                    sizeof(float) * continuous.cols));
       file.setFrameBuffer(buffer);
       file.writePixels(continuous.rows);
     } catch (const std::exception& e) {

@@ -50,7 +50,7 @@ const internal::Kernel* KernelFor(Isa requested) { return ResolveKernel(requeste
 template <class LevelTable>
 internal::LevelStack StackOf(const LevelTable& table, const float* pixels, size_t plane, int stride) {
   ROMUNECT_CHECK(plane * table.sigmas.size() < (size_t{1} << 31));  // lanes index with int32
-  ROMUNECT_CHECK(table.sigmas.size() <= internal::kTableSize);  // 11 pattern levels, <= 14 camera levels
+  ROMUNECT_CHECK(table.sigmas.size() <= internal::kTableSize);      // 11 pattern levels, <= 14 camera levels
   internal::LevelStack stack;
   stack.pixels = pixels;
   stack.plane = static_cast<int>(plane);
@@ -105,8 +105,8 @@ std::string IrSynthesisOptions::Problem() const {
 
 std::string IrSynthesisStats::BriefReport() const {
   std::ostringstream s;
-  s << "IR: " << pixels_hit << " hit, " << pixels_lit << " lit, " << pixels_saturated << " saturated, mean "
-    << mean_dn << " DN, " << seconds * 1e3 << " ms";
+  s << "IR: " << pixels_hit << " hit, " << pixels_lit << " lit, " << pixels_saturated << " saturated, mean " << mean_dn
+    << " DN, " << seconds * 1e3 << " ms";
   return s.str();
 }
 
@@ -251,7 +251,8 @@ float IrSynthesizer::DefocusSigmas(const Rig& rig, const GeometryLayer& layer0) 
 void IrSynthesizer::BlurCameraLevels(float s0, float max_sigma, bool defocus) {
   const cv::Size size = electrons_.size();
   const bool blend = defocus && max_sigma > s0 * 1.01f;
-  std::vector<float> sigmas = blend ? LevelSigmas(std::max(s0, 0.25f), std::min(max_sigma, 30.f)) : std::vector<float>{s0};
+  std::vector<float> sigmas = blend ? LevelSigmas(std::max(s0, 0.25f), std::min(max_sigma, 30.f))
+                                    : std::vector<float>{s0};
   if (sigmas[0] != s0) sigmas.insert(sigmas.begin(), s0);
   camera_table_ = LevelTable(std::move(sigmas));
   const std::vector<float>& levels = camera_table_.sigmas;

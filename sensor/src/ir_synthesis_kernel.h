@@ -29,7 +29,7 @@ struct LevelStack {
   int plane = 0;  // levels * plane < 2^31: lanes index with int32
   int stride = 0;
   float sigmas[kTableSize] = {};  // the first `count`, then padding
-  int count = 0;  // levels, at most kTableSize
+  int count = 0;                  // levels, at most kTableSize
   const int* start = nullptr;
   int start_count = 0;
   float lut_per_px = 0.f;
@@ -70,7 +70,7 @@ struct ShadeRowData {
 // Everything FinishRow needs but the row: camera blur blend, noise, full well, quantization.
 struct FinishArgs {
   int width = 0;
-  LevelStack camera;       // count 1: electrons are read in place (no blend)
+  LevelStack camera;  // count 1: electrons are read in place (no blend)
   bool noise = false, shot = false;
   uint64_t noise_seed = 0;
   float gain = 0.f, full_well = 0.f, read = 0.f;
@@ -79,9 +79,9 @@ struct FinishArgs {
 
 struct FinishRowData {
   int y = 0;
-  const float* sigma = nullptr;  // camera blur sigma per pixel (null for one level)
+  const float* sigma = nullptr;          // camera blur sigma per pixel (null for one level)
   const float* camera_levels = nullptr;  // row y of level 0 of the stack
-  float* electrons = nullptr;   // out: the blend (may alias camera_levels for one level)
+  float* electrons = nullptr;            // out: the blend (may alias camera_levels for one level)
   uint16_t* ir = nullptr;
 };
 

@@ -64,7 +64,7 @@ __m256i Narrow64(__m256i lo, __m256i hi) {
 struct Mask {
   __m256 v;
   Mask(bool b) : v(_mm256_castsi256_ps(_mm256_set1_epi32(b ? -1 : 0))) {}  // NOLINT: broadcast
-  Mask(__m256 m) : v(m) {}                                                  // NOLINT
+  Mask(__m256 m) : v(m) {}                                                 // NOLINT
 };
 struct Floats {
   __m256 v;
@@ -109,7 +109,9 @@ struct Avx2Lanes {
 
   static F Load(const float* p) { return _mm256_loadu_ps(p); }
   static I Load(const int32_t* p) { return _mm256_loadu_si256(reinterpret_cast<const __m256i*>(p)); }
-  static I LoadU8(const uint8_t* p) { return _mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p))); }
+  static I LoadU8(const uint8_t* p) {
+    return _mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)));
+  }
   static void LoadXyz(const float* p, F* x, F* y, F* z) {
     const __m256 a = _mm256_loadu_ps(p), b = _mm256_loadu_ps(p + 8), c = _mm256_loadu_ps(p + 16);
     *x = Deinterleave<0>(a, b, c);
@@ -119,16 +121,20 @@ struct Avx2Lanes {
   static void Store(float* p, F v) { _mm256_storeu_ps(p, v.v); }
   static void StoreU16(uint16_t* p, I v) {
     // The low halves of the 32-bit lanes, in each 128-bit half, then the two halves together.
-    const __m256i low = _mm256_shuffle_epi8(
-        v.v, _mm256_setr_epi8(0, 1, 4, 5, 8, 9, 12, 13, -1, -1, -1, -1, -1, -1, -1, -1, 0, 1, 4, 5, 8, 9, 12, 13, -1, -1,
-                              -1, -1, -1, -1, -1, -1));
+    const __m256i low = _mm256_shuffle_epi8(v.v,
+                                            _mm256_setr_epi8(0, 1, 4, 5, 8, 9, 12, 13, -1, -1, -1, -1, -1, -1, -1, -1,
+                                                             0, 1, 4, 5, 8, 9, 12, 13, -1, -1, -1, -1, -1, -1, -1, -1));
     _mm_storeu_si128(reinterpret_cast<__m128i*>(p),
                      _mm256_castsi256_si128(_mm256_permute4x64_epi64(low, _MM_SHUFFLE(3, 1, 2, 0))));
   }
   static I Iota() { return _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7); }
   static F Gather(const float* base, I i) { return _mm256_i32gather_ps(base, i.v, 4); }
-  static F Gather(const float* base, I i, M m) { return _mm256_mask_i32gather_ps(_mm256_setzero_ps(), base, i.v, m.v, 4); }
-  static I Gather(const int32_t* base, I i) { return _mm256_i32gather_epi32(reinterpret_cast<const int*>(base), i.v, 4); }
+  static F Gather(const float* base, I i, M m) {
+    return _mm256_mask_i32gather_ps(_mm256_setzero_ps(), base, i.v, m.v, 4);
+  }
+  static I Gather(const int32_t* base, I i) {
+    return _mm256_i32gather_epi32(reinterpret_cast<const int*>(base), i.v, 4);
+  }
   static F Lookup(const float* table, I i) {
     const __m256 low = _mm256_permutevar8x32_ps(_mm256_loadu_ps(table), i.v);
     const __m256 high = _mm256_permutevar8x32_ps(_mm256_loadu_ps(table + 8), i.v);  // the low 3 bits of i
@@ -141,8 +147,8 @@ struct Avx2Lanes {
     for (int h = 0; h < 2; ++h) {
       const __m128i index = h == 0 ? _mm256_castsi256_si128(i.v) : _mm256_extracti128_si256(i.v, 1);
       const __m128i lanes = h == 0 ? _mm256_castsi256_si128(mask) : _mm256_extracti128_si256(mask, 1);
-      half[h] = _mm256_castpd_ps(_mm256_mask_i32gather_pd(_mm256_setzero_pd(), reinterpret_cast<const double*>(base), index,
-                                                          _mm256_castsi256_pd(_mm256_cvtepi32_epi64(lanes)), 4));
+      half[h] = _mm256_castpd_ps(_mm256_mask_i32gather_pd(_mm256_setzero_pd(), reinterpret_cast<const double*>(base),
+                                                          index, _mm256_castsi256_pd(_mm256_cvtepi32_epi64(lanes)), 4));
     }
     // As in Narrow64: the even (odd) floats of both halves, in lane order.
     *first = _mm256_castpd_ps(_mm256_permute4x64_pd(

@@ -48,13 +48,13 @@ constexpr XyzShuffle kXyzShuffles[3] = {MakeXyzShuffle(0), MakeXyzShuffle(1), Ma
 struct Mask {
   __mmask16 v;
   Mask(bool b) : v(b ? 0xFFFF : 0) {}  // NOLINT: broadcast, as for a scalar bool
-  Mask(__mmask16 m) : v(m) {}  // NOLINT
+  Mask(__mmask16 m) : v(m) {}          // NOLINT
 };
 struct Floats {
   __m512 v;
   Floats() = default;
-  Floats(__m512 x) : v(x) {}                    // NOLINT
-  Floats(float s) : v(_mm512_set1_ps(s)) {}     // NOLINT: broadcast
+  Floats(__m512 x) : v(x) {}                 // NOLINT
+  Floats(float s) : v(_mm512_set1_ps(s)) {}  // NOLINT: broadcast
 };
 struct Ints {
   __m512i v;
@@ -93,7 +93,9 @@ struct Avx512Lanes {
 
   static F Load(const float* p) { return _mm512_loadu_ps(p); }
   static I Load(const int32_t* p) { return _mm512_loadu_si512(p); }
-  static I LoadU8(const uint8_t* p) { return _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p))); }
+  static I LoadU8(const uint8_t* p) {
+    return _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p)));
+  }
   static void LoadXyz(const float* p, F* x, F* y, F* z) {
     const __m512 a = _mm512_loadu_ps(p), b = _mm512_loadu_ps(p + 16), c = _mm512_loadu_ps(p + 32);
     F* out[3] = {x, y, z};
@@ -116,10 +118,10 @@ struct Avx512Lanes {
   static F Lookup(const float* table, I i) { return _mm512_permutexvar_ps(i.v, _mm512_loadu_ps(table)); }
   // Both floats of a pair in one 64-bit element: half the loads of two gathers.
   static void GatherPair(const float* base, I i, M m, F* first, F* second) {
-    const __m512 lo = _mm512_castpd_ps(_mm512_mask_i32gather_pd(
-        _mm512_setzero_pd(), static_cast<__mmask8>(m.v), _mm512_castsi512_si256(i.v), base, 4));
-    const __m512 hi = _mm512_castpd_ps(_mm512_mask_i32gather_pd(
-        _mm512_setzero_pd(), static_cast<__mmask8>(m.v >> 8), _mm512_extracti64x4_epi64(i.v, 1), base, 4));
+    const __m512 lo = _mm512_castpd_ps(_mm512_mask_i32gather_pd(_mm512_setzero_pd(), static_cast<__mmask8>(m.v),
+                                                                _mm512_castsi512_si256(i.v), base, 4));
+    const __m512 hi = _mm512_castpd_ps(_mm512_mask_i32gather_pd(_mm512_setzero_pd(), static_cast<__mmask8>(m.v >> 8),
+                                                                _mm512_extracti64x4_epi64(i.v, 1), base, 4));
     const __m512i even = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
     *first = _mm512_permutex2var_ps(lo, even, hi);
     *second = _mm512_permutex2var_ps(lo, _mm512_add_epi32(even, _mm512_set1_epi32(1)), hi);

@@ -107,8 +107,7 @@ typename L::F FastExp(typename L::F x) {
   const F y = L::Select(x < -87.f, F(-87.f), x) * 1.44269504f;
   const F n = L::Round(y);
   const F f = (y - n) * 0.693147181f;  // |f| <= ln(2) / 2
-  const F p =
-      1.f + f * (1.f + f * (0.5f + f * (1.f / 6.f + f * (1.f / 24.f + f * (1.f / 120.f + f * (1.f / 720.f))))));
+  const F p = 1.f + f * (1.f + f * (0.5f + f * (1.f / 6.f + f * (1.f / 24.f + f * (1.f / 120.f + f * (1.f / 720.f))))));
   return p * L::FromBits((L::Trunc(n) + 127) << 23);
 }
 
@@ -122,8 +121,7 @@ void FastCosSin2Pi(typename L::F u, typename L::F* c, typename L::F* s) {
   I quadrant = L::Trunc(q);
   quadrant = L::Select(quadrant > 3, I(3), quadrant);
   const F a = (q - L::ToFloat(quadrant)) * 1.57079633f, a2 = a * a;
-  const F sin_a =
-      a * (1.f - a2 / 6.f * (1.f - a2 / 20.f * (1.f - a2 / 42.f * (1.f - a2 / 72.f * (1.f - a2 / 110.f)))));
+  const F sin_a = a * (1.f - a2 / 6.f * (1.f - a2 / 20.f * (1.f - a2 / 42.f * (1.f - a2 / 72.f * (1.f - a2 / 110.f)))));
   const F cos_a = 1.f - a2 / 2.f * (1.f - a2 / 12.f * (1.f - a2 / 30.f * (1.f - a2 / 56.f * (1.f - a2 / 90.f))));
   // Quadrant k turns (cos a, sin a) by k * 90 degrees.
   const typename L::M q0 = quadrant == 0, q1 = quadrant == 1, q2 = quadrant == 2;
@@ -224,7 +222,8 @@ void ShadePixels(const ShadeArgs& a, const ShadeRowData& row, int x) {
     const F value = bilinear(tap, on);
     const M blend = on & (w > 0.f);
     F pattern = value;
-    if (L::Any(blend)) pattern = L::Select(blend, (1.f - w) * value + w * bilinear(tap + a.pattern.plane, blend), value);
+    if (L::Any(blend))
+      pattern = L::Select(blend, (1.f - w) * value + w * bilinear(tap + a.pattern.plane, blend), value);
     const M bright = on & (pattern > 0.f);
     if (L::Any(bright)) {
       F tx = a.c_P[0] - px, ty = a.c_P[1] - py, tz = a.c_P[2] - pz;  // to the light
@@ -277,8 +276,7 @@ void FinishPixels(const FinishArgs& a, const FinishRowData& row, int x) {
     const M blend = w > 0.f;
     e = low;
     if (L::Any(blend)) {
-      e = L::Select(blend, (1.f - w) * low + w * L::Gather(row.camera_levels, i + a.camera.plane, blend),
-                    low);
+      e = L::Select(blend, (1.f - w) * low + w * L::Gather(row.camera_levels, i + a.camera.plane, blend), low);
     }
   }
   if (row.electrons != row.camera_levels) L::Store(row.electrons + x, e);

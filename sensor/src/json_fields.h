@@ -58,9 +58,7 @@ class Field {
     return Field(value_.at(key), source_, Join(key));
   }
 
-  Field operator[](size_t i) const {
-    return Field(value_.at(i), source_, path_ + "[" + std::to_string(i) + "]");
-  }
+  Field operator[](size_t i) const { return Field(value_.at(i), source_, path_ + "[" + std::to_string(i) + "]"); }
 
   size_t ArraySize() const {
     if (!value_.is_array()) Fail(std::string("expected an array, found ") + TypeName(value_));

@@ -24,8 +24,8 @@ void LoopingSource::OpenNextPass() {
   ROMUNECT_CHECK(next != nullptr);
   // Consumers size their buffers from camera() once; a pass of another size cannot follow.
   if (!(next->camera() == camera_)) {
-    throw InputError(next->Describe(), "camera", "changed between passes of a looped source (pass " +
-                                                     std::to_string(passes_ + 1) + ")");
+    throw InputError(next->Describe(), "camera",
+                     "changed between passes of a looped source (pass " + std::to_string(passes_ + 1) + ")");
   }
   source_ = std::move(next);
   ++passes_;

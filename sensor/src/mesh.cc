@@ -36,16 +36,15 @@ std::pair<std::string, std::string> FindProblem(const TriangleMesh& mesh) {
       const int index = mesh.triangles[i][k];
       if (index < 0 || index >= n) {
         return {"triangles[" + std::to_string(i) + "]",
-                "vertex index " + std::to_string(index) + " is outside [0, " + std::to_string(n) +
-                    ")"};
+                "vertex index " + std::to_string(index) + " is outside [0, " + std::to_string(n) + ")"};
       }
     }
   }
   return {"", ""};
 }
 
-void AddQuad(TriangleMesh* mesh, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
-             const Eigen::Vector3d& c, const Eigen::Vector3d& d) {
+void AddQuad(TriangleMesh* mesh, const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c,
+             const Eigen::Vector3d& d) {
   const int base = static_cast<int>(mesh->vertices_O.size());
   for (const auto* p : {&a, &b, &c, &d}) mesh->vertices_O.push_back(p->cast<float>());
   mesh->triangles.emplace_back(base, base + 1, base + 2);
@@ -75,8 +74,7 @@ TriangleMesh LoadStl(const fs::path& path, double unit_m) {
         for (int k = 0; k < 3; ++k) {
           float xyz[3];
           std::memcpy(xyz, record + 12 + 12 * k, 12);
-          mesh.vertices_O.emplace_back(static_cast<float>(xyz[0] * unit_m),
-                                       static_cast<float>(xyz[1] * unit_m),
+          mesh.vertices_O.emplace_back(static_cast<float>(xyz[0] * unit_m), static_cast<float>(xyz[1] * unit_m),
                                        static_cast<float>(xyz[2] * unit_m));
         }
         const int base = static_cast<int>(3 * t);
@@ -88,8 +86,9 @@ TriangleMesh LoadStl(const fs::path& path, double unit_m) {
   std::istringstream text(bytes);
   std::string word;
   if (!(text >> word) || word != "solid") {
-    throw InputError(path.string(), "", "neither a binary STL (size does not match the "
-                                        "triangle count) nor an ascii STL (no 'solid')");
+    throw InputError(path.string(), "",
+                     "neither a binary STL (size does not match the "
+                     "triangle count) nor an ascii STL (no 'solid')");
   }
   std::string line;
   int line_number = 1;
@@ -103,14 +102,12 @@ TriangleMesh LoadStl(const fs::path& path, double unit_m) {
       double x, y, z;
       std::string sx, sy, sz;
       if (!(tokens >> sx >> sy >> sz)) {
-        throw InputError(path.string(), "line " + std::to_string(line_number),
-                         "expected 'vertex x y z'");
+        throw InputError(path.string(), "line " + std::to_string(line_number), "expected 'vertex x y z'");
       }
       try {  // std::stod, unlike operator>>, reads "nan" and "inf": validation reports them
         x = std::stod(sx), y = std::stod(sy), z = std::stod(sz);
       } catch (const std::exception&) {
-        throw InputError(path.string(), "line " + std::to_string(line_number),
-                         "vertex coordinates are not numbers");
+        throw InputError(path.string(), "line " + std::to_string(line_number), "vertex coordinates are not numbers");
       }
       mesh.vertices_O.emplace_back(static_cast<float>(x * unit_m), static_cast<float>(y * unit_m),
                                    static_cast<float>(z * unit_m));
@@ -166,8 +163,8 @@ TriangleMesh LoadObj(const fs::path& path, double unit_m) {
         const int zero_based = index > 0 ? index - 1 : n + index;
         if (index == 0 || zero_based < 0 || zero_based >= n) {
           throw InputError(path.string(), where,
-                           "face index " + std::to_string(index) + " refers to no vertex (" +
-                               std::to_string(n) + " defined so far)");
+                           "face index " + std::to_string(index) + " refers to no vertex (" + std::to_string(n) +
+                               " defined so far)");
         }
         face.push_back(zero_based);
       }
@@ -203,8 +200,7 @@ void ValidateMesh(const TriangleMesh& mesh, const std::string& source) {
 
 TriangleMesh LoadMesh(const fs::path& path, double unit_m) {
   if (!(unit_m > 0.0) || !std::isfinite(unit_m)) {
-    throw InputError(path.string(), "unit_m", "must be a positive number, got " +
-                                                  std::to_string(unit_m));
+    throw InputError(path.string(), "unit_m", "must be a positive number, got " + std::to_string(unit_m));
   }
   std::string extension = path.extension().string();
   std::transform(extension.begin(), extension.end(), extension.begin(),
@@ -215,8 +211,7 @@ TriangleMesh LoadMesh(const fs::path& path, double unit_m) {
   } else if (extension == ".obj") {
     mesh = LoadObj(path, unit_m);
   } else {
-    throw InputError(path.string(), "", "unknown mesh format '" + extension +
-                                            "' (expected .stl or .obj)");
+    throw InputError(path.string(), "", "unknown mesh format '" + extension + "' (expected .stl or .obj)");
   }
   ValidateMesh(mesh, path.string());
   return mesh;
@@ -235,8 +230,7 @@ void SaveStl(const fs::path& path, const TriangleMesh& mesh) {
       const Eigen::Vector3f& b = mesh.vertices_O[t[1]];
       const Eigen::Vector3f& c = mesh.vertices_O[t[2]];
       const Eigen::Vector3f n = (b - a).cross(c - a).normalized();
-      float record[12] = {n.x(), n.y(), n.z(), a.x(), a.y(), a.z(),
-                          b.x(), b.y(), b.z(), c.x(), c.y(), c.z()};
+      float record[12] = {n.x(), n.y(), n.z(), a.x(), a.y(), a.z(), b.x(), b.y(), b.z(), c.x(), c.y(), c.z()};
       out.write(reinterpret_cast<const char*>(record), sizeof(record));
       const uint16_t attributes = 0;
       out.write(reinterpret_cast<const char*>(&attributes), 2);
@@ -268,13 +262,11 @@ TriangleMesh MakeStepTarget(double distance_m, double step_m, double size_m) {
   const double h = 0.5 * size_m;
   AddRectZ(&mesh, -h, 0.0, -h, h, distance_m - step_m);
   AddRectZ(&mesh, 0.0, h, -h, h, distance_m);
-  AddQuad(&mesh, {0, -h, distance_m - step_m}, {0, h, distance_m - step_m}, {0, h, distance_m},
-          {0, -h, distance_m});
+  AddQuad(&mesh, {0, -h, distance_m - step_m}, {0, h, distance_m - step_m}, {0, h, distance_m}, {0, -h, distance_m});
   return mesh;
 }
 
-TriangleMesh MakeBoxOnPlaneTarget(double distance_m, double size_m, double box_size_m,
-                                  double box_height_m) {
+TriangleMesh MakeBoxOnPlaneTarget(double distance_m, double size_m, double box_size_m, double box_height_m) {
   TriangleMesh mesh = MakePlaneTarget(distance_m, size_m);
   const double b = 0.5 * box_size_m;
   const double z0 = distance_m, z1 = distance_m - box_height_m;
@@ -289,14 +281,12 @@ TriangleMesh MakeBoxOnPlaneTarget(double distance_m, double size_m, double box_s
 TriangleMesh MakeIcosphere(const Eigen::Vector3d& centre_O, double radius_m, int subdivisions) {
   ROMUNECT_CHECK(subdivisions >= 0 && subdivisions <= 8 && radius_m > 0.0);
   const double t = (1.0 + std::sqrt(5.0)) / 2.0;
-  std::vector<Eigen::Vector3d> v = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0},
-                                    {0, -1, t}, {0, 1, t}, {0, -1, -t}, {0, 1, -t},
-                                    {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
+  std::vector<Eigen::Vector3d> v = {{-1, t, 0},  {1, t, 0},  {-1, -t, 0}, {1, -t, 0}, {0, -1, t},  {0, 1, t},
+                                    {0, -1, -t}, {0, 1, -t}, {t, 0, -1},  {t, 0, 1},  {-t, 0, -1}, {-t, 0, 1}};
   for (auto& p : v) p.normalize();
-  std::vector<Eigen::Vector3i> f = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},
-                                    {1, 5, 9},  {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
-                                    {3, 9, 4},  {3, 4, 2},  {3, 2, 6},   {3, 6, 8},  {3, 8, 9},
-                                    {4, 9, 5},  {2, 4, 11}, {6, 2, 10},  {8, 6, 7},  {9, 8, 1}};
+  std::vector<Eigen::Vector3i> f = {{0, 11, 5},  {0, 5, 1},  {0, 1, 7},  {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4},
+                                    {11, 10, 2}, {10, 7, 6}, {7, 1, 8},  {3, 9, 4},  {3, 4, 2},   {3, 2, 6}, {3, 6, 8},
+                                    {3, 8, 9},   {4, 9, 5},  {2, 4, 11}, {6, 2, 10}, {8, 6, 7},   {9, 8, 1}};
   for (int level = 0; level < subdivisions; ++level) {
     std::map<std::pair<int, int>, int> midpoints;
     auto midpoint = [&](int a, int b) {
@@ -311,8 +301,7 @@ TriangleMesh MakeIcosphere(const Eigen::Vector3d& centre_O, double radius_m, int
     std::vector<Eigen::Vector3i> next;
     next.reserve(4 * f.size());
     for (const auto& tri : f) {
-      const int ab = midpoint(tri[0], tri[1]), bc = midpoint(tri[1], tri[2]),
-                ca = midpoint(tri[2], tri[0]);
+      const int ab = midpoint(tri[0], tri[1]), bc = midpoint(tri[1], tri[2]), ca = midpoint(tri[2], tri[0]);
       next.emplace_back(tri[0], ab, ca);
       next.emplace_back(tri[1], bc, ab);
       next.emplace_back(tri[2], ca, bc);
@@ -331,16 +320,13 @@ TriangleMesh MakeSphereTarget(double distance_m, double radius_m, int subdivisio
   return MakeIcosphere(Eigen::Vector3d(0, 0, distance_m + radius_m), radius_m, subdivisions);
 }
 
-std::vector<std::string> BuiltinTargetNames() {
-  return {"plane", "tilted-plane", "step", "box", "sphere"};
-}
+std::vector<std::string> BuiltinTargetNames() { return {"plane", "tilted-plane", "step", "box", "sphere"}; }
 
-TriangleMesh MakeBuiltinTarget(const std::string& name, double distance_m, double size_m,
-                               const std::string& source) {
+TriangleMesh MakeBuiltinTarget(const std::string& name, double distance_m, double size_m, const std::string& source) {
   if (!(distance_m > 0.0) || !(size_m > 0.0)) {
-    throw InputError(source, "distance/size", "must be positive, got distance " +
-                                                  std::to_string(distance_m) + " m, size " +
-                                                  std::to_string(size_m) + " m");
+    throw InputError(source, "distance/size",
+                     "must be positive, got distance " + std::to_string(distance_m) + " m, size " +
+                         std::to_string(size_m) + " m");
   }
   if (name == "plane") return MakePlaneTarget(distance_m, size_m);
   if (name == "tilted-plane") return MakeTiltedPlaneTarget(distance_m, size_m, M_PI / 6.0);
@@ -365,18 +351,15 @@ std::string BinSceneOptions::Problem() const {
     return std::string(field) + " = " + std::to_string(value) + ": must be positive";
   };
   for (const auto& p : {positive("distance_m", distance_m), positive("inner_width_m", inner_width_m),
-                        positive("inner_height_m", inner_height_m),
-                        positive("wall_height_m", wall_height_m),
+                        positive("inner_height_m", inner_height_m), positive("wall_height_m", wall_height_m),
                         positive("min_object_radius_m", min_object_radius_m)}) {
     if (!p.empty()) return p;
   }
   if (!(max_object_radius_m >= min_object_radius_m)) {
-    return "max_object_radius_m = " + std::to_string(max_object_radius_m) +
-           ": must be >= min_object_radius_m";
+    return "max_object_radius_m = " + std::to_string(max_object_radius_m) + ": must be >= min_object_radius_m";
   }
   if (2.0 * max_object_radius_m >= std::min(inner_width_m, inner_height_m)) {
-    return "max_object_radius_m = " + std::to_string(max_object_radius_m) +
-           ": objects must fit in the bin";
+    return "max_object_radius_m = " + std::to_string(max_object_radius_m) + ": objects must fit in the bin";
   }
   if (object_subdivisions < 0 || object_subdivisions > 6) {
     return "object_subdivisions = " + std::to_string(object_subdivisions) + ": must be in [0, 6]";
@@ -414,15 +397,12 @@ TriangleMesh MakeBinScene(const BinSceneOptions& o) {
   };
   std::vector<Placed> placed;
   for (int i = 0; i < count; ++i) {
-    const Eigen::Vector3d axes(
-        o.min_object_radius_m + uniform(rng) * (o.max_object_radius_m - o.min_object_radius_m),
-        o.min_object_radius_m + uniform(rng) * (o.max_object_radius_m - o.min_object_radius_m),
-        o.min_object_radius_m + uniform(rng) * (o.max_object_radius_m - o.min_object_radius_m));
+    const Eigen::Vector3d axes(o.min_object_radius_m + uniform(rng) * (o.max_object_radius_m - o.min_object_radius_m),
+                               o.min_object_radius_m + uniform(rng) * (o.max_object_radius_m - o.min_object_radius_m),
+                               o.min_object_radius_m + uniform(rng) * (o.max_object_radius_m - o.min_object_radius_m));
     const double radius = axes.maxCoeff();
     const Eigen::Quaterniond q =
-        Eigen::Quaterniond(uniform(rng) - 0.5, uniform(rng) - 0.5, uniform(rng) - 0.5,
-                           uniform(rng) - 0.5)
-            .normalized();
+        Eigen::Quaterniond(uniform(rng) - 0.5, uniform(rng) - 0.5, uniform(rng) - 0.5, uniform(rng) - 0.5).normalized();
     const double x = -w + radius + uniform(rng) * (2.0 * (w - radius));
     const double y = -h + radius + uniform(rng) * (2.0 * (h - radius));
     // Rest on the floor or on the highest (smallest z) sphere below, touching it.

@@ -77,11 +77,8 @@ cv::Mat MakePattern(const PatternSpec& spec) {
         }
       }
       break;
-    case PatternKind::kUniform:
-      out.setTo(1.0f);
-      break;
-    case PatternKind::kOff:
-      break;
+    case PatternKind::kUniform: out.setTo(1.0f); break;
+    case PatternKind::kOff: break;
   }
   return out;
 }

@@ -37,8 +37,7 @@ std::string RigidityProblem(const Eigen::Matrix4d& m, double tolerance) {
   const double orthonormality = (R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
   if (orthonormality > tolerance) {
     std::ostringstream s;
-    s << "rotation is not orthonormal (max |R^T R - I| = " << orthonormality << ", tolerance "
-      << tolerance << ")";
+    s << "rotation is not orthonormal (max |R^T R - I| = " << orthonormality << ", tolerance " << tolerance << ")";
     return s.str();
   }
   if (R.determinant() < 0.0) return "rotation is a reflection (determinant -1)";
@@ -57,9 +56,7 @@ Pose PoseFromRowMajor(const std::array<double, 16>& row_major) {
   return T_a_b;
 }
 
-double RotationAngleRad(const Pose& T_a_b) {
-  return Eigen::AngleAxisd(T_a_b.rotation()).angle();
-}
+double RotationAngleRad(const Pose& T_a_b) { return Eigen::AngleAxisd(T_a_b.rotation()).angle(); }
 
 PoseError ComparePoses(const Pose& T_a_b, const Pose& T_a_b_other) {
   const Pose delta = T_a_b.inverse() * T_a_b_other;

@@ -221,8 +221,8 @@ FieldProblem DepthEngineOptions::Check() const {
   const double raw_min = raw_ref - 8.0 * (min_shift_px + search_range_px - 1);
   if (raw_max > 2046 || raw_min < 0) {
     std::ostringstream s;
-    s << "shifts [" << min_shift_px << ", " << min_shift_px + search_range_px
-      << ") give raw values [" << raw_min << ", " << raw_max << "], outside the 11-bit range [0, 2046]";
+    s << "shifts [" << min_shift_px << ", " << min_shift_px + search_range_px << ") give raw values [" << raw_min
+      << ", " << raw_max << "], outside the 11-bit range [0, 2046]";
     return {"search_range_px", s.str()};
   }
   return {};
@@ -271,7 +271,7 @@ ChipGeometry StockChip() {
   chip.camera.cx = 319.5;
   chip.camera.cy = 239.5;
   chip.projector = ProjectorModel{};  // 792 x 594, f = 580: one pattern pixel ~ one camera pixel
-  chip.projector.aperture_m = 0.0;   // the reference is stored sharp
+  chip.projector.aperture_m = 0.0;    // the reference is stored sharp
   chip.pattern = PatternSpec{};
   return chip;
 }
@@ -356,8 +356,8 @@ Eigen::Matrix3d IdealPrewarp(const Rig& rig, double plane_distance_m) {
   // translation along x): u = f_c/f_p (x - cx_p) + cx_c + f_c b / Z_ref.
   const double sx = chip.camera.fx / chip.projector.fx, sy = chip.camera.fy / chip.projector.fy;
   Eigen::Matrix3d A;
-  A << sx, 0, chip.camera.cx - sx * chip.projector.cx + chip.FocalTimesBaseline() / chip.reference_distance_m,
-      0, sy, chip.camera.cy - sy * chip.projector.cy, 0, 0, 1;
+  A << sx, 0, chip.camera.cx - sx * chip.projector.cx + chip.FocalTimesBaseline() / chip.reference_distance_m, 0, sy,
+      chip.camera.cy - sy * chip.projector.cy, 0, 0, 1;
   // Camera pixel -> point on the plane z = Z -> projector pixel: K_P (Z R_P_C + t_P_C e3^T) K_C^-1.
   Eigen::Matrix3d K_C;
   K_C << rig.camera.fx, 0, rig.camera.cx, 0, rig.camera.fy, rig.camera.cy, 0, 0, 1;
@@ -375,8 +375,8 @@ Eigen::Matrix3d IdealPrewarp(const Rig& rig, double plane_distance_m) {
 namespace {
 
 json CameraJson(const CameraModel& c) {
-  return {{"width", c.width}, {"height", c.height}, {"fx", c.fx}, {"fy", c.fy}, {"cx", c.cx},
-          {"cy", c.cy}, {"distortion", c.distortion}};
+  return {{"width", c.width}, {"height", c.height},        {"fx", c.fx}, {"fy", c.fy}, {"cx", c.cx},
+          {"cy", c.cy},       {"distortion", c.distortion}};
 }
 
 CameraModel ReadCamera(const Field& f) {
@@ -395,8 +395,14 @@ CameraModel ReadCamera(const Field& f) {
 }
 
 json ProjectorJson(const ProjectorModel& p) {
-  return {{"width", p.width}, {"height", p.height}, {"fx", p.fx}, {"fy", p.fy}, {"cx", p.cx}, {"cy", p.cy},
-          {"focus_distance_m", p.focus_distance_m}, {"aperture_m", p.aperture_m},
+  return {{"width", p.width},
+          {"height", p.height},
+          {"fx", p.fx},
+          {"fy", p.fy},
+          {"cx", p.cx},
+          {"cy", p.cy},
+          {"focus_distance_m", p.focus_distance_m},
+          {"aperture_m", p.aperture_m},
           {"brightness_e_per_s", p.brightness_e_per_s}};
 }
 
@@ -422,10 +428,15 @@ ProjectorModel ReadProjector(const Field& f) {
 }
 
 json OpticsJson(const CameraOptics& o) {
-  return {{"focus_distance_m", o.focus_distance_m}, {"aperture_m", o.aperture_m},
-          {"psf_sigma_px", o.psf_sigma_px}, {"exposure_s", o.exposure_s},
-          {"gain_dn_per_e", o.gain_dn_per_e}, {"full_well_e", o.full_well_e},
-          {"read_noise_e", o.read_noise_e}, {"shot_noise", o.shot_noise}, {"bits", o.bits},
+  return {{"focus_distance_m", o.focus_distance_m},
+          {"aperture_m", o.aperture_m},
+          {"psf_sigma_px", o.psf_sigma_px},
+          {"exposure_s", o.exposure_s},
+          {"gain_dn_per_e", o.gain_dn_per_e},
+          {"full_well_e", o.full_well_e},
+          {"read_noise_e", o.read_noise_e},
+          {"shot_noise", o.shot_noise},
+          {"bits", o.bits},
           {"ambient_e_per_s", o.ambient_e_per_s}};
 }
 
@@ -446,16 +457,24 @@ CameraOptics ReadOptics(const Field& f) {
 }
 
 json PatternJson(const PatternSpec& p) {
-  return {{"kind", PatternKindName(p.kind)}, {"width", p.width}, {"height", p.height},
-          {"seed", p.seed}, {"dot_fill", p.dot_fill}, {"centre_spot_level", p.centre_spot_level},
-          {"dot_level", p.dot_level}, {"pitch_px", p.pitch_px}, {"min_level", p.min_level}};
+  return {{"kind", PatternKindName(p.kind)},
+          {"width", p.width},
+          {"height", p.height},
+          {"seed", p.seed},
+          {"dot_fill", p.dot_fill},
+          {"centre_spot_level", p.centre_spot_level},
+          {"dot_level", p.dot_level},
+          {"pitch_px", p.pitch_px},
+          {"min_level", p.min_level}};
 }
 
 PatternSpec ReadPattern(const Field& f) {
   PatternSpec p;
   const std::string kind = f["kind"].String();
   const auto k = PatternKindFromName(kind);
-  if (!k) f["kind"].Fail("unknown pattern '" + kind + "'; expected kinect_dots, dot_grid, feature_grid, checkerboard, uniform or off");
+  if (!k)
+    f["kind"].Fail("unknown pattern '" + kind +
+                   "'; expected kinect_dots, dot_grid, feature_grid, checkerboard, uniform or off");
   p.kind = *k;
   p.width = f["width"].Int();
   p.height = f["height"].Int();
@@ -473,13 +492,22 @@ PatternSpec ReadPattern(const Field& f) {
 
 json EngineJson(const DepthEngineOptions& o) {
   const ChipGeometry& c = o.chip;
-  return {{"chip", {{"camera", CameraJson(c.camera)}, {"projector", ProjectorJson(c.projector)},
-                    {"pattern", PatternJson(c.pattern)}, {"baseline_m", c.baseline_m},
-                    {"reference_distance_m", c.reference_distance_m}, {"raw_offset", c.raw_offset}}},
-          {"window_px", o.window_px}, {"min_shift_px", o.min_shift_px},
-          {"search_range_px", o.search_range_px}, {"subpixel_steps", o.subpixel_steps},
-          {"min_texture", o.min_texture}, {"max_cost", o.max_cost}, {"uniqueness", o.uniqueness},
-          {"prefilter_px", o.prefilter_px}, {"threads", o.threads}};
+  return {{"chip",
+           {{"camera", CameraJson(c.camera)},
+            {"projector", ProjectorJson(c.projector)},
+            {"pattern", PatternJson(c.pattern)},
+            {"baseline_m", c.baseline_m},
+            {"reference_distance_m", c.reference_distance_m},
+            {"raw_offset", c.raw_offset}}},
+          {"window_px", o.window_px},
+          {"min_shift_px", o.min_shift_px},
+          {"search_range_px", o.search_range_px},
+          {"subpixel_steps", o.subpixel_steps},
+          {"min_texture", o.min_texture},
+          {"max_cost", o.max_cost},
+          {"uniqueness", o.uniqueness},
+          {"prefilter_px", o.prefilter_px},
+          {"threads", o.threads}};
 }
 
 DepthEngineOptions ReadEngine(const Field& f) {

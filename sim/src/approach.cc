@@ -12,8 +12,8 @@ namespace {
 std::string Num(double v) { return std::to_string(v); }
 
 // Positions at constant speed with acceleration ramps along a polyline, one per time step.
-std::vector<Eigen::Vector3d> TimeParameterize(const std::vector<Eigen::Vector3d>& polyline, double speed,
-                                              double accel, double dt) {
+std::vector<Eigen::Vector3d> TimeParameterize(const std::vector<Eigen::Vector3d>& polyline, double speed, double accel,
+                                              double dt) {
   std::vector<double> s_at{0.0};
   for (size_t i = 1; i < polyline.size(); ++i) s_at.push_back(s_at.back() + (polyline[i] - polyline[i - 1]).norm());
   const double length = s_at.back();
@@ -75,7 +75,8 @@ std::string ApproachOptions::Problem() const {
   if (!(speed_m_s > 0) || speed_m_s > 2.0) return "speed_m_s = " + Num(speed_m_s) + ": must be in (0, 2]";
   if (!(acceleration_m_s2 > 0)) return "acceleration_m_s2 = " + Num(acceleration_m_s2) + ": must be > 0";
   if (!(region_size_m.x() > 0) || !(region_size_m.y() > 0)) return "region_size_m: both sizes must be > 0";
-  if (!(pass_overlap >= 0 && pass_overlap < 0.9)) return "pass_overlap = " + Num(pass_overlap) + ": must be in [0, 0.9)";
+  if (!(pass_overlap >= 0 && pass_overlap < 0.9))
+    return "pass_overlap = " + Num(pass_overlap) + ": must be in [0, 0.9)";
   if (!(corner_smoothing_s >= 0)) return "corner_smoothing_s = " + Num(corner_smoothing_s) + ": must be >= 0";
   if (!(joint_speed_rad_s > 0)) return "joint_speed_rad_s = " + Num(joint_speed_rad_s) + ": must be > 0";
   if (!(hold_before_s >= 0)) return "hold_before_s = " + Num(hold_before_s) + ": must be >= 0";
@@ -187,7 +188,8 @@ ApproachPlan PlanApproach(const World& world, const CameraModel& camera, const A
   } else {
     // Descend linearly in the lateral path length (straight down when there is one pass).
     std::vector<double> lateral{0.0};
-    for (size_t i = 1; i < centres.size(); ++i) lateral.push_back(lateral.back() + (centres[i] - centres[i - 1]).norm());
+    for (size_t i = 1; i < centres.size(); ++i)
+      lateral.push_back(lateral.back() + (centres[i] - centres[i - 1]).norm());
     for (size_t i = 0; i < centres.size(); ++i) {
       const double a = lateral.back() > 0 ? lateral[i] / lateral.back() : 0.0;
       polyline.emplace_back(centres[i].x(), centres[i].y(),

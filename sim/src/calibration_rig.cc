@@ -65,7 +65,8 @@ Pose Perturb(const Pose& T, double angle_rad, double distance_m, std::mt19937_64
   std::normal_distribution<double> n(0.0, 1.0);
   const Eigen::Vector3d axis = Eigen::Vector3d(n(*rng), n(*rng), n(*rng)).normalized();
   const Eigen::Vector3d dir = Eigen::Vector3d(n(*rng), n(*rng), n(*rng)).normalized();
-  return MakePose(Eigen::AngleAxisd(angle_rad, axis).toRotationMatrix() * T.linear(), T.translation() + distance_m * dir);
+  return MakePose(Eigen::AngleAxisd(angle_rad, axis).toRotationMatrix() * T.linear(),
+                  T.translation() + distance_m * dir);
 }
 
 TriangleMesh ToTriangleMesh(const Mesh& mesh) {
@@ -176,9 +177,8 @@ SimulatedCalibrationRig::SimulatedCalibrationRig(const CalibrationRigOptions& op
   s.world = std::make_unique<World>(w);
   s.seeds.push_back(s.world->arm_q());
   // the plate: K's z into the plate (down), x along W's x turned by the yaw
-  const Eigen::Matrix3d R_W_K =
-      Eigen::AngleAxisd(options.plate_yaw_rad, Eigen::Vector3d::UnitZ()).toRotationMatrix() *
-      Eigen::Vector3d(1, -1, -1).asDiagonal();
+  const Eigen::Matrix3d R_W_K = Eigen::AngleAxisd(options.plate_yaw_rad, Eigen::Vector3d::UnitZ()).toRotationMatrix() *
+                                Eigen::Vector3d(1, -1, -1).asDiagonal();
   s.T_W_K = MakePose(R_W_K, options.plate_origin_W);
   TriangleMesh white, black;
   MakePlate(options.board, options.print_board, options.reference_offset_m, &white, &black);
@@ -291,9 +291,8 @@ double SimulatedCalibrationRig::TrueHomographyResidualPx(const Eigen::Matrix3d& 
 }
 
 std::vector<PlaneDepthError> SimulatedCalibrationRig::EvaluateDepth(const std::vector<DepthCorrection>& corrections,
-                                                                    const ChipGeometry& chip,
-                                                                    const Eigen::Matrix3d& H, double distance_m,
-                                                                    double tilt_rad) {
+                                                                    const ChipGeometry& chip, const Eigen::Matrix3d& H,
+                                                                    double distance_m, double tilt_rad) {
   Impl& s = *impl_;
   const Eigen::Matrix3d R_K_C = Eigen::AngleAxisd(tilt_rad, Eigen::Vector3d::UnitX()).toRotationMatrix();
   const Pose T_K_C = MakePose(R_K_C, s.setup.reference_centre_K - distance_m * R_K_C.col(2));
@@ -338,9 +337,9 @@ ChainTruthErrors CompareWithTruth(SimulatedCalibrationRig* rig, const calib::Cha
   if (!result.hand_eye_stations.empty()) {
     calib::HandEyeOptions known;  // the chain's hand-eye step, camera given and kept
     known.refine_intrinsics = false;
-    e.hand_eye_known_intrinsics = ComparePoses(
-        calib::CalibrateHandEye(result.hand_eye_stations, truth_camera, rig->setup().board, known).T_H_C,
-        rig->TruthT_H_C());
+    e.hand_eye_known_intrinsics =
+        ComparePoses(calib::CalibrateHandEye(result.hand_eye_stations, truth_camera, rig->setup().board, known).T_H_C,
+                     rig->TruthT_H_C());
   }
   double sum2 = 0.0;
   int n = 0;
@@ -356,14 +355,14 @@ ChainTruthErrors CompareWithTruth(SimulatedCalibrationRig* rig, const calib::Cha
     }
   }
   e.line_of_sight_rms_rad = std::sqrt(sum2 / n);
-  e.homography_px =
-      rig->TrueHomographyResidualPx(c.H_P_rec, result.homography_pattern, result.homography_target, &e.homography_points);
+  e.homography_px = rig->TrueHomographyResidualPx(c.H_P_rec, result.homography_pattern, result.homography_target,
+                                                  &e.homography_points);
   const double focus_m = rig->TruthRig().optics.focus_distance_m;
   double exact2 = 0.0, affine2 = 0.0;
   for (const auto& [distance_m, tilt_rad] : {std::pair{focus_m - 0.005, 0.0}, std::pair{focus_m, 0.0},
                                              std::pair{focus_m + 0.005, 0.0}, std::pair{focus_m, 0.1}}) {
-    const std::vector<PlaneDepthError> planes =
-        rig->EvaluateDepth({result.depth.inverse, result.depth.affine}, c.chip, c.H_P_rec, distance_m, tilt_rad);
+    const std::vector<PlaneDepthError> planes = rig->EvaluateDepth({result.depth.inverse, result.depth.affine}, c.chip,
+                                                                   c.H_P_rec, distance_m, tilt_rad);
     if (planes.empty()) continue;
     e.depth_exact.push_back(planes[0]);
     e.depth_affine.push_back(planes[1]);

@@ -36,8 +36,7 @@ std::vector<Eigen::Vector2d> RegularPolygon(double cx, double cy, double r, int 
 }
 
 // An annular sector (convex for spans below pi) between radii r0 < r1, angles a0 < a1.
-std::vector<Eigen::Vector2d> RingSegment(double cx, double cy, double r0, double r1, double a0,
-                                         double a1) {
+std::vector<Eigen::Vector2d> RingSegment(double cx, double cy, double r0, double r1, double a0, double a1) {
   return {{cx + r0 * std::cos(a0), cy + r0 * std::sin(a0)},
           {cx + r1 * std::cos(a0), cy + r1 * std::sin(a0)},
           {cx + r1 * std::cos(a1), cy + r1 * std::sin(a1)},
@@ -59,8 +58,8 @@ ObjectSpec MakeKey(uint32_t seed) {
   spec.visual_O.push_back(ConvexPrism(Rectangle(0.003 * s, -0.0035 * s, 0.036 * s, 0.0035 * s), 0, t));
   for (int i = 0; i < 4; ++i) {
     const double x = (0.010 + 0.0065 * i) * s;
-    spec.visual_O.push_back(ConvexPrism(
-        {{x - 0.0025 * s, -0.0035 * s}, {x, -0.0065 * s}, {x + 0.0025 * s, -0.0035 * s}}, 0, t));
+    spec.visual_O.push_back(
+        ConvexPrism({{x - 0.0025 * s, -0.0035 * s}, {x, -0.0065 * s}, {x + 0.0025 * s, -0.0035 * s}}, 0, t));
   }
   // Collides as a disc and a bar.
   spec.parts_O.push_back(ConvexPrism(RegularPolygon(bow_x, 0, r_out, 12), 0, t));
@@ -108,8 +107,8 @@ ObjectSpec MakeLegoBrick(uint32_t seed) {
   spec.visual_O.push_back(Box({0, 0, hz}, {hx, hy, hz}));
   for (int i = 0; i < 4; ++i) {
     for (int j = 0; j < 2; ++j) {
-      spec.visual_O.push_back(Cylinder((-0.012 + 0.008 * i) * s, (-0.004 + 0.008 * j) * s,
-                                      0.0024 * s, 2 * hz, 2 * hz + 0.0017 * s, 12));
+      spec.visual_O.push_back(
+          Cylinder((-0.012 + 0.008 * i) * s, (-0.004 + 0.008 * j) * s, 0.0024 * s, 2 * hz, 2 * hz + 0.0017 * s, 12));
     }
   }
   spec.density_kg_m3 = 500.0;  // ABS, hollow underneath
@@ -130,8 +129,8 @@ ObjectSpec MakeGear(uint32_t seed) {
     const Eigen::Vector2d radial(std::cos(a), std::sin(a)), tangent(-std::sin(a), std::cos(a));
     const double base = 0.0022 * s, tip = 0.0012 * s, r0 = r - 0.0005 * s;
     spec.visual_O.push_back(ConvexPrism({r0 * radial - base * tangent, r_tip * radial - tip * tangent,
-                                        r_tip * radial + tip * tangent, r0 * radial + base * tangent},
-                                       0, t));
+                                         r_tip * radial + tip * tangent, r0 * radial + base * tangent},
+                                        0, t));
   }
   spec.density_kg_m3 = 7800.0;  // steel
   spec.material = DarkMaterial();
@@ -153,8 +152,8 @@ const char* ToString(ObjectKind kind) {
 }
 
 ObjectKind ObjectKindFromString(const std::string& name, const std::string& source) {
-  for (ObjectKind kind : {ObjectKind::kKey, ObjectKind::kPillBox, ObjectKind::kPuzzlePiece,
-                          ObjectKind::kLegoBrick, ObjectKind::kGear, ObjectKind::kUserMesh}) {
+  for (ObjectKind kind : {ObjectKind::kKey, ObjectKind::kPillBox, ObjectKind::kPuzzlePiece, ObjectKind::kLegoBrick,
+                          ObjectKind::kGear, ObjectKind::kUserMesh}) {
     if (name == ToString(kind)) return kind;
   }
   throw InputError(source, "object kind",
@@ -188,8 +187,8 @@ Mesh Cylinder(double cx, double cy, double r, double z0, double z1, int segments
 }
 
 Mesh Box(const Eigen::Vector3d& centre, const Eigen::Vector3d& half_size) {
-  return ConvexPrism(Rectangle(centre.x() - half_size.x(), centre.y() - half_size.y(),
-                               centre.x() + half_size.x(), centre.y() + half_size.y()),
+  return ConvexPrism(Rectangle(centre.x() - half_size.x(), centre.y() - half_size.y(), centre.x() + half_size.x(),
+                               centre.y() + half_size.y()),
                      centre.z() - half_size.z(), centre.z() + half_size.z());
 }
 
@@ -209,16 +208,15 @@ ObjectSpec MakeObject(ObjectKind kind, uint32_t seed) {
     case ObjectKind::kPuzzlePiece: spec = MakePuzzlePiece(seed); break;
     case ObjectKind::kLegoBrick: spec = MakeLegoBrick(seed); break;
     case ObjectKind::kGear: spec = MakeGear(seed); break;
-    case ObjectKind::kUserMesh:
-      ROMUNECT_CHECK_MSG(false, "user meshes come from MakeUserMeshObject");
+    case ObjectKind::kUserMesh: ROMUNECT_CHECK_MSG(false, "user meshes come from MakeUserMeshObject");
   }
   spec.kind = kind;
   spec.seed = seed;
   return spec;
 }
 
-ObjectSpec MakeUserMeshObject(const std::filesystem::path& mesh_file, double scale_to_m,
-                              const IrMaterial& material, double density_kg_m3) {
+ObjectSpec MakeUserMeshObject(const std::filesystem::path& mesh_file, double scale_to_m, const IrMaterial& material,
+                              double density_kg_m3) {
   std::string ext = mesh_file.extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
   if (ext != ".stl" && ext != ".obj") {

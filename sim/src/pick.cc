@@ -39,8 +39,8 @@ bool MoveTip(World* world, const Pose& to, double speed, const IkOptions& ik, co
     const Pose goal = InterpolatePose(from, to, static_cast<double>(k) / steps);
     const IkResult r = SolveIk(*world, ArmSite::kSuctionTip, goal, q, ik);
     if (!r.converged) {
-      *why = "the suction tip cannot reach (" + Num(goal.translation().x()) + ", " + Num(goal.translation().y()) + ", " +
-             Num(goal.translation().z()) + ") m in W";
+      *why = "the suction tip cannot reach (" + Num(goal.translation().x()) + ", " + Num(goal.translation().y()) +
+             ", " + Num(goal.translation().z()) + ") m in W";
       return false;
     }
     q_prev = q;
@@ -58,9 +58,11 @@ bool MoveTip(World* world, const Pose& to, double speed, const IkOptions& ik, co
 std::string PickOptions::Problem() const {
   if (!(cup_radius_m > 0)) return "cup_radius_m = " + Num(cup_radius_m) + ": must be > 0";
   if (!(candidate_step_m > 0)) return "candidate_step_m = " + Num(candidate_step_m) + ": must be > 0";
-  if (!(min_valid_fraction > 0 && min_valid_fraction <= 1)) return "min_valid_fraction = " + Num(min_valid_fraction) + ": must be in (0, 1]";
+  if (!(min_valid_fraction > 0 && min_valid_fraction <= 1))
+    return "min_valid_fraction = " + Num(min_valid_fraction) + ": must be in (0, 1]";
   if (!(max_rms_m > 0)) return "max_rms_m = " + Num(max_rms_m) + ": must be > 0";
-  if (!(max_tilt_rad >= 0 && max_tilt_rad < 1.5)) return "max_tilt_rad = " + Num(max_tilt_rad) + ": must be in [0, 1.5)";
+  if (!(max_tilt_rad >= 0 && max_tilt_rad < 1.5))
+    return "max_tilt_rad = " + Num(max_tilt_rad) + ": must be in [0, 1.5)";
   if (!(pre_grasp_m > 0)) return "pre_grasp_m = " + Num(pre_grasp_m) + ": must be > 0";
   if (!(approach_speed_m_s > 0) || !(move_speed_m_s > 0)) return "approach_speed_m_s and move_speed_m_s must be > 0";
   if (!(overtravel_m >= 0)) return "overtravel_m = " + Num(overtravel_m) + ": must be >= 0";
@@ -127,11 +129,12 @@ std::optional<GraspPoint> ChooseGraspPoint(const cv::Mat& height_m, const Height
 std::string PickResult::BriefReport() const {
   char s[300];
   if (!grasp_found) return "pick: no grasp point (no patch flat and complete enough for the cup)";
-  std::snprintf(s, sizeof s, "pick %s: grasp at (%.1f, %.1f, %.1f) mm, tilt %.1f deg, object %d (%s); %.2f s simulated%s%s",
+  std::snprintf(s, sizeof s,
+                "pick %s: grasp at (%.1f, %.1f, %.1f) mm, tilt %.1f deg, object %d (%s); %.2f s simulated%s%s",
                 success ? "succeeded" : "FAILED", 1e3 * grasp.p_W.x(), 1e3 * grasp.p_W.y(), 1e3 * grasp.p_W.z(),
                 std::acos(std::min(1.0, grasp.normal_W.z())) * 180 / M_PI, object,
-                object_kind.empty() ? "none" : object_kind.c_str(), simulated_s,
-                failure.empty() ? "" : ": ", failure.c_str());
+                object_kind.empty() ? "none" : object_kind.c_str(), simulated_s, failure.empty() ? "" : ": ",
+                failure.c_str());
   return s;
 }
 
@@ -168,8 +171,9 @@ PickResult Pick(World* world, const cv::Mat& height_m, const HeightMapGeometry& 
     return finish();
   }
   std::optional<int> touched;
-  if (!MoveTip(world, past, options.approach_speed_m_s, ik,
-               [&]() { return (touched = world->SuctionContact()).has_value(); }, &result.failure)) {
+  if (!MoveTip(
+          world, past, options.approach_speed_m_s, ik,
+          [&]() { return (touched = world->SuctionContact()).has_value(); }, &result.failure)) {
     return finish();
   }
   if (!touched) {

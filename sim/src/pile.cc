@@ -96,14 +96,16 @@ T Get(const nlohmann::json& j, const char* key, const std::string& source, const
 
 std::string PileOptions::Problem() const {
   auto num = [](double v) { return std::to_string(v); };
-  if (num_objects < 0 || num_objects > 60) return "num_objects = " + std::to_string(num_objects) + ": must be in [0, 60]";
+  if (num_objects < 0 || num_objects > 60)
+    return "num_objects = " + std::to_string(num_objects) + ": must be in [0, 60]";
   for (ObjectKind k : kinds) {
     if (k == ObjectKind::kUserMesh) return "kinds: user_mesh cannot be generated; add user meshes as ObjectSpecs";
   }
   if (!(drop_interval_s > 0)) return "drop_interval_s = " + num(drop_interval_s) + ": must be > 0";
   if (!(max_drop_speed_m_s > 0)) return "max_drop_speed_m_s = " + num(max_drop_speed_m_s) + ": must be > 0";
   if (!(drop_height_m >= 0)) return "drop_height_m = " + num(drop_height_m) + ": must be >= 0";
-  if (!(kinetic_energy_threshold_j > 0)) return "kinetic_energy_threshold_j = " + num(kinetic_energy_threshold_j) + ": must be > 0";
+  if (!(kinetic_energy_threshold_j > 0))
+    return "kinetic_energy_threshold_j = " + num(kinetic_energy_threshold_j) + ": must be > 0";
   if (!(quiet_time_s >= 0)) return "quiet_time_s = " + num(quiet_time_s) + ": must be >= 0";
   if (!(timestep_s > 0 && timestep_s <= 0.01)) return "timestep_s = " + num(timestep_s) + ": must be in (0, 0.01]";
   if (!(max_settle_time_s > 0)) return "max_settle_time_s = " + num(max_settle_time_s) + ": must be > 0";
@@ -132,7 +134,8 @@ std::string SettleSummary::BriefReport() const {
     std::snprintf(s, sizeof s, "%d objects in the bin", objects_in_bin);
     return "pile loaded from " + loaded_from + " (settled by an earlier run), " + s;
   }
-  std::snprintf(s, sizeof s, "pile %s after %.2f s simulated (%.2f s wall), kinetic energy %.2g J, %d objects in the bin",
+  std::snprintf(s, sizeof s,
+                "pile %s after %.2f s simulated (%.2f s wall), kinetic energy %.2g J, %d objects in the bin",
                 converged ? "settled" : "NOT settled", simulated_s, wall_s, kinetic_energy_j, objects_in_bin);
   return s;
 }
@@ -169,9 +172,10 @@ SettleSummary DropAndSettle(World* world, const PileOptions& options) {
     BoundingSphere(w, i, &centre_O, &radius_m);
     const double mx = std::clamp(radius_m, 0.0, inner.x() / 2 - 0.002);
     const double my = std::clamp(radius_m, 0.0, inner.y() / 2 - 0.002);
-    const Eigen::Vector3d centre_Bin(std::uniform_real_distribution<double>(-inner.x() / 2 + mx, inner.x() / 2 - mx)(rng),
-                                     std::uniform_real_distribution<double>(-inner.y() / 2 + my, inner.y() / 2 - my)(rng),
-                                     inner.z() + options.drop_height_m + radius_m);
+    const Eigen::Vector3d centre_Bin(
+        std::uniform_real_distribution<double>(-inner.x() / 2 + mx, inner.x() / 2 - mx)(rng),
+        std::uniform_real_distribution<double>(-inner.y() / 2 + my, inner.y() / 2 - my)(rng),
+        inner.z() + options.drop_height_m + radius_m);
     Pose T_Bin_O = Pose::Identity();
     T_Bin_O.linear() = RandomRotation(rng).toRotationMatrix();
     T_Bin_O.translation() = centre_Bin - T_Bin_O.linear() * centre_O;
@@ -225,8 +229,8 @@ namespace {
 // reloads from any working directory.
 void SaveFilePath(const std::filesystem::path& file, const char* key, nlohmann::ordered_json* j) {
   const std::filesystem::path absolute = std::filesystem::absolute(file).lexically_normal();
-  const std::filesystem::path in_scenes =
-      std::filesystem::weakly_canonical(absolute).lexically_relative(std::filesystem::weakly_canonical(ScenesDir()));
+  const std::filesystem::path in_scenes = std::filesystem::weakly_canonical(absolute).lexically_relative(
+      std::filesystem::weakly_canonical(ScenesDir()));
   if (!in_scenes.empty() && *in_scenes.begin() != "..") {
     (*j)[key] = in_scenes.generic_string();
     (*j)[std::string(key) + "_relative_to"] = kInScenes;
@@ -247,7 +251,8 @@ std::filesystem::path LoadFilePath(const nlohmann::json& j, const char* key, con
     if (!j[relative_key].is_string() || j[relative_key].get<std::string>() != kInScenes) {
       throw InputError(source, field + "_relative_to", std::string("expected '") + kInScenes + "'");
     }
-    if (file.is_absolute()) throw InputError(source, field, "expected a path within the scenes folder, got an absolute one");
+    if (file.is_absolute())
+      throw InputError(source, field, "expected a path within the scenes folder, got an absolute one");
     file = ScenesDir() / file;
   } else if (!file.is_absolute()) {
     throw InputError(source, field, "expected an absolute path (or " + relative_key + ")");
@@ -279,7 +284,8 @@ void SaveSettledScene(const World& world, const std::filesystem::path& path) {
       e["seed"] = o.seed;
     }
     e["density_kg_m3"] = o.density_kg_m3;
-    e["material"] = {{"albedo", o.material.albedo}, {"specular", o.material.specular}, {"shininess", o.material.shininess}};
+    e["material"] = {
+        {"albedo", o.material.albedo}, {"specular", o.material.specular}, {"shininess", o.material.shininess}};
     objects.push_back(e);
   }
   j["objects"] = objects;
@@ -298,7 +304,8 @@ World LoadSettledScene(const std::filesystem::path& path) {
   } catch (const nlohmann::json::exception& e) {
     throw InputError(source, "", std::string("not valid JSON: ") + e.what());
   }
-  if (!j.is_object() || j.value("format", "") != kSceneFormat) throw InputError(source, "format", std::string("expected '") + kSceneFormat + "'");
+  if (!j.is_object() || j.value("format", "") != kSceneFormat)
+    throw InputError(source, "format", std::string("expected '") + kSceneFormat + "'");
   const int version = j.contains("version") && j["version"].is_number_integer() ? j["version"].get<int>() : 0;
   if (version != 1 && version != kSceneVersion) throw InputError(source, "version", "expected 1 or 2");
   WorldOptions options;
@@ -326,8 +333,9 @@ World LoadSettledScene(const std::filesystem::path& path) {
   }
   const auto qpos = Get<std::vector<double>>(j, "qpos", source, "");
   if (qpos.size() != 7 * options.objects.size()) {
-    throw InputError(source, "qpos", "expected " + std::to_string(7 * options.objects.size()) + " numbers, got " +
-                                         std::to_string(qpos.size()));
+    throw InputError(source, "qpos",
+                     "expected " + std::to_string(7 * options.objects.size()) + " numbers, got " +
+                         std::to_string(qpos.size()));
   }
   for (double v : qpos) {
     if (!std::isfinite(v)) throw InputError(source, "qpos", "holds a number that is not finite");

@@ -171,8 +171,8 @@ Scanner::Scanner(const ScanOptions& options) : impl_(std::make_unique<Impl>()) {
     if (!s.stats.settle.converged) {
       throw InputError(s.world->options().scene_file.string(), "pile",
                        "the pile did not settle (kinetic energy above " +
-                           std::to_string(options.pile.kinetic_energy_threshold_j) + " J): " +
-                           s.stats.settle.BriefReport());
+                           std::to_string(options.pile.kinetic_energy_threshold_j) +
+                           " J): " + s.stats.settle.BriefReport());
     }
   }
   World& world = *s.world;
@@ -302,8 +302,8 @@ cv::Mat GroundTruthHeightMap(const World& world, const HeightMapGeometry& geomet
   camera.fx = camera.fy = kTruthCameraHeightM / geometry.voxel_m;
   camera.cx = (geometry.nx - 1) / 2.0;
   camera.cy = (geometry.ny - 1) / 2.0;
-  const Eigen::Vector3d centre(geometry.min_x_m + geometry.size_x_m() / 2,
-                               geometry.min_y_m + geometry.size_y_m() / 2, kTruthCameraHeightM);
+  const Eigen::Vector3d centre(geometry.min_x_m + geometry.size_x_m() / 2, geometry.min_y_m + geometry.size_y_m() / 2,
+                               kTruthCameraHeightM);
   Eigen::Matrix3d R;
   R << 1, 0, 0, 0, -1, 0, 0, 0, -1;
   const Pose T_W_C = MakePose(R, centre);
@@ -316,8 +316,8 @@ cv::Mat GroundTruthHeightMap(const World& world, const HeightMapGeometry& geomet
   for (int v = 0; v < geometry.ny; ++v) {
     for (int u = 0; u < geometry.nx; ++u) {
       const cv::Vec3f p = p_C.at<cv::Vec3f>(v, u);
-      height.at<float>(geometry.ny - 1 - v, u) =
-          std::isnan(p[2]) ? std::numeric_limits<float>::quiet_NaN() : static_cast<float>(kTruthCameraHeightM - p[2]);
+      height.at<float>(geometry.ny - 1 - v, u) = std::isnan(p[2]) ? std::numeric_limits<float>::quiet_NaN()
+                                                                  : static_cast<float>(kTruthCameraHeightM - p[2]);
     }
   }
   return height;

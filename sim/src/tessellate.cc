@@ -59,16 +59,11 @@ Mesh TessellateGeom(const mjModel* m, int g) {
       for (int i = 0; i < m->mesh_facenum[id]; ++i) mesh.triangles.emplace_back(f[3 * i], f[3 * i + 1], f[3 * i + 2]);
       return mesh;
     }
-    case mjGEOM_BOX:
-      return Box(Eigen::Vector3d::Zero(), Eigen::Vector3d(size[0], size[1], size[2]));
-    case mjGEOM_CYLINDER:
-      return Cylinder(0, 0, size[0], -size[1], size[1], kSegments);
-    case mjGEOM_SPHERE:
-      return RoundedMesh(size[0], 0.0, Eigen::Vector3d::Ones(), kSegments);
-    case mjGEOM_CAPSULE:
-      return RoundedMesh(size[0], size[1], Eigen::Vector3d::Ones(), kSegments);
-    case mjGEOM_ELLIPSOID:
-      return RoundedMesh(1.0, 0.0, Eigen::Vector3d(size[0], size[1], size[2]), kSegments);
+    case mjGEOM_BOX: return Box(Eigen::Vector3d::Zero(), Eigen::Vector3d(size[0], size[1], size[2]));
+    case mjGEOM_CYLINDER: return Cylinder(0, 0, size[0], -size[1], size[1], kSegments);
+    case mjGEOM_SPHERE: return RoundedMesh(size[0], 0.0, Eigen::Vector3d::Ones(), kSegments);
+    case mjGEOM_CAPSULE: return RoundedMesh(size[0], size[1], Eigen::Vector3d::Ones(), kSegments);
+    case mjGEOM_ELLIPSOID: return RoundedMesh(1.0, 0.0, Eigen::Vector3d(size[0], size[1], size[2]), kSegments);
     case mjGEOM_PLANE: {
       const double hx = size[0] > 0 ? size[0] : kInfinitePlaneHalfSizeM;
       const double hy = size[1] > 0 ? size[1] : kInfinitePlaneHalfSizeM;
@@ -77,8 +72,7 @@ Mesh TessellateGeom(const mjModel* m, int g) {
       mesh.triangles = {{0, 1, 2}, {0, 2, 3}};
       return mesh;
     }
-    default:
-      return Mesh{};
+    default: return Mesh{};
   }
 }
 

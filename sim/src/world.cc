@@ -64,11 +64,11 @@ std::string ObjectsXml(const std::vector<ObjectSpec>& objects) {
     const std::string name = "obj_" + std::to_string(i);
     const IrMaterial& mat = o.material;
     // MuJoCo's shininess is in [0, 1] and scales OpenGL's exponent by 128 (mjvisualize).
-    assets += "<material name=\"" + name + "_mat\" rgba=\"" + Num(mat.albedo) + " " + Num(mat.albedo) +
-              " " + Num(mat.albedo) + " 1\" specular=\"" + Num(mat.specular) + "\" shininess=\"" +
+    assets += "<material name=\"" + name + "_mat\" rgba=\"" + Num(mat.albedo) + " " + Num(mat.albedo) + " " +
+              Num(mat.albedo) + " 1\" specular=\"" + Num(mat.specular) + "\" shininess=\"" +
               Num(std::min(1.0, mat.shininess / 128.0)) + "\"/>\n";
-    bodies += "<body name=\"" + name + "\" pos=\"0 0 " + Num(1.0 + 0.1 * i) + "\">\n<freejoint name=\"" +
-              name + "_joint\"/>\n";
+    bodies += "<body name=\"" + name + "\" pos=\"0 0 " + Num(1.0 + 0.1 * i) + "\">\n<freejoint name=\"" + name +
+              "_joint\"/>\n";
     // Small objects: torsional friction keeps a settled pile still, and stiff contacts
     // (time constant 2 ms, two steps of the pile's settle) keep millimetre parts from sinking
     // into each other.
@@ -77,8 +77,8 @@ std::string ObjectsXml(const std::vector<ObjectSpec>& objects) {
                                    " solref=\"0.002 1\"/>\n";
     if (o.kind == ObjectKind::kUserMesh) {
       const std::string s = Num(o.mesh_scale);
-      assets += "<mesh name=\"" + name + "_p0\" file=\"" + XmlAttribute(o.mesh_file.string()) + "\" scale=\"" + s + " " + s +
-                " " + s + "\"/>\n";
+      assets += "<mesh name=\"" + name + "_p0\" file=\"" + XmlAttribute(o.mesh_file.string()) + "\" scale=\"" + s +
+                " " + s + " " + s + "\"/>\n";
       bodies += "<geom name=\"" + name + "_p0\" type=\"mesh\" mesh=\"" + name + "_p0" + geom_attrs;
     } else {
       auto add_mesh = [&](const std::string& mesh_name, const Mesh& mesh) {
@@ -126,8 +126,9 @@ std::string ObjectsXml(const std::vector<ObjectSpec>& objects) {
 int RequireId(const mjModel* m, mjtObj type, const char* name, const std::string& source, const char* what) {
   const int id = mj_name2id(m, type, name);
   if (id < 0) {
-    throw InputError(source, name, std::string("the scene has no ") + what + " '" + name +
-                                       "' (include scenes/arm/arm.xml and add a body 'bin')");
+    throw InputError(source, name,
+                     std::string("the scene has no ") + what + " '" + name +
+                         "' (include scenes/arm/arm.xml and add a body 'bin')");
   }
   return id;
 }
@@ -318,8 +319,10 @@ void CheckUserMeshesFit(const mjModel* m, const World::Impl& w, const Eigen::Vec
     const double diagonal_m = std::hypot(bin_inner_m.x(), bin_inner_m.y());
     if (!(across_m <= diagonal_m)) {
       char why[200];
-      std::snprintf(why, sizeof why, "%.4g mm across at %g m per file unit: wider than the bin's inner diagonal, "
-                    "%.0f mm", across_m * 1e3, o.mesh_scale, diagonal_m * 1e3);
+      std::snprintf(why, sizeof why,
+                    "%.4g mm across at %g m per file unit: wider than the bin's inner diagonal, "
+                    "%.0f mm",
+                    across_m * 1e3, o.mesh_scale, diagonal_m * 1e3);
       throw InputError(o.mesh_file.string(), "size", why);
     }
   }
@@ -382,8 +385,7 @@ World::World(const WorldOptions& options) : impl_(std::make_unique<Impl>()) {
     if (cam >= 0) SetLocalPose(*options.T_H_C * T_M_C().inverse(), m->cam_pos + 3 * cam, m->cam_quat + 4 * cam);
   }
   if (options.T_C_P) {
-    SetLocalPose(T_H_C() * *options.T_C_P, m->site_pos + 3 * w.projector_site,
-                 m->site_quat + 4 * w.projector_site);
+    SetLocalPose(T_H_C() * *options.T_C_P, m->site_pos + 3 * w.projector_site, m->site_quat + 4 * w.projector_site);
   }
 
   w.data.reset(mj_makeData(m));
@@ -620,7 +622,8 @@ double World::ObjectKineticEnergyJ() const {
 std::vector<double> World::ObjectQpos() const {
   if (impl_->frozen) return impl_->frozen_qpos;
   std::vector<double> qpos;
-  for (const auto& o : impl_->objects) qpos.insert(qpos.end(), impl_->data->qpos + o.qpos_adr, impl_->data->qpos + o.qpos_adr + 7);
+  for (const auto& o : impl_->objects)
+    qpos.insert(qpos.end(), impl_->data->qpos + o.qpos_adr, impl_->data->qpos + o.qpos_adr + 7);
   return qpos;
 }
 

@@ -21,9 +21,9 @@
 #include "synthetic.h"
 #ifdef ROMUNECT_CALIB_LOOP
 #include "romunect/calib/chain.h"
+#include "romunect/sensor/errors.h"
 #include "romunect/sim/calibration_rig.h"
 #include "romunect/sim/scanner.h"
-#include "romunect/sensor/errors.h"
 #endif
 
 namespace romunect::calib {
@@ -72,8 +72,8 @@ void IntrinsicsTable() {
     const IntrinsicsResult a = CalibrateIntrinsics(Observe(truth, T_C_K, &rng), Board(), {640, 480}, options);
     planned.push_back(FullImageMappingError(a.camera, truth).rms_px);
     planned_raw.push_back(FullImageMappingError(a.camera, truth, 8, false).rms_px);
-    const IntrinsicsResult b = CalibrateIntrinsics(Observe(truth, testing::CentralViews(truth, Board(), 20, 0.3, &rng), &rng),
-                                                   Board(), {640, 480}, options);
+    const IntrinsicsResult b = CalibrateIntrinsics(
+        Observe(truth, testing::CentralViews(truth, Board(), 20, 0.3, &rng), &rng), Board(), {640, 480}, options);
     weak.push_back(FullImageMappingError(b.camera, truth).rms_px);
   }
   Row("intrinsics, 20 views (goal <= 0.25)", "planned views + calibrateCamera", "px", planned);
@@ -87,8 +87,10 @@ void HandEyeTable(const char* label, double max_roll_rad) {
   for (int t = 0; t < g_trials; ++t) {
     const testing::HandEyeRig rig = testing::MakeHandEyeRig(camera, Board(), 15, kNoisePx, 0.5, max_roll_rad, 2000 + t);
     const PoseError ours = ComparePoses(CalibrateHandEye(rig.stations, camera, Board()).T_H_C, rig.T_H_C);
-    const PoseError tsai = ComparePoses(OpenCvHandEye(rig.stations, camera, Board(), HandEyeInitialMethod::kTsai), rig.T_H_C);
-    const PoseError park = ComparePoses(OpenCvHandEye(rig.stations, camera, Board(), HandEyeInitialMethod::kPark), rig.T_H_C);
+    const PoseError tsai = ComparePoses(OpenCvHandEye(rig.stations, camera, Board(), HandEyeInitialMethod::kTsai),
+                                        rig.T_H_C);
+    const PoseError park = ComparePoses(OpenCvHandEye(rig.stations, camera, Board(), HandEyeInitialMethod::kPark),
+                                        rig.T_H_C);
     ours_deg.push_back(ours.angle_rad / kDeg);
     ours_mm.push_back(ours.translation_m * 1e3);
     tsai_deg.push_back(tsai.angle_rad / kDeg);
@@ -216,7 +218,8 @@ BENCHMARK(BM_ProjectorHomographyStep)->Unit(benchmark::kMillisecond);
 #ifdef ROMUNECT_CALIB_LOOP
 // The chain in the loop with the default simulated rig, seeds 1..N: every goal in docs/calibrate.md's accuracy table.
 void LoopTable() {
-  std::vector<double> mapping, he_deg, he_mm, known_deg, known_mm, sight_deg, homography, captures, depth, affine, compute, hardware;
+  std::vector<double> mapping, he_deg, he_mm, known_deg, known_mm, sight_deg, homography, captures, depth, affine,
+      compute, hardware;
   std::vector<std::string> failed;
   for (int seed = 1; seed <= g_loop_trials; ++seed) {
     try {

@@ -190,7 +190,8 @@ void BM_OpenCvStereoSGBM(benchmark::State& state) {
     sgbm->compute(To8Bit(p.ir), To8Bit(p.reference), disparity);
     benchmark::DoNotOptimize(disparity.data);
   }
-  Record(state, "opencv_stereosgbm_threads_" + std::to_string(state.range(0)), ShareWithinEighth(OpenCvShift(disparity)));
+  Record(state, "opencv_stereosgbm_threads_" + std::to_string(state.range(0)),
+         ShareWithinEighth(OpenCvShift(disparity)));
 }
 BENCHMARK(BM_OpenCvStereoSGBM)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 

@@ -13,7 +13,6 @@
 // quoting numbers. Memory: growth of resident memory while the method's state is alive (the
 // pre-rendered frames are excluded), and the state's own size where the library reports it.
 #include <malloc.h>
-#include <time.h>
 
 #include <algorithm>
 #include <chrono>
@@ -38,6 +37,7 @@
 #include "romunect/fusion/frame_inserter.h"
 #include "romunect/fusion/metrics.h"
 #include "romunect/fusion/voting_grid.h"
+#include "romunect/sensor/clock.h"
 #include "romunect/sensor/cpu_features.h"
 #include "romunect/testing/analytic_bin.h"
 
@@ -57,14 +57,8 @@ namespace {
 using testing::AnalyticBin;
 using testing::AnalyticBinOptions;
 
-double WallMs() {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now().time_since_epoch()).count();
-}
-double CpuMs() {
-  timespec ts;
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-  return ts.tv_sec * 1e3 + ts.tv_nsec / 1e6;
-}
+double WallMs() { return std::chrono::duration<double, std::milli>(SteadyClock::now().time_since_epoch()).count(); }
+double CpuMs() { return 1e3 * ProcessCpuSeconds(); }
 double Median(std::vector<double> v) { return Quantile(std::move(v), 0.5); }
 
 int g_frames = 50;  // --frames N: a shorter approach (e.g. for callgrind)
@@ -114,7 +108,7 @@ struct Row {
   std::string method;
   int frames = 0;
   double insert_wall_ms = 0, insert_cpu_ms = 0, insert_p90_ms = 0, extract_ms = 0, memory_mb = 0;
-  double state_mb = 0;  // the method's own accounting, where it has one
+  double state_mb = 0;         // the method's own accounting, where it has one
   double critical_cpu_ms = 0;  // ours: CPU time of the busiest thread per frame (median)
   HeightMapMetrics metrics;
   std::vector<double> completeness_per_frame;
@@ -216,7 +210,7 @@ Row RunOpen3d() {
   row.note = "sdf_trunc 1 mm, no colour, height = highest extracted point per cell";
   const double rss0 = BaselineRssMb();
   o3d::pipelines::integration::ScalableTSDFVolume volume(w.grid.voxel_m, sdf_trunc_m,
-                                                        o3d::pipelines::integration::TSDFVolumeColorType::NoColor);
+                                                         o3d::pipelines::integration::TSDFVolumeColorType::NoColor);
   const CameraModel& c = w.bin.camera();
   const o3d::camera::PinholeCameraIntrinsic intrinsic(c.width, c.height, c.fx, c.fy, c.cx, c.cy);
   o3d::geometry::RGBDImage rgbd;
@@ -312,22 +306,25 @@ Row RunOctomap(double budget_s) {
 
 void PrintAndWrite(const std::vector<Row>& rows, const std::string& json_path) {
   const Row& ours = rows.front();
-  std::printf("\nFusion benchmark: analytic bin, %d frames of 640 x 480, 0.25 mm over 150 x 80 x 64 mm\n",
-              ours.frames);
+  std::printf("\nFusion benchmark: analytic bin, %d frames of 640 x 480, 0.25 mm over 150 x 80 x 64 mm\n", ours.frames);
   std::printf("%-42s %6s %10s %10s %9s %9s %10s %9s %8s %7s %7s %8s %9s\n", "method", "frames", "insert ms",
               "insert cpu", "crit cpu", "p90 ms", "extract ms", "memory MB", "complete", "rmse mm", "mae mm", "<=1 mm",
               "time x us");
   nlohmann::ordered_json j;
-  j["workload"] = {{"frames", ours.frames}, {"width", 640}, {"height", 480}, {"voxel_m", 0.25e-3},
-                   {"box_m", {-0.075, -0.04, -0.004, 0.075, 0.04, 0.06}}, {"seed", 1}};
+  j["workload"] = {{"frames", ours.frames},
+                   {"width", 640},
+                   {"height", 480},
+                   {"voxel_m", 0.25e-3},
+                   {"box_m", {-0.075, -0.04, -0.004, 0.075, 0.04, 0.06}},
+                   {"seed", 1}};
   j["timing"] =
       "medians over frames in ms: wall, process CPU, and (ours) CPU of the busiest thread, i.e. the wall time "
       "on free cores; the machine is shared, so wall times include waiting for a core";
   for (const Row& r : rows) {
     std::printf("%-42s %6d %10.2f %10.2f %9.2f %9.2f %10.2f %9.1f %7.1f%% %7.3f %7.3f %7.1f%% %9.2f\n",
-                r.method.c_str(), r.frames, r.insert_wall_ms, r.insert_cpu_ms, r.critical_cpu_ms, r.insert_p90_ms, r.extract_ms, r.memory_mb,
-                100 * r.metrics.completeness, r.metrics.rmse_mm, r.metrics.mae_mm, 100 * r.metrics.within_1mm,
-                r.insert_wall_ms / ours.insert_wall_ms);
+                r.method.c_str(), r.frames, r.insert_wall_ms, r.insert_cpu_ms, r.critical_cpu_ms, r.insert_p90_ms,
+                r.extract_ms, r.memory_mb, 100 * r.metrics.completeness, r.metrics.rmse_mm, r.metrics.mae_mm,
+                100 * r.metrics.within_1mm, r.insert_wall_ms / ours.insert_wall_ms);
     j["methods"].push_back({{"method", r.method},
                             {"frames", r.frames},
                             {"insert_ms_median", r.insert_wall_ms},
@@ -384,8 +381,8 @@ BENCHMARK(BM_ExtractAfterAllFrames)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecon
 // times the ~3.4 M blocks of a workload frame, this bounds what any order of the same blocks
 // can cost on this machine.
 #if defined(__x86_64__)
-__attribute__((target("avx512f,avx512bw"))) void ApplyBlocks(Vote* votes, const uint32_t* offset,
-                                                               const uint32_t* bits, size_t count) {
+__attribute__((target("avx512f,avx512bw"))) void ApplyBlocks(Vote* votes, const uint32_t* offset, const uint32_t* bits,
+                                                             size_t count) {
   const __m512i one = _mm512_set1_epi16(1), vote_min = _mm512_set1_epi16(-std::numeric_limits<Vote>::max());
   for (size_t i = 0; i < count; ++i) {
     const __mmask32 k = bits[i];

@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "romunect/sensor/clock.h"
 #include "romunect/sensor/embree/ray_scene.h"
 #include "romunect/sensor/embree/renderer.h"
 #include "romunect/sensor/mesh.h"
@@ -59,8 +60,7 @@ struct Fixture {
   RayScene scene = MakeBinRayScene(2);
   int plate = -1;
   Fixture() {
-    plate = scene.AddMoving(MakeBoxOnPlaneTarget(0.0, 0.01, 0.004, 0.002), PlatePose(0), IrMaterial{0.3f},
-                            2);
+    plate = scene.AddMoving(MakeBoxOnPlaneTarget(0.0, 0.01, 0.004, 0.002), PlatePose(0), IrMaterial{0.3f}, 2);
     scene.Commit();
   }
   static Pose PlatePose(int frame) {
@@ -84,8 +84,8 @@ Fixture& GetFixture() {
 }
 
 void SetRenderCounters(benchmark::State& state, const RenderStats& stats, int64_t frames) {
-  state.counters["camera_rays_per_s"] =
-      benchmark::Counter(static_cast<double>(stats.camera_rays) * frames, benchmark::Counter::kIsRate);
+  state.counters["camera_rays_per_s"] = benchmark::Counter(static_cast<double>(stats.camera_rays) * frames,
+                                                           benchmark::Counter::kIsRate);
   state.counters["hit_fraction"] = static_cast<double>(stats.hits) / stats.camera_rays;
   state.counters["lit_fraction"] = static_cast<double>(stats.lit) / std::max<int64_t>(1, stats.hits);
   state.counters["triangles"] = kBinTriangles;
@@ -153,8 +153,14 @@ void BM_StaticBuild(benchmark::State& state) {
     benchmark::DoNotOptimize(scene.stats().static_build_s);
   }
 }
-BENCHMARK(BM_StaticBuild)->ArgNames({"threads"})->Arg(1)->Arg(2)->Iterations(3)->UseRealTime()
-    ->MeasureProcessCPUTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_StaticBuild)
+    ->ArgNames({"threads"})
+    ->Arg(1)
+    ->Arg(2)
+    ->Iterations(3)
+    ->UseRealTime()
+    ->MeasureProcessCPUTime()
+    ->Unit(benchmark::kMillisecond);
 
 void BM_PoseUpdate(benchmark::State& state) {
   Fixture& f = GetFixture();
@@ -168,12 +174,6 @@ void BM_PoseUpdate(benchmark::State& state) {
 BENCHMARK(BM_PoseUpdate)->UseRealTime()->MeasureProcessCPUTime()->Unit(benchmark::kMicrosecond);
 
 #ifdef ROMUNECT_HAVE_FULL_FRAME
-
-double ProcessCpuSeconds() {
-  timespec t;
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
-  return t.tv_sec + 1e-9 * t.tv_nsec;
-}
 
 // IR synthesis alone on the rendered bin (1 or 4 samples), `threads` threads.
 void BM_IrSynthesis(benchmark::State& state) {
@@ -248,8 +248,8 @@ void BM_FullFrame(benchmark::State& state) {
   state.counters["render_cpu_ms"] = 1e3 * cpu_s[0] / n;
   state.counters["synthesis_cpu_ms"] = 1e3 * cpu_s[1] / n;
   state.counters["matching_cpu_ms"] = 1e3 * cpu_s[2] / n;
-  state.counters["valid_fraction"] =
-      static_cast<double>(depth.stats.valid) / (f.rig.camera.width * f.rig.camera.height);
+  state.counters["valid_fraction"] = static_cast<double>(depth.stats.valid) /
+                                     (f.rig.camera.width * f.rig.camera.height);
   state.counters["fps"] = benchmark::Counter(n, benchmark::Counter::kIsRate);
 }
 BENCHMARK(BM_FullFrame)

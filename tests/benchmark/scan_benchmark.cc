@@ -49,7 +49,8 @@ void BM_DefaultScan(benchmark::State& state) {
     if (state.range(2) > 0) {
       box.prefault = true;  // as romunect scan: no first touches in the loop
       grid = std::make_unique<fusion::VotingGrid>(box);
-      inserter = std::make_unique<fusion::FrameInserter>(grid.get(), fusion::InserterOptions{static_cast<int>(state.range(3))});
+      inserter = std::make_unique<fusion::FrameInserter>(grid.get(),
+                                                         fusion::InserterOptions{static_cast<int>(state.range(3))});
       completeness = std::make_unique<fusion::CompletenessTracker>(*grid);
     }
     double fusion_s = 0.0;

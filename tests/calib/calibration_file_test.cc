@@ -46,7 +46,8 @@ Calibration Sample() {
 
 // Same size and values, NaN where the other has NaN (YAML writes NaN as .Nan, sign lost).
 ::testing::AssertionResult MapsEqual(const cv::Mat& a, const cv::Mat& b) {
-  if (a.size() != b.size() || a.type() != CV_64F || b.type() != CV_64F) return ::testing::AssertionFailure() << "size/type";
+  if (a.size() != b.size() || a.type() != CV_64F || b.type() != CV_64F)
+    return ::testing::AssertionFailure() << "size/type";
   for (int r = 0; r < a.rows; ++r) {
     for (int c = 0; c < a.cols; ++c) {
       const double x = a.at<double>(r, c), y = b.at<double>(r, c);
@@ -130,7 +131,8 @@ void ExpectLoadFails(const std::string& from_regex, const std::string& to, const
   ScratchDir dir("bad");
   SaveCalibration(dir / "c.yaml", Sample());
   const std::string text = ReadText(dir / "c.yaml");
-  const std::string changed = std::regex_replace(text, std::regex(from_regex), to, std::regex_constants::format_first_only);
+  const std::string changed = std::regex_replace(text, std::regex(from_regex), to,
+                                                 std::regex_constants::format_first_only);
   ASSERT_NE(changed, text) << from_regex;
   WriteText(dir / "c.yaml", changed);
   try {

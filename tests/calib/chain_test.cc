@@ -50,8 +50,9 @@ TEST(ChainTest, FindsProjectedDotsAtSubPixelPositions) {
       const Eigen::Vector2d c(x + frac(rng), y + frac(rng));
       truth.push_back(c);
       predicted.push_back(c + Eigen::Vector2d(6.0 * frac(rng), 6.0 * frac(rng)));  // a rough prediction
-      cv::circle(big, cv::Point(static_cast<int>(std::lround(((c.x() + 0.5) * kSuper - 0.5) * 16)),
-                                static_cast<int>(std::lround(((c.y() + 0.5) * kSuper - 0.5) * 16))),
+      cv::circle(big,
+                 cv::Point(static_cast<int>(std::lround(((c.x() + 0.5) * kSuper - 0.5) * 16)),
+                           static_cast<int>(std::lround(((c.y() + 0.5) * kSuper - 0.5) * 16))),
                  static_cast<int>(kRadiusPx * kSuper * 16), cv::Scalar(800.0), cv::FILLED, cv::LINE_8, 4);
     }
   }

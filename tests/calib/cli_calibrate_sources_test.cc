@@ -9,9 +9,9 @@
 #include <opencv2/core.hpp>
 
 #include "romunect/calib/calibration_file.h"
+#include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/openni2/pose_log.h"
 #include "romunect/sensor/openni2/virtual_device.h"
-#include "romunect/sensor/frame_io.h"
 #include "romunect/testing/test_support.h"
 #include "synthetic.h"
 
@@ -80,8 +80,8 @@ TEST(CalibrateSourcesCliTest, OniWithPoseLogCalibratesAsItsFrameDirectory) {
                   plane_oni.string() + " --poses " + (dir / "plane_poses_ahead.csv").string() + offset}}) {
     const fs::path file = dir / ("calibration" + std::to_string(results.size()) + ".yaml");
     SaveCalibration(file, start);
-    const auto hand_eye =
-        RunRomunect("calibrate hand-eye --frames " + board_source + common + " --output " + file.string());
+    const auto hand_eye = RunRomunect("calibrate hand-eye --frames " + board_source + common + " --output " +
+                                      file.string());
     ASSERT_EQ(hand_eye.exit_code, 0) << hand_eye.output;
     const auto depth = RunRomunect("calibrate depth --frames " + plane_source + " --output " + file.string());
     ASSERT_EQ(depth.exit_code, 0) << depth.output;
@@ -123,8 +123,8 @@ TEST(CalibrateSourcesCliTest, OniWithPoseLogCalibratesAsItsFrameDirectory) {
   SaveCalibration(other_file, other_mode);
   for (const std::string& source :
        {(dir / "board").string(), board_oni.string() + " --poses " + (dir / "board_poses.csv").string()}) {
-    const auto mismatch =
-        RunRomunect("calibrate hand-eye --frames " + source + common + " --output " + other_file.string());
+    const auto mismatch = RunRomunect("calibrate hand-eye --frames " + source + common + " --output " +
+                                      other_file.string());
     EXPECT_EQ(mismatch.exit_code, 2) << mismatch.output;
     const std::string expected = "image size " + std::to_string(camera.width) + " x " + std::to_string(camera.height) +
                                  " differs from " + std::to_string(other_mode.camera.width) + " x " +

@@ -63,8 +63,8 @@ TEST(CalibrateCliTest, IntrinsicsOnAFolderOfImages) {
   EXPECT_LT(calibration.residuals.intrinsics_rms_px, 0.1);
 
   // Bad input: a clear message and exit code 2, no file written.
-  const auto missing = RunRomunect("calibrate intrinsics --images " + (dir / "nothing").string() +
-                                   " --output " + (dir / "x.yaml").string());
+  const auto missing = RunRomunect("calibrate intrinsics --images " + (dir / "nothing").string() + " --output " +
+                                   (dir / "x.yaml").string());
   EXPECT_EQ(missing.exit_code, 2);
   EXPECT_NE(missing.output.find("not a folder"), std::string::npos) << missing.output;
   const auto bad_board = RunRomunect("calibrate intrinsics --images " + images.string() + " --board 9by6 --output " +
@@ -72,8 +72,9 @@ TEST(CalibrateCliTest, IntrinsicsOnAFolderOfImages) {
   EXPECT_EQ(bad_board.exit_code, 2);
   EXPECT_NE(bad_board.output.find("--board"), std::string::npos) << bad_board.output;
   // Sides too long for an int (they overflowed into a crash) or for any board.
-  for (const auto& [board, expected] : {std::pair{"2147483647x6", "is not COLSxROWS"}, std::pair{"6x99999999999", "is not COLSxROWS"},
-                                        std::pair{"200x6", "need 3 to 100 a side"}}) {
+  for (const auto& [board, expected] :
+       {std::pair{"2147483647x6", "is not COLSxROWS"}, std::pair{"6x99999999999", "is not COLSxROWS"},
+        std::pair{"200x6", "need 3 to 100 a side"}}) {
     const auto r = RunRomunect("calibrate intrinsics --images " + images.string() + " --board " + board + " --output " +
                                (dir / "x.yaml").string());
     EXPECT_EQ(r.exit_code, 2) << board << "\n" << r.output;
@@ -130,8 +131,8 @@ TEST(CalibrateCliTest, HandEyeThenDepthOnFrameDirectories) {
   EXPECT_EQ(done.T_H_C.matrix(), after_hand_eye.T_H_C.matrix());  // earlier steps kept
 
   // The paper's affine model is worse: without the flag the file is kept, with it replaced.
-  const auto affine = RunRomunect("calibrate depth --model affine --frames " + (dir / "plane").string() +
-                                  " --output " + file.string());
+  const auto affine = RunRomunect("calibrate depth --model affine --frames " + (dir / "plane").string() + " --output " +
+                                  file.string());
   EXPECT_EQ(affine.exit_code, 2);
   EXPECT_NE(affine.output.find("worse"), std::string::npos) << affine.output;
   EXPECT_EQ(LoadCalibration(file).depth->model, DepthCorrectionModel::kInverseAffineInRaw);
@@ -185,8 +186,9 @@ TEST(CalibrateCliTest, InTheLoopRefusesAnOutputFolderItCannotMakeBeforeAnyWork) 
 TEST(CalibrateCliTest, InTheLoopWithTooFewViewsOrPlanesWritesNoFile) {
   ScratchDir dir("cli_loop_fail");
   const fs::path out = dir / "run";
-  for (const auto& [args, expected] : {std::pair{" --views 3 --stations 3", "views = 3: need at least 4"},
-                                       std::pair{" --views 4 --stations 3 --planes 2", "depth_planes = 2: need at least 3"}}) {
+  for (const auto& [args, expected] :
+       {std::pair{" --views 3 --stations 3", "views = 3: need at least 4"},
+        std::pair{" --views 4 --stations 3 --planes 2", "depth_planes = 2: need at least 3"}}) {
     const auto result = RunRomunect("calibrate --out " + out.string() + args + " --board-samples 1");
     EXPECT_EQ(result.exit_code, 2) << result.output;
     EXPECT_NE(result.output.find(expected), std::string::npos) << result.output;

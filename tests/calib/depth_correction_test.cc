@@ -96,8 +96,8 @@ TEST(DepthCorrectionTest, ApplyConvertsRawToMetresAndKeepsInvalidAsZero) {
   const cv::Mat depth = ApplyDepthCorrection(model, raw, chip);
   ASSERT_EQ(depth.type(), CV_32FC1);
   EXPECT_FLOAT_EQ(depth.at<float>(1, 1), 1.0f / (5.7f - 0.7f));  // 0.2 m
-  EXPECT_EQ(depth.at<float>(0, 0), 0.0f);  // invalid raw
-  EXPECT_EQ(depth.at<float>(0, 1), 0.0f);  // unfitted pixel
+  EXPECT_EQ(depth.at<float>(0, 0), 0.0f);                        // invalid raw
+  EXPECT_EQ(depth.at<float>(0, 1), 0.0f);                        // unfitted pixel
   model.model = DepthCorrectionModel::kAffineInChipDepth;
   model.a.setTo(2.0);
   model.b.setTo(-0.1);

@@ -66,13 +66,15 @@ TEST(HandEyeTest, GuardSurvivesStationPairsRotatedPast120Degrees) {
       << result.BriefReport();
   // The failure the guard exists for: OpenCV 4.6's Tsai alone on these stations is off by tens
   // of degrees (fixed upstream after 4.6: if this fails, the guard may be relaxed).
-  const PoseError tsai = ComparePoses(OpenCvHandEye(rig.stations, camera, Board(), HandEyeInitialMethod::kTsai), rig.T_H_C);
+  const PoseError tsai = ComparePoses(OpenCvHandEye(rig.stations, camera, Board(), HandEyeInitialMethod::kTsai),
+                                      rig.T_H_C);
   EXPECT_GT(tsai.angle_rad, 10 * kDeg);
   // And forcing Tsai through our pipeline shows the same failure before refinement.
   HandEyeOptions tsai_only;
   tsai_only.initial = HandEyeInitialMethod::kTsai;
   tsai_only.refine = false;
-  EXPECT_GT(ComparePoses(CalibrateHandEye(rig.stations, camera, Board(), tsai_only).T_H_C, rig.T_H_C).angle_rad, 10 * kDeg);
+  EXPECT_GT(ComparePoses(CalibrateHandEye(rig.stations, camera, Board(), tsai_only).T_H_C, rig.T_H_C).angle_rad,
+            10 * kDeg);
 }
 
 TEST(HandEyeTest, PureTranslationIsAClearError) {

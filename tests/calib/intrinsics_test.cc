@@ -84,8 +84,9 @@ TEST(IntrinsicsTest, DetectsBlurredTiltedBoardThePlainDetectorMisses) {
   CameraModel camera = TruthCamera();
   camera.distortion = {};
   const BoardSpec board = Board();
-  const Pose T_C_K = MakePose(Eigen::AngleAxisd(kBlurTiltRad, Eigen::Vector3d(1, 0.3, 0).normalized()).toRotationMatrix(),
-                              Eigen::Vector3d(-0.1, -0.06, 0.34));
+  const Pose T_C_K =
+      MakePose(Eigen::AngleAxisd(kBlurTiltRad, Eigen::Vector3d(1, 0.3, 0).normalized()).toRotationMatrix(),
+               Eigen::Vector3d(-0.1, -0.06, 0.34));
   cv::Mat image = testing::RenderBoardImage(camera, board, T_C_K);
   cv::GaussianBlur(image, image, cv::Size(), kBlurSigmaPx);
   ASSERT_EQ(image.type(), CV_8U);
@@ -151,7 +152,8 @@ TEST(IntrinsicsTest, PlannedViewsMeetMappingGoalAndBeatWeakCoverage) {
   ViewPlanOptions plan_options;
   plan_options.distance_m = 0.3;
   std::mt19937 rng(11);
-  const std::vector<BoardView> planned = ObserveAll(truth, board, Inverted(PlanViews(truth, board, plan_options)), &rng);
+  const std::vector<BoardView> planned = ObserveAll(truth, board, Inverted(PlanViews(truth, board, plan_options)),
+                                                    &rng);
   const IntrinsicsResult good = CalibrateIntrinsics(planned, board, {truth.width, truth.height});
   const MappingError good_error = FullImageMappingError(good.camera, truth);
   EXPECT_LE(good_error.rms_px, kMappingGoalPx) << good.BriefReport();
@@ -161,7 +163,8 @@ TEST(IntrinsicsTest, PlannedViewsMeetMappingGoalAndBeatWeakCoverage) {
   EXPECT_GT(good.holdout_rms_px, good.rms_px);
   ASSERT_EQ(good.per_view_rms_px.size(), planned.size());
 
-  const std::vector<BoardView> central = ObserveAll(truth, board, testing::CentralViews(truth, board, 20, 0.3, &rng), &rng);
+  const std::vector<BoardView> central = ObserveAll(truth, board, testing::CentralViews(truth, board, 20, 0.3, &rng),
+                                                    &rng);
   const IntrinsicsResult weak = CalibrateIntrinsics(central, board, {truth.width, truth.height});
   const MappingError weak_error = FullImageMappingError(weak.camera, truth);
   // Same noise, similar RMS, but weak coverage: the error away from the centre is larger.
@@ -185,7 +188,8 @@ TEST(IntrinsicsTest, MappingErrorIsZeroForTruthAndMatchesFocalError) {
 TEST(IntrinsicsTest, TooFewViewsIsAClearError) {
   const CameraModel truth = TruthCamera();
   std::mt19937 rng(1);
-  const std::vector<BoardView> views = ObserveAll(truth, Board(), testing::CentralViews(truth, Board(), 2, 0.3, &rng), &rng);
+  const std::vector<BoardView> views = ObserveAll(truth, Board(), testing::CentralViews(truth, Board(), 2, 0.3, &rng),
+                                                  &rng);
   try {
     CalibrateIntrinsics(views, Board(), {truth.width, truth.height});
     FAIL() << "two views accepted";

@@ -33,8 +33,8 @@ TEST(ProjectorHomographyTest, LoopConvergesWithinFiveCapturesToGoal) {
   };
   const Eigen::Matrix3d identity = Eigen::Matrix3d::Identity();
   ASSERT_GT(scene.TrueResidualPx(identity), 20.0);  // far off before the step
-  const ProjectorHomographyResult result =
-      CalibrateProjectorHomography(scene.pattern_P, scene.target_C, scene.camera, identity, observe);
+  const ProjectorHomographyResult result = CalibrateProjectorHomography(scene.pattern_P, scene.target_C, scene.camera,
+                                                                        identity, observe);
   EXPECT_LE(result.captures, kGoalCaptures);
   EXPECT_TRUE(result.converged) << result.BriefReport();
   EXPECT_LE(scene.TrueResidualPx(result.H_P_rec), kGoalPx) << result.BriefReport();
@@ -49,8 +49,8 @@ TEST(ProjectorHomographyTest, NoiseFreeStepIsExact) {
     const Eigen::Vector2d u = scene.Map(x_P);
     capture.detected_px.emplace_back(static_cast<float>(u.x()), static_cast<float>(u.y()));
   }
-  const ProjectorHomographyStep step =
-      SolveProjectorHomography(scene.pattern_P, scene.target_C, {capture}, scene.camera);
+  const ProjectorHomographyStep step = SolveProjectorHomography(scene.pattern_P, scene.target_C, {capture},
+                                                                scene.camera);
   // Float detections (1e-4 px at 640) limit the exactness.
   EXPECT_LT(scene.TrueResidualPx(step.H_P_rec), 2e-3);
   EXPECT_LT(step.mapping_fit_rms_px, 1e-3);

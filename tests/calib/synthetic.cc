@@ -73,9 +73,7 @@ Pose TruthHandEye() {
   return MakePose(Rotation(0.05, -1.54, 0.03), Eigen::Vector3d(0.032, -0.047, 0.081));
 }
 
-Pose TruthBoardInBase() {
-  return MakePose(Rotation(0.02, -0.01, 0.4), Eigen::Vector3d(0.55, 0.12, 0.02));
-}
+Pose TruthBoardInBase() { return MakePose(Rotation(0.02, -0.01, 0.4), Eigen::Vector3d(0.55, 0.12, 0.02)); }
 
 HandEyeRig MakeHandEyeRig(const CameraModel& camera, const BoardSpec& board, int stations, double sigma_px,
                           double max_tilt_rad, double max_roll_rad, unsigned seed) {
@@ -88,7 +86,8 @@ HandEyeRig MakeHandEyeRig(const CameraModel& camera, const BoardSpec& board, int
   while (static_cast<int>(rig.stations.size()) < stations) {
     ROMUNECT_CHECK(++guard < 100000);
     // Camera looks at the board centre from above (board z points away from the camera).
-    const Eigen::Matrix3d R_C_K = Rotation(max_tilt_rad * unit(rng), max_tilt_rad * unit(rng), max_roll_rad * unit(rng));
+    const Eigen::Matrix3d R_C_K = Rotation(max_tilt_rad * unit(rng), max_tilt_rad * unit(rng),
+                                           max_roll_rad * unit(rng));
     const double distance_m = 0.3 + 0.05 * unit(rng);
     const Eigen::Vector3d centre_C(0.02 * unit(rng), 0.02 * unit(rng), distance_m);
     const Pose T_C_K = MakePose(R_C_K, centre_C - R_C_K * board.CentreK());
@@ -132,7 +131,7 @@ cv::Mat RenderPlaneRaw(const CameraModel& camera, const RawDepthTruth& truth, co
       const double z = depth.at<float>(r, c);
       const double value = z > 0 ? (1.0 / z - beta.at<double>(r, c)) / alpha.at<double>(r, c) + noise(*rng) : -1;
       raw.at<uint16_t>(r, c) = (value >= 0 && value < invalid_raw - 0.5) ? static_cast<uint16_t>(std::lround(value))
-                                                                          : static_cast<uint16_t>(invalid_raw);
+                                                                         : static_cast<uint16_t>(invalid_raw);
     }
   }
   return raw;
@@ -161,7 +160,8 @@ cv::Mat RenderBoardImage(const CameraModel& camera, const BoardSpec& board, cons
   Eigen::Matrix3d A;  // texture px -> K (x, y, 1)
   A << s, 0, (0.5 / px_per_square - 2) * board.square_m, 0, s, (0.5 / px_per_square - 2) * board.square_m, 0, 0, 1;
   Eigen::Matrix3d P;  // K (x, y, 1) on z = 0 -> image
-  const Eigen::Matrix3d K_mat = (Eigen::Matrix3d() << camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1).finished();
+  const Eigen::Matrix3d K_mat =
+      (Eigen::Matrix3d() << camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1).finished();
   P.col(0) = T_C_K.linear().col(0);
   P.col(1) = T_C_K.linear().col(1);
   P.col(2) = T_C_K.translation();

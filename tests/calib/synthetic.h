@@ -53,7 +53,7 @@ struct RawDepthTruth {
   double focal_baseline_px_m = 580.0 * 0.075;  // f * b
   double reference_depth_m = 0.2;              // raw = raw_at_reference at this depth
   double raw_at_reference = 700.0;
-  double raw_per_px = 8.0;                     // 1/8 px disparity steps
+  double raw_per_px = 8.0;  // 1/8 px disparity steps
   // Per-pixel inverse-depth model for a camera; alpha, beta as CV_64F maps.
   void Maps(const CameraModel& camera, cv::Mat* alpha, cv::Mat* beta) const;
 };

@@ -16,9 +16,9 @@
 namespace romunect::fusion {
 namespace {
 
-using ::testing::HasSubstr;
 using testing::AnalyticBin;
 using testing::AnalyticBinOptions;
+using ::testing::HasSubstr;
 using testing::ReadText;
 using testing::RunRomunect;
 using testing::ScratchDir;
@@ -55,12 +55,13 @@ TEST(FuseCliTest, FusesAnAnalyticBinAndReportsAgainstGroundTruth) {
   WriteHeightMapExr(scratch / "gt.exr", bin.GroundTruthHeightMap(grid.min_W, kVoxelM, n.x(), n.y()),
                     VotingGrid(grid).geometry());
 
-  const auto result = RunRomunect("fuse " + (scratch / "capture").string() + " " + kVoxelArg +
-                                  " --threads 2 --gt " + (scratch / "gt.exr").string());
+  const auto result = RunRomunect("fuse " + (scratch / "capture").string() + " " + kVoxelArg + " --threads 2 --gt " +
+                                  (scratch / "gt.exr").string());
   ASSERT_EQ(result.exit_code, 0) << result.output;
-  EXPECT_THAT(result.output, HasSubstr("frame 8/8"));  // the progress line
+  EXPECT_THAT(result.output, HasSubstr("frame 8/8"));           // the progress line
   const std::filesystem::path out = scratch / "capture_fused";  // default: beside the input
-  for (const char* file : {"fused_depth.exr", "fused_depth.png", "fused_points.ply", "completeness.png", "report.json"}) {
+  for (const char* file :
+       {"fused_depth.exr", "fused_depth.png", "fused_points.ply", "completeness.png", "report.json"}) {
     EXPECT_TRUE(std::filesystem::exists(out / file)) << file;
   }
   const nlohmann::json report = nlohmann::json::parse(ReadText(out / "report.json"));

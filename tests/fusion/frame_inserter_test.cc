@@ -338,7 +338,8 @@ TEST(FrameInserterTest, ChangedColumnsBoundWhatAFrameChanges) {
     CompletenessTracker completeness(grid);
     bool some_frame_sees_part = false;
     for (int i = 0; i < bin.frames(); ++i) {
-      std::vector<Vote> before(grid.column(0, 0), grid.column(0, 0) + static_cast<size_t>(grid.nx()) * grid.ny() * grid.nz());
+      std::vector<Vote> before(grid.column(0, 0),
+                               grid.column(0, 0) + static_cast<size_t>(grid.nx()) * grid.ny() * grid.nz());
       const Frame frame = bin.RenderFrame(i);
       inserter.Insert(bin.camera(), frame.depth_m, *frame.T_W_C, nullptr);
       const cv::Rect changed = inserter.changed_columns();

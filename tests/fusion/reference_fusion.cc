@@ -15,8 +15,8 @@ void AddVote(int16_t* v, int delta) { *v = static_cast<int16_t>(std::clamp(*v + 
 ReferenceGrid::ReferenceGrid(const Eigen::Vector3d& min, double voxel, int nx, int ny, int nz)
     : min_W(min), voxel_m(voxel), n{nx, ny, nz}, votes(static_cast<size_t>(nx) * ny * nz, 0) {}
 
-void ReferenceInsert(const CameraModel& camera, const cv::Mat& depth_m, const Pose& T_W_C,
-                     ReferenceGrid* grid, ReferenceCounts* counts) {
+void ReferenceInsert(const CameraModel& camera, const cv::Mat& depth_m, const Pose& T_W_C, ReferenceGrid* grid,
+                     ReferenceCounts* counts) {
   const Eigen::Matrix3d R = T_W_C.linear();
   const Eigen::Vector3d o_W = T_W_C.translation();
   const int* n = grid->n;

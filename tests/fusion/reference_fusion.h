@@ -22,9 +22,7 @@ struct ReferenceGrid {
 
   ReferenceGrid(const Eigen::Vector3d& min, double voxel, int nx, int ny, int nz);
   int16_t& at(int ix, int iy, int iz) { return votes[(static_cast<size_t>(iy) * n[0] + ix) * n[2] + iz]; }
-  int16_t at(int ix, int iy, int iz) const {
-    return votes[(static_cast<size_t>(iy) * n[0] + ix) * n[2] + iz];
-  }
+  int16_t at(int ix, int iy, int iz) const { return votes[(static_cast<size_t>(iy) * n[0] + ix) * n[2] + iz]; }
 };
 
 struct ReferenceCounts {
@@ -33,8 +31,8 @@ struct ReferenceCounts {
 
 // Casts every pixel of depth_m in pixel-row order, the frame's hits after all of its misses
 // (voting_grid.h).
-void ReferenceInsert(const CameraModel& camera, const cv::Mat& depth_m, const Pose& T_W_C,
-                     ReferenceGrid* grid, ReferenceCounts* counts);
+void ReferenceInsert(const CameraModel& camera, const cv::Mat& depth_m, const Pose& T_W_C, ReferenceGrid* grid,
+                     ReferenceCounts* counts);
 
 // Per column: the voxel with the highest positive vote (ties: higher z); NaN when none.
 cv::Mat ReferenceExtract(const ReferenceGrid& grid);

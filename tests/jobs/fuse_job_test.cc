@@ -9,19 +9,19 @@
 #include <nlohmann/json.hpp>
 
 #include "romunect/fusion/voting_grid.h"
-#include "romunect/tools/jobs/fuse.h"
-#include "romunect/tools/jobs/fusion_loop.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/testing/analytic_bin.h"
 #include "romunect/testing/test_support.h"
+#include "romunect/tools/jobs/fuse.h"
+#include "romunect/tools/jobs/fusion_loop.h"
 
 namespace romunect::jobs {
 namespace {
 namespace fs = std::filesystem;
-using ::testing::HasSubstr;
 using testing::AnalyticBin;
 using testing::AnalyticBinOptions;
+using ::testing::HasSubstr;
 using testing::ScratchDir;
 
 constexpr double kVoxelM = 0.001;  // coarse: these tests are about the loop, not resolution

@@ -2,8 +2,8 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
-#include "romunect/tools/jobs/info.h"
 #include "romunect/testing/test_support.h"
+#include "romunect/tools/jobs/info.h"
 
 namespace romunect::jobs {
 namespace {

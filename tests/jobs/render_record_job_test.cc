@@ -6,11 +6,11 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
-#include "romunect/tools/jobs/record.h"
-#include "romunect/tools/jobs/render.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/testing/test_support.h"
+#include "romunect/tools/jobs/record.h"
+#include "romunect/tools/jobs/render.h"
 
 namespace romunect::jobs {
 namespace {

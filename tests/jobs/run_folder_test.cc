@@ -5,9 +5,9 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
-#include "romunect/tools/jobs/run_folder.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/testing/test_support.h"
+#include "romunect/tools/jobs/run_folder.h"
 
 namespace romunect::jobs {
 namespace {

@@ -7,10 +7,10 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
-#include "romunect/tools/jobs/fuse.h"
-#include "romunect/tools/jobs/scan.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/testing/test_support.h"
+#include "romunect/tools/jobs/fuse.h"
+#include "romunect/tools/jobs/scan.h"
 
 namespace romunect::jobs {
 namespace {
@@ -65,10 +65,27 @@ TEST(ScanReport, JsonHoldsTheTableAccuracyPickTimingsAndOptions) {
   r.fusion.metrics->completeness = 0.3;
   const nlohmann::json j = nlohmann::json::parse(ScanReportJson(r));
   EXPECT_EQ(j["format"], "romunect-scan-report");
-  for (const char* key : {"version", "started_at", "scan", "rig", "seed", "objects", "samples_per_pixel",
-                          "depth_correction", "options", "frames", "table1_completeness", "table1_first_frame",
-                          "valid_fraction_per_frame", "accuracy", "pick", "timings_s", "realtime", "fusion", "settle",
-                          "tracking", "outputs"}) {
+  for (const char* key : {"version",
+                          "started_at",
+                          "scan",
+                          "rig",
+                          "seed",
+                          "objects",
+                          "samples_per_pixel",
+                          "depth_correction",
+                          "options",
+                          "frames",
+                          "table1_completeness",
+                          "table1_first_frame",
+                          "valid_fraction_per_frame",
+                          "accuracy",
+                          "pick",
+                          "timings_s",
+                          "realtime",
+                          "fusion",
+                          "settle",
+                          "tracking",
+                          "outputs"}) {
     EXPECT_TRUE(j.contains(key)) << key;
   }
   EXPECT_EQ(j["options"]["seed"].get<int>(), 7);

@@ -10,8 +10,8 @@ namespace romunect::testing {
 AnalyticScene AnalyticScene::TiltedPlane(double depth_m, double tilt_rad, const IrMaterial& material) {
   AnalyticScene scene;
   scene.materials = {material};
-  scene.planes.push_back({Eigen::Vector3d(0, 0, depth_m),
-                          Eigen::Vector3d(std::sin(tilt_rad), 0, -std::cos(tilt_rad)), 0, 1});
+  scene.planes.push_back(
+      {Eigen::Vector3d(0, 0, depth_m), Eigen::Vector3d(std::sin(tilt_rad), 0, -std::cos(tilt_rad)), 0, 1});
   return scene;
 }
 

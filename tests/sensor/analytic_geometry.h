@@ -38,8 +38,8 @@ struct AnalyticScene {
 };
 
 // Ray parameter of the first hit along origin + t dir (t > t_min), or infinity.
-double FirstHit(const AnalyticScene& scene, const Eigen::Vector3d& origin, const Eigen::Vector3d& dir,
-                double t_min, Eigen::Vector3d* normal, int* material, int* id);
+double FirstHit(const AnalyticScene& scene, const Eigen::Vector3d& origin, const Eigen::Vector3d& dir, double t_min,
+                Eigen::Vector3d* normal, int* material, int* id);
 
 // One pinhole layer through the pixel centres of `camera`, shadows towards projector_centre_C.
 GeometryBuffer RenderAnalytic(const AnalyticScene& scene, const CameraModel& camera,

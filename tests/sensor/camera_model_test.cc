@@ -30,8 +30,7 @@ CameraModel DistortedCamera() {
 
 std::vector<cv::Point3d> RandomPointsInView(const CameraModel& c, int n, uint32_t seed) {
   std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> u(-0.5, c.width - 0.5), v(-0.5, c.height - 0.5),
-      z(0.15, 0.5);
+  std::uniform_real_distribution<double> u(-0.5, c.width - 0.5), v(-0.5, c.height - 0.5), z(0.15, 0.5);
   std::vector<cv::Point3d> points;
   for (int i = 0; i < n; ++i) {
     const Eigen::Vector3d p = c.Unproject(Eigen::Vector2d(u(rng), v(rng)), z(rng));
@@ -44,8 +43,8 @@ TEST(CameraModel, ProjectMatchesOpenCvProjectPoints) {
   const CameraModel c = DistortedCamera();
   const std::vector<cv::Point3d> points = RandomPointsInView(c, 2000, 1);
   std::vector<cv::Point2d> expected;
-  cv::projectPoints(points, cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), cv::Mat(c.CameraMatrix()),
-                    c.DistortionVector(), expected);
+  cv::projectPoints(points, cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), cv::Mat(c.CameraMatrix()), c.DistortionVector(),
+                    expected);
   for (size_t i = 0; i < points.size(); ++i) {
     const auto u = c.Project(Eigen::Vector3d(points[i].x, points[i].y, points[i].z));
     ASSERT_TRUE(u.has_value());
@@ -62,8 +61,8 @@ TEST(CameraModel, UndistortMatchesOpenCvUndistortPoints) {
   for (int i = 0; i < 2000; ++i) pixels.emplace_back(u(rng), v(rng));
   std::vector<cv::Point2d> expected;
   // OpenCV's default stops after 5 iterations; ask it to converge so both are exact inverses.
-  cv::undistortPoints(pixels, expected, cv::Mat(c.CameraMatrix()), c.DistortionVector(), cv::noArray(),
-                      cv::noArray(), cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 200, 1e-15));
+  cv::undistortPoints(pixels, expected, cv::Mat(c.CameraMatrix()), c.DistortionVector(), cv::noArray(), cv::noArray(),
+                      cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 200, 1e-15));
   for (size_t i = 0; i < pixels.size(); ++i) {
     const Eigen::Vector3d ray = c.Ray(Eigen::Vector2d(pixels[i].x, pixels[i].y));
     // Compare in pixels of the ideal camera.

@@ -26,7 +26,9 @@ TEST(CpuFeaturesTest, ResolveIsaTakesTheWidestSupportedOrRefuses) {
     const std::optional<Isa> named = ResolveIsa(isa, {Isa::kScalar, Isa::kSse2, Isa::kAvx2, Isa::kAvx512});
     if (isa == Isa::kAuto) continue;
     EXPECT_EQ(named.has_value(), CpuSupports(isa)) << ToString(isa);
-    if (named) EXPECT_LE(static_cast<int>(isa), static_cast<int>(*widest));
+    if (named) {
+      EXPECT_LE(static_cast<int>(isa), static_cast<int>(*widest));
+    }
   }
 #if defined(__x86_64__)
   EXPECT_NE(*widest, Isa::kScalar);

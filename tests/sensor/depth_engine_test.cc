@@ -114,8 +114,9 @@ TEST(DepthEngineTest, EveryKernelAndThreadCountGivesTheSameBytes) {
     const Rig rig = RigPreset(preset);
     testing::AnalyticScene scene = preset == "romunect" ? testing::AnalyticScene::TiltedPlane(0.2, 0.12)
                                                         : testing::AnalyticScene::TiltedPlane(1.3, 0.4);
-    scene.spheres.push_back(preset == "romunect" ? testing::AnalyticScene::Sphere{Eigen::Vector3d(0.004, -0.002, 0.205), 0.008, 0, 2}
-                                                 : testing::AnalyticScene::Sphere{Eigen::Vector3d(0.0, 0.0, 0.8), 0.12, 0, 2});
+    scene.spheres.push_back(preset == "romunect"
+                                ? testing::AnalyticScene::Sphere{Eigen::Vector3d(0.004, -0.002, 0.205), 0.008, 0, 2}
+                                : testing::AnalyticScene::Sphere{Eigen::Vector3d(0.0, 0.0, 0.8), 0.12, 0, 2});
     GeometryBuffer g;
     const cv::Mat ir = RenderIr(rig, scene, 9, &g);
     DepthEngineOutput first;
@@ -173,7 +174,8 @@ TEST(DepthEngineTest, PrefilterEqualsTheBoxFilterReference) {
     cv::Mat ir(height, width, CV_16U);
     for (int y = 0; y < height; ++y) {
       for (int x = 0; x < width; ++x) {
-        ir.at<uint16_t>(y, x) = trial == 7 ? static_cast<uint16_t>(300 + x % 3) : static_cast<uint16_t>(rng() % (max_value + 1));
+        ir.at<uint16_t>(y, x) = trial == 7 ? static_cast<uint16_t>(300 + x % 3)
+                                           : static_cast<uint16_t>(rng() % (max_value + 1));
       }
     }
     cv::Mat n, sigma, n_ref, sigma_ref;
@@ -270,7 +272,8 @@ TEST(DepthCorrectionTest, BothModelsRecoverAKnownMapping) {
 TEST(DepthCorrectionTest, WholeMapEqualsThePerPixelFunction) {
   std::mt19937 rng(11);
   std::uniform_real_distribution<double> a(-3e-3, -1e-3), b(2.0, 8.0);
-  for (const DepthCorrectionModel model : {DepthCorrectionModel::kInverseAffineInRaw, DepthCorrectionModel::kAffineInChipDepth}) {
+  for (const DepthCorrectionModel model :
+       {DepthCorrectionModel::kInverseAffineInRaw, DepthCorrectionModel::kAffineInChipDepth}) {
     DepthCorrection c;
     c.model = model;
     c.a = cv::Mat(37, 53, CV_64F);
@@ -280,7 +283,8 @@ TEST(DepthCorrectionTest, WholeMapEqualsThePerPixelFunction) {
     out.depth_m = cv::Mat(37, 53, CV_32F);
     for (int y = 0; y < 37; ++y) {
       for (int x = 0; x < 53; ++x) {
-        c.a.at<double>(y, x) = model == DepthCorrectionModel::kAffineInChipDepth ? 1.0 + 0.1 * (a(rng) * 1e3 + 2) : a(rng);
+        c.a.at<double>(y, x) = model == DepthCorrectionModel::kAffineInChipDepth ? 1.0 + 0.1 * (a(rng) * 1e3 + 2)
+                                                                                 : a(rng);
         c.b.at<double>(y, x) = model == DepthCorrectionModel::kAffineInChipDepth ? 0.01 * (b(rng) - 5) : b(rng);
         out.raw.at<uint16_t>(y, x) = static_cast<uint16_t>(rng() % 4 == 0 ? kRawInvalid : rng() % 3000);
         out.depth_m.at<float>(y, x) = static_cast<float>(rng() % 5 == 0 ? 0.0 : 0.15 + 1e-4 * (rng() % 1000));

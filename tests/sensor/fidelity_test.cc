@@ -104,8 +104,8 @@ TEST(FidelityTest, F2_KinectStepPerRawUnitAndElevenBitRaw) {
     const int raw0 = static_cast<int>(std::lround(1090 - 8 * 0.075 * 580 / z0));
     const double reported_step = d.engine.ChipDepthM(raw0 + 1) - d.engine.ChipDepthM(raw0);
     EXPECT_NEAR(reported_step, published, published * kStepRelTolerance);
-    std::printf("F2 kinect-v1 step at %.1f m: %.2f mm measured, %.2f mm reported (published %.2f)\n", z0,
-                step * 1e3, reported_step * 1e3, published * 1e3);
+    std::printf("F2 kinect-v1 step at %.1f m: %.2f mm measured, %.2f mm reported (published %.2f)\n", z0, step * 1e3,
+                reported_step * 1e3, published * 1e3);
     for (int y = 0; y < s.ir.rows; ++y) {
       for (int x = 0; x < s.ir.cols; ++x) {
         const uint16_t raw = s.out.raw.at<uint16_t>(y, x);
@@ -210,14 +210,14 @@ TEST(FidelityTest, F5_WindowFattensEdgesByAtMostHalfAWindowAndMissesAOnePixelRid
   const int median = fattening[fattening.size() / 2];
   EXPECT_LE(worst, half_window_px);
   EXPECT_GE(worst, 1);  // the window does fatten: it comes out of the matching
-  std::printf("F5 foreground fattening: median %d px, worst %d px (half window %.1f)\n", median, worst,
-              half_window_px);
+  std::printf("F5 foreground fattening: median %d px, worst %d px (half window %.1f)\n", median, worst, half_window_px);
 
   // A ridge one pixel wide at 0.9 m in front of the 1 m plane.
   const double z_ridge = 0.9;
   const double w_m = z_ridge / d.rig.camera.fx;
   AnalyticScene ridge = AnalyticScene::TiltedPlane(z_back, 0.0);
-  ridge.boxes.push_back({Eigen::Vector3d(-0.5 * w_m, -1, z_ridge), Eigen::Vector3d(0.5 * w_m, 1, z_ridge + 0.01), 0, 3});
+  ridge.boxes.push_back(
+      {Eigen::Vector3d(-0.5 * w_m, -1, z_ridge), Eigen::Vector3d(0.5 * w_m, 1, z_ridge + 0.01), 0, 3});
   const Shot r = d.Capture(ridge, 501);
   int ridge_pixels = 0, resolved = 0;
   for (int y = 40; y < r.ir.rows - 40; ++y) {
@@ -248,10 +248,10 @@ TEST(FidelityTest, F6_RomunectSingleScanReachesATenthOfAMillimetreInItsFocusedRa
   }
   // A pixel is calibrated when at least 5 of the 9 planes measured it (fewer extrapolate).
   constexpr int kMinCalibrationSamples = 5;
-  const DepthCorrection correction =
-      FitDepthCorrection(DepthCorrectionModel::kInverseAffineInRaw, outputs, truths, kMinCalibrationSamples);
-  const DepthCorrection affine =
-      FitDepthCorrection(DepthCorrectionModel::kAffineInChipDepth, outputs, truths, kMinCalibrationSamples);
+  const DepthCorrection correction = FitDepthCorrection(DepthCorrectionModel::kInverseAffineInRaw, outputs, truths,
+                                                        kMinCalibrationSamples);
+  const DepthCorrection affine = FitDepthCorrection(DepthCorrectionModel::kAffineInChipDepth, outputs, truths,
+                                                    kMinCalibrationSamples);
   constexpr double kPaperRmsM = 0.1e-3;  // the paper's single-scan accuracy
   for (double z : {0.193, 0.2, 0.207}) {
     const Shot s = d.Capture(AnalyticScene::TiltedPlane(z, -0.04), seed++);
@@ -295,8 +295,7 @@ TEST(FidelityTest, F7_DarkAndShinySurfacesGiveHoles) {
   std::printf("F7 valid fraction: albedo 0.5 %.2f, albedo 0.05 %.2f\n", white, dark);
   // A shiny plane turned to mirror the projector into the camera at the image centre.
   const Eigen::Vector3d p(0, 0, 0.2);
-  const Eigen::Vector3d n =
-      ((d.rig.T_C_P.translation() - p).normalized() + (-p).normalized()).normalized();
+  const Eigen::Vector3d n = ((d.rig.T_C_P.translation() - p).normalized() + (-p).normalized()).normalized();
   AnalyticScene shiny;
   shiny.materials = {IrMaterial{0.3f, 1.0f, 200.0f}};
   shiny.planes.push_back({p, n, 0, 1});

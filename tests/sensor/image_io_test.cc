@@ -41,10 +41,16 @@ cv::Mat SpecialDepth(int rows, int cols, uint32_t seed) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<float> metres(0.15f, 0.45f);
   for (auto it = depth.begin<float>(); it != depth.end<float>(); ++it) *it = metres(rng);
-  const float specials[] = {0.0f, -0.0f, std::numeric_limits<float>::quiet_NaN(),
-                            std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity(),
-                            -0.2f, std::numeric_limits<float>::denorm_min(), std::numeric_limits<float>::max()};
-  for (size_t i = 0; i < std::size(specials); ++i) depth.at<float>(static_cast<int>(i % rows), static_cast<int>(i)) = specials[i];
+  const float specials[] = {0.0f,
+                            -0.0f,
+                            std::numeric_limits<float>::quiet_NaN(),
+                            std::numeric_limits<float>::infinity(),
+                            -std::numeric_limits<float>::infinity(),
+                            -0.2f,
+                            std::numeric_limits<float>::denorm_min(),
+                            std::numeric_limits<float>::max()};
+  for (size_t i = 0; i < std::size(specials); ++i)
+    depth.at<float>(static_cast<int>(i % rows), static_cast<int>(i)) = specials[i];
   return depth;
 }
 

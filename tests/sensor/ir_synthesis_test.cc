@@ -90,8 +90,8 @@ TEST(IrSynthesisTest, NoiseHasTheShotAndReadVariance) {
   quiet.Synthesize(rig, g, 1, &clean, nullptr);
   noisy.Synthesize(rig, g, 1, &ir, nullptr);
   const double e = quiet.expected_electrons().at<float>(30, 40);
-  const double expected_var = (e + rig.optics.read_noise_e * rig.optics.read_noise_e) *
-                                  rig.optics.gain_dn_per_e * rig.optics.gain_dn_per_e +
+  const double expected_var = (e + rig.optics.read_noise_e * rig.optics.read_noise_e) * rig.optics.gain_dn_per_e *
+                                  rig.optics.gain_dn_per_e +
                               1.0 / 6.0;  // rounding of both images
   cv::Mat diff;
   cv::subtract(ir, clean, diff, cv::noArray(), CV_64F);
@@ -184,9 +184,9 @@ TEST(IrSynthesisTest, EveryKernelGivesTheScalarBytes) {
       const GeometryBuffer* geometry;
       bool noise, defocus;
     };
-    for (const Case& c : {Case{&rig, &frame, true, true}, Case{&rig, &frame, false, true}, Case{&rig, &frame, true, false},
-                          Case{&rig, &layered, true, true}, Case{&rig, &many, true, true},
-                          Case{&odd, &odd_frame, true, true}}) {
+    for (const Case& c :
+         {Case{&rig, &frame, true, true}, Case{&rig, &frame, false, true}, Case{&rig, &frame, true, false},
+          Case{&rig, &layered, true, true}, Case{&rig, &many, true, true}, Case{&odd, &odd_frame, true, true}}) {
       IrSynthesisOptions options;
       options.noise = c.noise;
       options.camera_defocus = c.defocus;
@@ -211,7 +211,6 @@ TEST(IrSynthesisTest, EveryKernelGivesTheScalarBytes) {
     }
   }
 }
-
 
 // The slow obvious pattern lookup: the displayed image blurred by a Gaussian of exactly sigma
 // (OpenCV's kernel for that sigma, zero outside), sampled bilinearly at (x, y), tap by tap.
@@ -264,11 +263,13 @@ TEST(IrSynthesisTest, ABandOfRowsBlursToTheWholeImagesBytes) {
   for (const float sigma : {0.3f, 0.9f, 2.0f, 4.5f, 12.0f, 30.0f}) {
     cv::Mat whole;
     cv::GaussianBlur(image, whole, cv::Size(0, 0), sigma, sigma, cv::BORDER_REPLICATE);
-    for (const auto& [y0, y1] : {std::pair{0, 120}, std::pair{0, 17}, std::pair{40, 41}, std::pair{33, 90}, std::pair{101, 120}}) {
+    for (const auto& [y0, y1] :
+         {std::pair{0, 120}, std::pair{0, 17}, std::pair{40, 41}, std::pair{33, 90}, std::pair{101, 120}}) {
       cv::Mat out(image.size(), CV_32F, cv::Scalar(-1.0f));
       cv::Mat band = out.rowRange(y0, y1);
       cv::GaussianBlur(image.rowRange(y0, y1), band, cv::Size(0, 0), sigma, sigma, cv::BORDER_REPLICATE);
-      EXPECT_TRUE(testing::ImagesBitEqual(band, whole.rowRange(y0, y1))) << "sigma " << sigma << ", rows " << y0 << ".." << y1;
+      EXPECT_TRUE(testing::ImagesBitEqual(band, whole.rowRange(y0, y1)))
+          << "sigma " << sigma << ", rows " << y0 << ".." << y1;
     }
   }
 }

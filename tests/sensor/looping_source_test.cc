@@ -56,9 +56,8 @@ LoopingSource::Opener Scripted(std::vector<Step> script, int* opened = nullptr) 
 TEST(LoopingSource, TimesAndIndicesGoOnAcrossPasses) {
   int opened = 0;
   // A capture whose clock does not start at 0, as a recorded one.
-  LoopingSource source(Scripted({{FrameStatus::kOk, 4, 10.0}, {FrameStatus::kOk, 5, 10.1}, {FrameStatus::kOk, 6, 10.2}},
-                                &opened),
-                       0.1);
+  LoopingSource source(
+      Scripted({{FrameStatus::kOk, 4, 10.0}, {FrameStatus::kOk, 5, 10.1}, {FrameStatus::kOk, 6, 10.2}}, &opened), 0.1);
   EXPECT_EQ(opened, 1);
   EXPECT_EQ(source.camera(), testing::SmallCamera());
   EXPECT_NE(source.Describe().find("looped"), std::string::npos);
@@ -74,8 +73,8 @@ TEST(LoopingSource, TimesAndIndicesGoOnAcrossPasses) {
 }
 
 TEST(LoopingSource, BadFramesPassThroughAndLoopingGoesOn) {
-  LoopingSource source(
-      Scripted({{FrameStatus::kBadFrame}, {FrameStatus::kOk, 1, 0.5}, {FrameStatus::kOk, 2, 1.0}}), 0.25);
+  LoopingSource source(Scripted({{FrameStatus::kBadFrame}, {FrameStatus::kOk, 1, 0.5}, {FrameStatus::kOk, 2, 1.0}}),
+                       0.25);
   Frame f;
   std::string error;
   std::vector<FrameStatus> statuses;

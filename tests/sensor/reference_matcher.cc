@@ -30,8 +30,8 @@ void ReferencePrefilter(const cv::Mat& ir, int window_px, cv::Mat* normalized, c
   }
 }
 
-uint16_t ReferenceMatchRaw(const DepthEngine& engine, const cv::Mat& n_obs, const cv::Mat& sigma,
-                           const cv::Mat& n_ref, int x, int y) {
+uint16_t ReferenceMatchRaw(const DepthEngine& engine, const cv::Mat& n_obs, const cv::Mat& sigma, const cv::Mat& n_ref,
+                           int x, int y) {
   const DepthEngineOptions& o = engine.options();
   const int r = o.window_px / 2, W = n_obs.cols, H = n_obs.rows;
   if (x < r || y < r || x >= W - r || y >= H - r) return kRawInvalid;

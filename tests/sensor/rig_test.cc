@@ -73,10 +73,9 @@ TEST(RigTest, IdealPrewarpPutsThePatternWhereTheReferenceHasIt) {
       const Eigen::Vector3d x_pat = H_rec_P * x_P.homogeneous();
       const Eigen::Vector2d pattern_px = x_pat.hnormalized();
       // The stock camera sees that pattern pixel, on its reference plane, at the same pixel.
-      const double u_ref = chip.camera.fx / chip.projector.fx * (pattern_px.x() - chip.projector.cx) +
-                           chip.camera.cx + chip.FocalTimesBaseline() / chip.reference_distance_m;
-      const double v_ref = chip.camera.fy / chip.projector.fy * (pattern_px.y() - chip.projector.cy) +
-                           chip.camera.cy;
+      const double u_ref = chip.camera.fx / chip.projector.fx * (pattern_px.x() - chip.projector.cx) + chip.camera.cx +
+                           chip.FocalTimesBaseline() / chip.reference_distance_m;
+      const double v_ref = chip.camera.fy / chip.projector.fy * (pattern_px.y() - chip.projector.cy) + chip.camera.cy;
       EXPECT_NEAR(u_ref, u, kTolerancePx);
       EXPECT_NEAR(v_ref, v, kTolerancePx);
     }
@@ -103,8 +102,7 @@ TEST(RigFileTest, SaveLoadRoundTripsBothPresets) {
 }
 
 // Edits one field of a saved preset and expects LoadRig to name the file and that field.
-void ExpectBadField(const std::string& json_pointer, const nlohmann::json& value,
-                    const std::string& expected_field) {
+void ExpectBadField(const std::string& json_pointer, const nlohmann::json& value, const std::string& expected_field) {
   ScratchDir dir("rig_bad_field");
   SaveRig(dir / "rig.json", RigPreset("romunect"));
   nlohmann::json doc = nlohmann::json::parse(ReadText(dir / "rig.json"));
@@ -171,8 +169,8 @@ namespace {
 
 TEST(RigFileTest, ShippedRigFilesAreThePresets) {
   for (const char* name : {"romunect", "kinect-v1"}) {
-    const std::filesystem::path path =
-        std::filesystem::path(ROMUNECT_SOURCE_DIR) / "scenes" / "rigs" / (std::string(name) + ".json");
+    const std::filesystem::path path = std::filesystem::path(ROMUNECT_SOURCE_DIR) / "scenes" / "rigs" /
+                                       (std::string(name) + ".json");
     const Rig file = LoadRig(path);
     const Rig preset = RigPreset(name);
     EXPECT_EQ(file.camera, preset.camera) << name;

@@ -18,8 +18,8 @@ void AppendWorldTriangles(const TriangleMesh& mesh_O, const Pose& T_W_O, int obj
 }
 
 ReferenceHit IntersectBruteForce(const std::vector<WorldTriangle>& soup, const Eigen::Vector3d& o,
-                                 const Eigen::Vector3d& d, double t_min, double t_max,
-                                 int skip_triangle, double edge_margin, double t_margin) {
+                                 const Eigen::Vector3d& d, double t_min, double t_max, int skip_triangle,
+                                 double edge_margin, double t_margin) {
   ReferenceHit best;
   best.t = std::numeric_limits<double>::infinity();
   std::vector<double> near_edge_t;  // hits of triangles the ray grazes

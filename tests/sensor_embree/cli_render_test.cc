@@ -26,8 +26,8 @@ TEST(CliRenderTest, RendersBothPresetsIntoFrameDirectoriesWithPictures) {
   for (const std::string rig : {"romunect", "kinect-v1"}) {
     const fs::path out = dir / rig;
     const double distance_m = rig == "romunect" ? 0.2 : 1.0;
-    const auto result = RunRomunect("render " + out.string() + " --rig " + rig +
-                                    " --target plane --distance " + std::to_string(distance_m));
+    const auto result = RunRomunect("render " + out.string() + " --rig " + rig + " --target plane --distance " +
+                                    std::to_string(distance_m));
     ASSERT_EQ(result.exit_code, 0) << result.output;
     EXPECT_NE(result.output.find("valid depth"), std::string::npos) << result.output;
     const FrameDirectoryManifest manifest = ReadFrameDirectoryManifest(out);
@@ -51,7 +51,8 @@ TEST(CliRenderTest, RendersBothPresetsIntoFrameDirectoriesWithPictures) {
     std::vector<float> errors;
     for (int v = 0; v < frame.depth_m.rows; ++v) {
       for (int u = 0; u < frame.depth_m.cols; ++u) {
-        if (frame.depth_m.at<float>(v, u) > 0.0f) errors.push_back(std::abs(frame.depth_m.at<float>(v, u) - frame.gt_depth_m.at<float>(v, u)));
+        if (frame.depth_m.at<float>(v, u) > 0.0f)
+          errors.push_back(std::abs(frame.depth_m.at<float>(v, u) - frame.gt_depth_m.at<float>(v, u)));
       }
     }
     ASSERT_FALSE(errors.empty());
@@ -103,7 +104,8 @@ TEST(CliRenderTest, BadInputEndsWithAMessageNamingTheFieldAndANonZeroExit) {
   ExpectFailure("render " + out + " --mesh " + (dir / "empty.stl").string(), {"empty.stl", "empty"});
   // Distances and sizes: positive, finite, within what float meshes hold (inf crashed the scene).
   for (const char* bad : {"--distance inf", "--distance -0.2", "--distance nan", "--size 1e39", "--size -1"}) {
-    ExpectFailure("render " + out + " " + bad, {std::string(bad).substr(0, std::string(bad).find(' ')), "must be in (0, 1000] metres"});
+    ExpectFailure("render " + out + " " + bad,
+                  {std::string(bad).substr(0, std::string(bad).find(' ')), "must be in (0, 1000] metres"});
   }
   EXPECT_FALSE(fs::exists(dir / "out"));  // nothing half-written, not even an empty folder
   // An existing frame directory is never overwritten.

@@ -48,9 +48,8 @@ TEST(MeshTest, BinaryStlRoundTripKeepsEveryCorner) {
 
 TEST(MeshTest, AsciiStlInMillimetresIsScaledToMetres) {
   ScratchDir dir("stl");
-  WriteText(dir / "a.STL",
-            "solid part\n facet normal 0 0 1\n  outer loop\n   vertex 0 0 0\n   vertex 10 0 0\n"
-            "   vertex 0 20 0\n  endloop\n endfacet\nendsolid part\n");
+  WriteText(dir / "a.STL", "solid part\n facet normal 0 0 1\n  outer loop\n   vertex 0 0 0\n   vertex 10 0 0\n"
+                           "   vertex 0 20 0\n  endloop\n endfacet\nendsolid part\n");
   const TriangleMesh mesh = LoadMesh(dir / "a.STL", 0.001);
   ASSERT_EQ(mesh.triangle_count(), 1u);
   EXPECT_FLOAT_EQ(mesh.vertices_O[1].x(), 0.010f);
@@ -59,9 +58,8 @@ TEST(MeshTest, AsciiStlInMillimetresIsScaledToMetres) {
 
 TEST(MeshTest, ObjFansPolygonsAndResolvesNegativeAndSlashIndices) {
   ScratchDir dir("obj");
-  WriteText(dir / "q.obj",
-            "# a quad and a triangle\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0 0 1\n"
-            "f 1//1 2//1 3//1 4//1\nf -1 -2 -3\n");
+  WriteText(dir / "q.obj", "# a quad and a triangle\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0 0 1\n"
+                           "f 1//1 2//1 3//1 4//1\nf -1 -2 -3\n");
   const TriangleMesh mesh = LoadMesh(dir / "q.obj");
   ASSERT_EQ(mesh.vertices_O.size(), 4u);
   ASSERT_EQ(mesh.triangle_count(), 3u);
@@ -71,8 +69,7 @@ TEST(MeshTest, ObjFansPolygonsAndResolvesNegativeAndSlashIndices) {
 }
 
 // Loading `text` as `name` must throw an InputError naming the file and `field_part`.
-void ExpectLoadError(const std::string& name, const std::string& text,
-                     const std::string& message_part) {
+void ExpectLoadError(const std::string& name, const std::string& text, const std::string& message_part) {
   ScratchDir dir("bad");
   WriteText(dir / name, text);
   try {
@@ -90,8 +87,10 @@ TEST(MeshTest, BadFilesThrowInputErrorNamingFileAndField) {
   ExpectLoadError("nan.obj", "v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "vertices[0]");
   ExpectLoadError("index.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 5\n", "line 4");
   ExpectLoadError("zero.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "line 4");
-  ExpectLoadError("short.stl", "solid x\n facet normal 0 0 1\n outer loop\n vertex 0 0 0\n"
-                               " vertex 1 0 0\n endloop\n endfacet\nendsolid\n", "2 vertices");
+  ExpectLoadError("short.stl",
+                  "solid x\n facet normal 0 0 1\n outer loop\n vertex 0 0 0\n"
+                  " vertex 1 0 0\n endloop\n endfacet\nendsolid\n",
+                  "2 vertices");
   ExpectLoadError("garbage.stl", "this is not a mesh", "neither a binary STL");
   ExpectLoadError("model.ply", "ply\n", "unknown mesh format");
   ExpectLoadError("nan.stl",
@@ -150,15 +149,11 @@ TEST(MeshTest, BinSceneHasTheRequestedSizeAndDependsOnlyOnItsSeed) {
   EXPECT_LE(a.triangle_count(), 20000u);
   EXPECT_GT(a.triangle_count(), 20000u - 1280u);
   ASSERT_EQ(a.vertices_O.size(), b.vertices_O.size());
-  EXPECT_EQ(std::memcmp(a.vertices_O.data(), b.vertices_O.data(),
-                        a.vertices_O.size() * sizeof(Eigen::Vector3f)),
-            0);
+  EXPECT_EQ(std::memcmp(a.vertices_O.data(), b.vertices_O.data(), a.vertices_O.size() * sizeof(Eigen::Vector3f)), 0);
   options.seed = 2;
   const TriangleMesh c = MakeBinScene(options);
   ASSERT_EQ(a.vertices_O.size(), c.vertices_O.size());
-  EXPECT_NE(std::memcmp(a.vertices_O.data(), c.vertices_O.data(),
-                        a.vertices_O.size() * sizeof(Eigen::Vector3f)),
-            0);
+  EXPECT_NE(std::memcmp(a.vertices_O.data(), c.vertices_O.data(), a.vertices_O.size() * sizeof(Eigen::Vector3f)), 0);
   // Everything lies behind the camera's near side and inside the bin's rim.
   for (const auto& p : a.vertices_O) {
     EXPECT_GT(p.z(), 0.0f);

@@ -5,12 +5,12 @@
 #include <cmath>
 #include <random>
 
-#include <Eigen/Geometry>
 #include <gtest/gtest.h>
+#include <Eigen/Geometry>
 
 #include "brute_force.h"
-#include "romunect/testing/test_support.h"
 #include "romunect/sensor/embree/renderer.h"
+#include "romunect/testing/test_support.h"
 
 namespace romunect::embree {
 namespace {
@@ -41,14 +41,12 @@ constexpr double kMaxAmbiguousFraction = 0.1;
 Pose RandomPose(std::mt19937& rng, double translation_m) {
   std::normal_distribution<double> n(0.0, 1.0);
   const Eigen::Quaterniond q(n(rng), n(rng), n(rng), n(rng));
-  return MakePose(q.normalized().toRotationMatrix(),
-                  translation_m * Eigen::Vector3d(n(rng), n(rng), n(rng)));
+  return MakePose(q.normalized().toRotationMatrix(), translation_m * Eigen::Vector3d(n(rng), n(rng), n(rng)));
 }
 
 // `count` random triangles in front of the camera (given in C), expressed in O.
 TriangleMesh RandomTriangles(std::mt19937& rng, int count, const Pose& T_O_C) {
-  std::uniform_real_distribution<double> x(-0.06, 0.06), y(-0.045, 0.045), z(0.12, 0.28),
-      corner(-0.015, 0.015);
+  std::uniform_real_distribution<double> x(-0.06, 0.06), y(-0.045, 0.045), z(0.12, 0.28), corner(-0.015, 0.015);
   TriangleMesh mesh;
   for (int i = 0; i < count; ++i) {
     const Eigen::Vector3d centre(x(rng), y(rng), z(rng));
@@ -112,8 +110,7 @@ Comparison CompareWithReference(const GeometryBuffer& buffer, const std::vector<
       if (incidence_cos < kMinIncidenceCos) continue;
       bool ref_lit = false;
       if (facing > 0.0) {
-        const ReferenceHit blocker = IntersectBruteForce(soup, p_W, to_P, 0.0, 1.0, ref.triangle,
-                                                           kShadowEdgeMargin);
+        const ReferenceHit blocker = IntersectBruteForce(soup, p_W, to_P, 0.0, 1.0, ref.triangle, kShadowEdgeMargin);
         if (blocker.ambiguous || (blocker.hit && blocker.t * to_P.norm() < kShadowNearM)) continue;
         ref_lit = !blocker.hit;
       }
@@ -160,8 +157,8 @@ TEST(RaySceneTest, MatchesBruteForceOnRandomScenesBeforeAndAfterPoseUpdates) {
     renderer.Render(scene, camera, T_W_C, T_C_P, RenderOptions{}, &buffer);
     Comparison c = CompareWithReference(buffer, soup, camera, T_W_C, T_C_P);
     EXPECT_GE(c.compared, (1.0 - kMaxAmbiguousFraction) * c.rays);
-    EXPECT_GT(c.hits, c.rays / 3);         // the scene covers much of the view
-    EXPECT_GT(c.shadowed, c.hits / 20);    // and shadows something: the shadow test means something
+    EXPECT_GT(c.hits, c.rays / 3);       // the scene covers much of the view
+    EXPECT_GT(c.shadowed, c.hits / 20);  // and shadows something: the shadow test means something
 
     // Move the two moving parts by a small random motion and compare again.
     soup.resize(300);  // the static part's triangles come first
@@ -279,8 +276,8 @@ constexpr double kPlaneDepthTolM = 1e-5;
 TEST(RaySceneTest, PlaneInstanceDepthFollowsItsPose) {
   const CameraModel camera = WideCamera();
   RayScene scene;
-  const int part = scene.AddMoving(MakePlaneTarget(0.0, 1.0), MakePose(Eigen::Matrix3d::Identity(),
-                                   Eigen::Vector3d(0, 0, 0.2)), IrMaterial{}, 1);
+  const int part = scene.AddMoving(MakePlaneTarget(0.0, 1.0),
+                                   MakePose(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0, 0, 0.2)), IrMaterial{}, 1);
   scene.Commit();
   GeometryRenderer renderer;
   GeometryBuffer buffer;

@@ -4,8 +4,8 @@
 
 #include <cmath>
 
-#include <Eigen/Geometry>
 #include <gtest/gtest.h>
+#include <Eigen/Geometry>
 
 #include "romunect/testing/test_support.h"
 
@@ -29,9 +29,7 @@ constexpr double kShadowWidthTolPx = 1.0;
 
 const Pose kIdentity = Pose::Identity();
 
-Pose ProjectorAt(double x_m) {
-  return MakePose(Eigen::Matrix3d::Identity(), Eigen::Vector3d(x_m, 0.0, 0.0));
-}
+Pose ProjectorAt(double x_m) { return MakePose(Eigen::Matrix3d::Identity(), Eigen::Vector3d(x_m, 0.0, 0.0)); }
 
 struct Rendered {
   GeometryBuffer buffer;
@@ -128,8 +126,7 @@ TEST(RendererTest, SphereMatchesAnalyticDepthWithinItsFacets) {
   // The mesh lies inside the sphere, by at most the sagitta of its largest facet.
   double circumradius = 0.0;
   for (const auto& t : mesh.triangles) {
-    const Eigen::Vector3d a = mesh.vertices_O[t[0]].cast<double>(),
-                          b = mesh.vertices_O[t[1]].cast<double>(),
+    const Eigen::Vector3d a = mesh.vertices_O[t[0]].cast<double>(), b = mesh.vertices_O[t[1]].cast<double>(),
                           c = mesh.vertices_O[t[2]].cast<double>();
     const double A = (b - c).norm(), B = (a - c).norm(), C = (a - b).norm();
     circumradius = std::max(circumradius, A * B * C / (2.0 * (b - a).cross(c - a).norm()));
@@ -190,7 +187,7 @@ TEST(RendererTest, StepShadowIsAsWideAsTheGeometryPredictsOnTheFarSide) {
       }
     }
     EXPECT_NEAR(shadow, expected_px, kShadowWidthTolPx) << "row " << v;
-    EXPECT_EQ(first_shadow, 80);  // starts at the first far-plane pixel (x > 0)
+    EXPECT_EQ(first_shadow, 80);                        // starts at the first far-plane pixel (x > 0)
     EXPECT_EQ(last_shadow - first_shadow + 1, shadow);  // one band
   }
   // Projector on the far side: the far plane sees it past the riser, no shadow at all.
@@ -234,7 +231,7 @@ TEST(RendererTest, ThinLensSamplesConvergeAtTheFocusDistanceAndSpreadOffIt) {
   for (const auto& s : pattern) {
     pixel_sum += s.pixel_offset_px;
     lens_sum += s.lens_offset_m;
-    EXPECT_LT(s.pixel_offset_px.cwiseAbs().maxCoeff(), 0.5f);  // inside the pixel
+    EXPECT_LT(s.pixel_offset_px.cwiseAbs().maxCoeff(), 0.5f);      // inside the pixel
     EXPECT_LE(s.lens_offset_m.norm(), options.aperture_radius_m);  // inside the aperture
   }
   EXPECT_LT(pixel_sum.norm(), 1e-6f);  // centred on the pixel centre
@@ -249,8 +246,7 @@ TEST(RendererTest, ThinLensSamplesConvergeAtTheFocusDistanceAndSpreadOffIt) {
       EXPECT_EQ(layer.pixel_offset_px, pattern[k].pixel_offset_px);
       EXPECT_EQ(layer.lens_offset_m, pattern[k].lens_offset_m);
       // Through lens point l towards the focus point: p = z ray(u + offset) + l (1 - z / z_f).
-      const Eigen::Vector2d blur =
-          pattern[k].lens_offset_m.cast<double>() * (1.0 - z / options.focus_distance_m);
+      const Eigen::Vector2d blur = pattern[k].lens_offset_m.cast<double>() * (1.0 - z / options.focus_distance_m);
       for (int v = 0; v < camera.height; v += 7) {
         for (int u = 0; u < camera.width; u += 7) {
           const Eigen::Vector2d at = Eigen::Vector2d(u, v) + pattern[k].pixel_offset_px.cast<double>();
@@ -362,12 +358,13 @@ TEST(RendererTest, EveryKernelWritesTheBytesOfThePortableOneAndOfEigen) {
       for (int v = 0; v < camera.height; ++v) {
         for (int u = 0; u < camera.width; ++u) {
           if (layer.object_id.at<int>(v, u) < 0) continue;
-          const Eigen::Vector2f ray = camera.Ray(Eigen::Vector2d(u + layer.pixel_offset_px.x(), v + layer.pixel_offset_px.y()))
-                                          .head<2>()
-                                          .cast<float>();
+          const Eigen::Vector2f ray =
+              camera.Ray(Eigen::Vector2d(u + layer.pixel_offset_px.x(), v + layer.pixel_offset_px.y()))
+                  .head<2>()
+                  .cast<float>();
           const cv::Vec3f p = layer.p_C.at<cv::Vec3f>(v, u);
-          const Eigen::Vector3f expected =
-              o_C + p[2] * Eigen::Vector3f(ray.x() - o_C.x() * inv_focus_m, ray.y() - o_C.y() * inv_focus_m, 1.0f);
+          const Eigen::Vector3f expected = o_C + p[2] * Eigen::Vector3f(ray.x() - o_C.x() * inv_focus_m,
+                                                                        ray.y() - o_C.y() * inv_focus_m, 1.0f);
           ASSERT_TRUE(expected.x() == p[0] && expected.y() == p[1] && expected.z() == p[2])
               << "layer " << k << " pixel " << u << "," << v;
           ++checked;

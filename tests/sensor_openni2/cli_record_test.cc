@@ -3,9 +3,9 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/openni2/depth_units.h"
 #include "romunect/sensor/openni2/virtual_device.h"
-#include "romunect/sensor/frame_io.h"
 #include "romunect/testing/test_support.h"
 
 namespace romunect::openni2 {
@@ -34,7 +34,8 @@ void ExpectSameFrames(const std::filesystem::path& recorded, const std::filesyst
     cv::Mat expected(fb.depth_m.size(), CV_32F);
     for (int v = 0; v < expected.rows; ++v) {
       for (int u = 0; u < expected.cols; ++u) {
-        expected.at<float>(v, u) = DequantizeDepth(QuantizeDepth(fb.depth_m.at<float>(v, u), DepthUnit::k100um), DepthUnit::k100um);
+        expected.at<float>(v, u) = DequantizeDepth(QuantizeDepth(fb.depth_m.at<float>(v, u), DepthUnit::k100um),
+                                                   DepthUnit::k100um);
       }
     }
     EXPECT_EQ(fa.index, static_cast<int>(i));
@@ -137,14 +138,16 @@ TEST(CliRecord, PoseLogAndCalibrationGiveFusableFrames) {
   const Pose T_H_C = MakePose(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.01, 0.02, 0.1));
   {
     cv::FileStorage fs((out / "calib.yml").string(), cv::FileStorage::WRITE);
-    fs << "format" << "romunect-calibration" << "version" << 1;
+    fs << "format"
+       << "romunect-calibration"
+       << "version" << 1;
     camera.Write(fs);
     cv::Mat m(4, 4, CV_64F);
     for (int i = 0; i < 16; ++i) m.at<double>(i / 4, i % 4) = T_H_C.matrix()(i / 4, i % 4);
     fs << "T_H_C" << m;
   }
-  const auto r = RunRomunect("record " + StepDevice(dir.path()) + " " + (out / "rec").string() +
-                             " --pose-log " + (out / "poses.csv").string() + " --calibration " + (out / "calib.yml").string());
+  const auto r = RunRomunect("record " + StepDevice(dir.path()) + " " + (out / "rec").string() + " --pose-log " +
+                             (out / "poses.csv").string() + " --calibration " + (out / "calib.yml").string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
   FrameDirectorySource rec(out / "rec");
   EXPECT_EQ(rec.camera(), camera);  // the calibration's camera, distortion included, not the FOV pinhole
@@ -166,11 +169,13 @@ TEST(CliRecord, NeverReplacesAnEarlierRecordingOrFrameDirectory) {
   ScratchDir out("out");
   testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 2, 35);
   const std::string device = StepDevice(dir.path());
-  ASSERT_EQ(RunRomunect("record " + device + " " + (out / "a").string() + " --oni " + (out / "a.oni").string()).exit_code, 0);
+  ASSERT_EQ(
+      RunRomunect("record " + device + " " + (out / "a").string() + " --oni " + (out / "a.oni").string()).exit_code, 0);
   const std::string recording = testing::ReadText(out / "a.oni");
   auto r = RunRomunect("record " + device + " " + (out / "b").string() + " --oni " + (out / "a.oni").string());
   EXPECT_EQ(r.exit_code, 2);
-  EXPECT_NE(r.output.find("a.oni: already exists; refusing to overwrite an earlier recording"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("a.oni: already exists; refusing to overwrite an earlier recording"), std::string::npos)
+      << r.output;
   EXPECT_FALSE(std::filesystem::exists(out / "b"));
   r = RunRomunect("record " + device + " " + (out / "a").string() + " --oni " + (out / "new.oni").string());
   EXPECT_EQ(r.exit_code, 2);
@@ -187,7 +192,8 @@ TEST(CliRecord, RefusesCaptureTargetsItCannotUseBeforeOpeningTheDevice) {
   ScratchDir out("out");
   testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 2, 36);
   const std::string device = StepDevice(dir.path());
-  auto r = RunRomunect("record " + device + " " + (out / "a").string() + " --oni " + (out / "no_such" / "a.oni").string());
+  auto r = RunRomunect("record " + device + " " + (out / "a").string() + " --oni " +
+                       (out / "no_such" / "a.oni").string());
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_NE(r.output.find("a.oni: cannot be created: "), std::string::npos) << r.output;
   r = RunRomunect("record " + device + " " + (out / "same").string() + " --oni " + (out / "same").string());
@@ -209,8 +215,9 @@ TEST(CliRecord, RecordingNoFrameIsAnErrorThatLeavesNoDirectory) {
   ScratchDir out("out");
   testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 3, 38);  // at 0 .. 2/30 s
   testing::WriteText(out / "late.csv", "time_s,x_m,y_m,z_m,qw,qx,qy,qz\n5,0.5,0,0.4,0,1,0,0\n6,0.5,0,0.3,0,1,0,0\n");
-  const auto r = RunRomunect("record " + StepDevice(dir.path()) + " " + (out / "rec").string() + " --no-ir --pose-log " +
-                             (out / "late.csv").string() + " --oni " + (out / "rec.oni").string());
+  const auto r = RunRomunect("record " + StepDevice(dir.path()) + " " + (out / "rec").string() +
+                             " --no-ir --pose-log " + (out / "late.csv").string() + " --oni " +
+                             (out / "rec.oni").string());
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_NE(r.output.find("recorded no frames (3 skipped"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("the streams are in"), std::string::npos) << r.output;
@@ -233,7 +240,9 @@ TEST(CliRecord, AFrameDirectoryCopyRefusesDeviceOptionsAndTakesTheGivenCamera) {
   calibrated.fx *= 1.01;
   {
     cv::FileStorage fs((out / "calib.yml").string(), cv::FileStorage::WRITE);
-    fs << "format" << "romunect-calibration" << "version" << 1;
+    fs << "format"
+       << "romunect-calibration"
+       << "version" << 1;
     calibrated.Write(fs);
     fs << "T_H_C" << cv::Mat::eye(4, 4, CV_64F);
   }

@@ -2,9 +2,9 @@
 
 #include <gtest/gtest.h>
 
-#include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
+#include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/testing/test_support.h"
 
 namespace romunect::openni2 {
@@ -59,7 +59,9 @@ TEST(OpenSource, RejectsWhatFitsNoForm) {
     OpenSource("/no/such/place");
     FAIL();
   } catch (const InputError& e) {
-    EXPECT_NE(std::string(e.what()).find("/no/such/place: not a directory, a .oni file, oni://[URI] or romunect:DIR"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("/no/such/place: not a directory, a .oni file, oni://[URI] or romunect:DIR"),
+              std::string::npos)
+        << e.what();
   }
   EXPECT_THROW(OpenSource(""), InputError);
 }

@@ -10,11 +10,11 @@
 
 #include <gtest/gtest.h>
 
-#include "romunect/sensor/openni2/depth_units.h"
-#include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
+#include "romunect/sensor/openni2/depth_units.h"
+#include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/testing/test_support.h"
 
 namespace romunect::openni2 {
@@ -109,7 +109,8 @@ TEST(VirtualDevice, PlaysAFrameDirectoryThroughOpenNI2BitForBit) {
   EXPECT_EQ(source.depth_unit(), DepthUnit::k100um);
   EXPECT_FALSE(source.is_recording_playback());
   EXPECT_NE(source.Describe().find("80x60 @30 Hz, depth in 100 um, IR, 5 frames; chip: zero plane 120 mm"),
-            std::string::npos) << source.Describe();
+            std::string::npos)
+      << source.Describe();
   EXPECT_NE(source.Describe().find("emitter-camera 75 mm"), std::string::npos) << source.Describe();
   const CameraModel truth = testing::SmallCamera();
   EXPECT_EQ(source.camera().width, truth.width);
@@ -143,7 +144,8 @@ TEST(VirtualDevice, OneMillimetreUnitAndDepthOnly) {
   ASSERT_EQ(frames.size(), 3u);
   FrameDirectorySource truth(dir.path());
   for (const Frame& f : frames) {
-    EXPECT_TRUE(ImagesBitEqual(f.depth_m, ExpectedDepth(LoadFrame(dir.path(), truth.manifest(), f.index).depth_m, DepthUnit::k1mm)));
+    EXPECT_TRUE(ImagesBitEqual(f.depth_m, ExpectedDepth(LoadFrame(dir.path(), truth.manifest(), f.index).depth_m,
+                                                        DepthUnit::k1mm)));
     EXPECT_TRUE(f.ir.empty());
   }
 }
@@ -408,8 +410,11 @@ TEST(VirtualDevice, StalledDeviceGivesAClearErrorWithinTheTimeoutAndKeepsEarlier
   } catch (const InputError& e) {
     const std::string message = e.what();
     EXPECT_NE(message.find(options.uri), std::string::npos) << message;
-    EXPECT_NE(message.find("no frame for 0.5 s (device unplugged or stalled); 2 frames were delivered before, the last at index 1"),
-              std::string::npos) << message;
+    EXPECT_NE(
+        message.find(
+            "no frame for 0.5 s (device unplugged or stalled); 2 frames were delivered before, the last at index 1"),
+        std::string::npos)
+        << message;
   }
   const double elapsed_s = stall.seconds();
   EXPECT_GE(elapsed_s, 0.5);
@@ -423,11 +428,15 @@ TEST(OpenNI2SourceErrors, UnknownUriNamesTheUriAndTheDevicesFound) {
   options.uri = "romunect:/no/such/frame/directory";
   std::string m = OpenError(options);
   EXPECT_NE(m.find("romunect:/no/such/frame/directory: no OpenNI2 device opens with this URI: "
-                   "/no/such/frame/directory is not a frame directory (no frames.json)"), std::string::npos) << m;
+                   "/no/such/frame/directory is not a frame directory (no frames.json)"),
+            std::string::npos)
+      << m;
   options.uri = "romunect:/tmp?pace=fast";
   m = OpenError(options);
-  EXPECT_NE(m.find("romunect:/tmp?pace=fast: not a valid virtual-device URI: unknown or malformed parameter 'pace=fast'"),
-            std::string::npos) << m;
+  EXPECT_NE(m.find(
+                "romunect:/tmp?pace=fast: not a valid virtual-device URI: unknown or malformed parameter 'pace=fast'"),
+            std::string::npos)
+      << m;
   options.uri = "usb://bogus/1";
   m = OpenError(options);
   EXPECT_NE(m.find("usb://bogus/1: no OpenNI2 device opens with this URI"), std::string::npos) << m;
@@ -456,7 +465,8 @@ TEST(OpenNI2SourceErrors, UnsupportedModeListsTheOfferedModes) {
   const std::string m = OpenError(options);
   EXPECT_NE(m.find("video mode: depth 1280x1024 @30 Hz in 100um or 1mm is not offered; the device offers: "
                    "depth 80x60 @30 Hz 100um, depth 80x60 @30 Hz 1mm, depth 80x60 @30 Hz shift9.2"),
-            std::string::npos) << m;
+            std::string::npos)
+      << m;
   const auto modes = ListVideoModes(options.uri);
   ASSERT_EQ(modes.size(), 4u);
   EXPECT_EQ(modes[3], "ir 80x60 @30 Hz gray16");

@@ -34,7 +34,8 @@ std::optional<Pose> ReferenceAt(const std::vector<TimedPose>& poses, double t) {
   for (size_t i = 0; i + 1 < poses.size(); ++i) {
     if (t >= poses[i].time_s && t <= poses[i + 1].time_s) {
       if (t == poses[i + 1].time_s) continue;  // take the right bracket at an exact node
-      return InterpolatePose(poses[i].T_B_H, poses[i + 1].T_B_H, (t - poses[i].time_s) / (poses[i + 1].time_s - poses[i].time_s));
+      return InterpolatePose(poses[i].T_B_H, poses[i + 1].T_B_H,
+                             (t - poses[i].time_s) / (poses[i + 1].time_s - poses[i].time_s));
     }
   }
   if (!poses.empty() && t == poses.back().time_s) return poses.back().T_B_H;
@@ -66,14 +67,17 @@ TEST(PoseLog, SavesAndLoadsTheDocumentedCsv) {
   ASSERT_EQ(back.poses().size(), log.poses().size());
   for (size_t i = 0; i < log.poses().size(); ++i) {
     EXPECT_EQ(back.poses()[i].time_s, log.poses()[i].time_s);
-    EXPECT_TRUE(testing::PosesNear(back.poses()[i].T_B_H, log.poses()[i].T_B_H, kTextRoundTripAngleRad, kTextRoundTripTranslationM));
+    EXPECT_TRUE(testing::PosesNear(back.poses()[i].T_B_H, log.poses()[i].T_B_H, kTextRoundTripAngleRad,
+                                   kTextRoundTripTranslationM));
   }
   // A hand-written log: comments, spaces, a w-first quaternion (90 deg about z).
-  testing::WriteText(dir / "hand.csv", "# robot log\n0.0, 0.5, 0, 0.3, 1, 0, 0, 0\n 1.0 ,0.5,0,0.2, 0.70710678,0,0,0.70710678 # turned\n");
+  testing::WriteText(
+      dir / "hand.csv",
+      "# robot log\n0.0, 0.5, 0, 0.3, 1, 0, 0, 0\n 1.0 ,0.5,0,0.2, 0.70710678,0,0,0.70710678 # turned\n");
   const PoseLog hand = PoseLog::Load(dir / "hand.csv");
   const Pose mid = *hand.At(0.5);
   EXPECT_NEAR(mid.translation().z(), 0.25, 1e-15);
-  EXPECT_NEAR(RotationAngleRad(mid), M_PI / 4, 1e-8);  // half of 90 deg; input rounded to 8 digits
+  EXPECT_NEAR(RotationAngleRad(mid), M_PI / 4, 1e-8);           // half of 90 deg; input rounded to 8 digits
   EXPECT_NEAR(mid.rotation()(1, 0), std::sin(M_PI / 4), 1e-8);  // about +z
 }
 
@@ -89,10 +93,14 @@ std::string LoadError(const ScratchDir& dir, const std::string& text) {
 
 TEST(PoseLog, RejectsBadLogsNamingLineAndColumn) {
   ScratchDir dir("log");
-  EXPECT_NE(LoadError(dir, "0,0,0,0,1,0,0,0\n0,0,0,0,1,0,0,0\n").find("bad.csv: line 2: time_s: 0.000000 does not follow"), std::string::npos);
+  EXPECT_NE(
+      LoadError(dir, "0,0,0,0,1,0,0,0\n0,0,0,0,1,0,0,0\n").find("bad.csv: line 2: time_s: 0.000000 does not follow"),
+      std::string::npos);
   EXPECT_NE(LoadError(dir, "0,0,0,0,2,0,0,0\n").find("line 1: qw..qz: quaternion norm 2"), std::string::npos);
   EXPECT_NE(LoadError(dir, "0,0,0,0,1,0,0\n").find("line 1: 7 columns, expected 8"), std::string::npos);
-  EXPECT_NE(LoadError(dir, "time_s,x_m,y_m,z_m,qw,qx,qy,qz\n0,0,zero,0,1,0,0,0\n").find("line 2: y_m: 'zero' is not a finite number"), std::string::npos);
+  EXPECT_NE(LoadError(dir, "time_s,x_m,y_m,z_m,qw,qx,qy,qz\n0,0,zero,0,1,0,0,0\n")
+                .find("line 2: y_m: 'zero' is not a finite number"),
+            std::string::npos);
   EXPECT_NE(LoadError(dir, "# nothing\n").find("holds no poses"), std::string::npos);
   // A header in another order (w last, as ROS writes quaternions) is refused, not read w-first.
   EXPECT_NE(LoadError(dir, "time_s,x_m,y_m,z_m,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n")
@@ -104,7 +112,7 @@ TEST(PoseLog, RejectsBadLogsNamingLineAndColumn) {
 TEST(PoseLogSource, SetsHandAndCameraPosesAndFlagsFramesOutsideTheLog) {
   ScratchDir dir("frames");
   testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 5, 3);  // times i / 30
-  std::vector<TimedPose> poses = SamplePoses();  // 0 .. 0.25 s
+  std::vector<TimedPose> poses = SamplePoses();                                  // 0 .. 0.25 s
   PoseLogSourceOptions options;
   options.time_offset_s = 0.13;  // frames at 0.13 .. 0.263 s on the log's clock: the last is outside
   options.T_H_C = MakePose(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0, 0, 0.1));

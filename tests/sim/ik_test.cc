@@ -29,10 +29,11 @@ TEST(IkTest, ReachesSampledPosesWithinTenthOfMillimetreAndTwentiethOfDegree) {
     for (int j = 0; j < World::kArmDof; ++j) q_goal[j] += joint(rng);
     const Pose T_W_goal = world.ForwardKinematics(q_goal, ArmSite::kCamera);
     const IkResult ik = SolveIk(world, ArmSite::kCamera, T_W_goal, ScanSeed());
-    ASSERT_TRUE(ik.converged) << "trial " << trial << ": " << ik.position_error_m << " m, " << ik.angle_error_rad << " rad";
+    ASSERT_TRUE(ik.converged) << "trial " << trial << ": " << ik.position_error_m << " m, " << ik.angle_error_rad
+                              << " rad";
     // Checked independently of the solver's own error: forward kinematics of its answer.
-    EXPECT_TRUE(testing::PosesNear(world.ForwardKinematics(ik.q, ArmSite::kCamera), T_W_goal, kIkToleranceRad,
-                                   kIkToleranceM))
+    EXPECT_TRUE(
+        testing::PosesNear(world.ForwardKinematics(ik.q, ArmSite::kCamera), T_W_goal, kIkToleranceRad, kIkToleranceM))
         << "trial " << trial;
   }
 }

@@ -129,8 +129,9 @@ TEST(PileTest, SettleThatNeverConvergesIsReported) {
 
 TEST(PileTest, BadSavedSceneNamesTheField) {
   testing::ScratchDir dir("sim_pile_bad");
-  testing::WriteText(dir / "scene.json",
-                     R"({"format": "romunect-scene", "version": 1, "scene_file": "", "objects": [{"kind": "spoon"}], "qpos": []})");
+  testing::WriteText(
+      dir / "scene.json",
+      R"({"format": "romunect-scene", "version": 1, "scene_file": "", "objects": [{"kind": "spoon"}], "qpos": []})");
   try {
     LoadSettledScene(dir / "scene.json");
     FAIL() << "no exception";

@@ -94,7 +94,8 @@ TEST(ScannerTest, FramesMatchBruteForceRayCastingAndTheExecutedPoses) {
         const Eigen::Vector3d d_W = frame.T_W_C->rotation() * ray_C.normalized();
         const double dist = BruteForceDistance(scanner.world(), frame.T_W_C->translation(), d_W);
         const double expected = std::isnan(dist) ? 0.0 : dist / ray_C.norm();
-        EXPECT_NEAR(frame.gt_depth_m.at<float>(v, u), expected, kDepthToleranceM) << "frame " << frames << " px " << u << "," << v;
+        EXPECT_NEAR(frame.gt_depth_m.at<float>(v, u), expected, kDepthToleranceM)
+            << "frame " << frames << " px " << u << "," << v;
       }
     }
     // Without an imager the sensor is ideal.

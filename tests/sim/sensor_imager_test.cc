@@ -31,7 +31,7 @@ ScanOptions ShortDescent() {
   options.approach.start_distance_m = 0.215;
   options.approach.end_distance_m = 0.205;
   options.approach.region_size_m = Eigen::Vector2d(0.02, 0.02);  // one pass
-  options.levels_from_rig = false;  // this descent, not the stand-off levels
+  options.levels_from_rig = false;                               // this descent, not the stand-off levels
   return options;
 }
 

@@ -99,8 +99,8 @@ TEST(WorldTest, ForwardKinematicsMatchesTheSimulatedState) {
   for (ArmSite site : {ArmSite::kHand, ArmSite::kCamera, ArmSite::kProjector, ArmSite::kSuctionTip}) {
     EXPECT_TRUE(testing::PosesNear(world.ForwardKinematics(q, site), world.SitePose_W(site), kExact, kExact));
   }
-  EXPECT_TRUE(testing::PosesNear(world.T_B_H(), world.T_W_B().inverse() * world.SitePose_W(ArmSite::kHand), kExact,
-                                 kExact));
+  EXPECT_TRUE(
+      testing::PosesNear(world.T_B_H(), world.T_W_B().inverse() * world.SitePose_W(ArmSite::kHand), kExact, kExact));
 }
 
 TEST(WorldTest, JacobianMatchesFiniteDifferencesOfForwardKinematics) {
@@ -134,8 +134,8 @@ TEST(WorldTest, ArmHoldsItsPoseUnderGravityAtTheDefaultTimeStep) {
 
 TEST(WorldTest, ObjectsAreGeneratedWithCollisionAndRenderGeometry) {
   WorldOptions options;
-  for (ObjectKind kind : {ObjectKind::kKey, ObjectKind::kPillBox, ObjectKind::kPuzzlePiece, ObjectKind::kLegoBrick,
-                          ObjectKind::kGear}) {
+  for (ObjectKind kind :
+       {ObjectKind::kKey, ObjectKind::kPillBox, ObjectKind::kPuzzlePiece, ObjectKind::kLegoBrick, ObjectKind::kGear}) {
     options.objects.push_back(MakeObject(kind, 3));
   }
   World world(options);
@@ -219,8 +219,8 @@ TEST(WorldTest, SuctionGripHoldsAnObjectAndReleaseDropsIt) {
   world.Grip(0);
   const Pose T_tip_O = T_W_tip.inverse() * world.T_W_O(0);
   world.Step(500);  // 1 s: the weld holds it against gravity, to 0.1 mm (a stiff weld)
-  EXPECT_TRUE(testing::PosesNear(world.SitePose_W(ArmSite::kSuctionTip).inverse() * world.T_W_O(0), T_tip_O, 1e-3,
-                                 1e-4));
+  EXPECT_TRUE(
+      testing::PosesNear(world.SitePose_W(ArmSite::kSuctionTip).inverse() * world.T_W_O(0), T_tip_O, 1e-3, 1e-4));
   world.Release();
   world.Step(100);  // 0.2 s of free fall would be 20 cm; it lands on the bin or table sooner
   EXPECT_LT(world.T_W_O(0).translation().z(), T_W_O.translation().z() - 0.05);

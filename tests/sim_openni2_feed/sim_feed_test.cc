@@ -9,11 +9,11 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include "romunect/sensor/errors.h"
 #include "romunect/sensor/openni2/depth_units.h"
 #include "romunect/sensor/openni2/open_source.h"
 #include "romunect/sensor/openni2/openni2_source.h"
 #include "romunect/sensor/openni2/virtual_device.h"
-#include "romunect/sensor/errors.h"
 #include "romunect/testing/test_support.h"
 
 namespace romunect::sim_feed {
@@ -48,12 +48,12 @@ TEST(SimFeed, ParsesItsQueryAndRejectsUnknownKeysAndBadValues) {
   EXPECT_EQ(o.scale, 4);
   EXPECT_TRUE(o.ideal_depth);
   EXPECT_EQ(o.frames, 3);
-  for (const auto& [query, message] : std::vector<std::pair<std::string, std::string>>{
-           {"bogus=1", "unknown or malformed key 'bogus=1'"},
-           {"scale=3", "scale = 3: must be 1, 2 or 4"},
-           {"seed=x", "'x' is not an integer"},
-           {"depth=fuzzy", "unknown or malformed key 'depth=fuzzy'"},
-           {"rig=kinect-v3", "rig = kinect-v3"}}) {
+  for (const auto& [query, message] :
+       std::vector<std::pair<std::string, std::string>>{{"bogus=1", "unknown or malformed key 'bogus=1'"},
+                                                        {"scale=3", "scale = 3: must be 1, 2 or 4"},
+                                                        {"seed=x", "'x' is not an integer"},
+                                                        {"depth=fuzzy", "unknown or malformed key 'depth=fuzzy'"},
+                                                        {"rig=kinect-v3", "rig = kinect-v3"}}) {
     try {
       SimFeedOptions::Parse(query);
       ADD_FAILURE() << query;

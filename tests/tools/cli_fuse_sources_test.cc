@@ -14,12 +14,12 @@
 #include <nlohmann/json.hpp>
 
 #include "romunect/calib/calibration_file.h"
-#include "romunect/sensor/openni2/depth_units.h"
-#include "romunect/sensor/openni2/pose_log.h"
-#include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/image_io.h"
+#include "romunect/sensor/openni2/depth_units.h"
+#include "romunect/sensor/openni2/pose_log.h"
+#include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/testing/analytic_bin.h"
 #include "romunect/testing/test_support.h"
 
@@ -39,9 +39,7 @@ const std::string kFuseArgs = " --voxel 0.001";
 std::string Quote(const std::string& s) { return "'" + s + "'"; }
 
 // The time OpenNI2Source gives frame i: the device sends whole microseconds since the first.
-double WireTime(double t_s, double t0_s) {
-  return static_cast<double>(std::llround((t_s - t0_s) * 1e6)) * 1e-6;
-}
+double WireTime(double t_s, double t0_s) { return static_cast<double>(std::llround((t_s - t0_s) * 1e6)) * 1e-6; }
 
 // A capture of the analytic bin as the hardware path sees it: depth at the wire's 100 um,
 // times in whole microseconds, and T_W_C exactly what the pose log (T_B_H, world = base) and
@@ -101,15 +99,15 @@ Capture WriteCapture(const std::filesystem::path& root, int frames, int logged, 
       f.raw.create(f.depth_m.size(), CV_16U);
       f.raw.forEach<uint16_t>([&](uint16_t& r, const int* p) {
         const double z = f.depth_m.at<float>(p[0], p[1]);
-        r = z > 0.0 ? static_cast<uint16_t>(std::clamp(std::lround(kRawOffset - kRawScalePxM / z), 0L, 2046L)) : kRawInvalid;
+        r = z > 0.0 ? static_cast<uint16_t>(std::clamp(std::lround(kRawOffset - kRawScalePxM / z), 0L, 2046L))
+                    : kRawInvalid;
       });
       Frame m = f;
       m.depth_m = ApplyDepthCorrection(*model.depth, f.raw, model.chip);
       model_writer->Add(m);
     }
-    f.depth_m.forEach<float>([](float& d, const int*) {
-      d = DequantizeDepth(QuantizeDepth(d, DepthUnit::k100um), DepthUnit::k100um);
-    });
+    f.depth_m.forEach<float>(
+        [](float& d, const int*) { d = DequantizeDepth(QuantizeDepth(d, DepthUnit::k100um), DepthUnit::k100um); });
     writer.Add(f);
   }
   writer.Finish();
@@ -133,8 +131,8 @@ nlohmann::json Report(const std::filesystem::path& out) { return nlohmann::json:
 TEST(FuseSourcesCli, OniWithPoseLogAndLiveDeviceFuseToTheDirectorysMap) {
   ScratchDir scratch("fuse_sources_same");
   const Capture c = WriteCapture(scratch.path(), kFrames, kFrames);
-  const auto rec = RunRomunect("record " + Quote(DeviceUri(c.dir)) + " " + (scratch / "rec").string() + " --no-ir --oni " +
-                               (scratch / "scan.oni").string());
+  const auto rec = RunRomunect("record " + Quote(DeviceUri(c.dir)) + " " + (scratch / "rec").string() +
+                               " --no-ir --oni " + (scratch / "scan.oni").string());
   ASSERT_EQ(rec.exit_code, 0) << rec.output;
 
   const auto from_dir = RunRomunect("fuse " + c.dir.string() + kFuseArgs + " --out " + (scratch / "dir").string());
@@ -211,8 +209,8 @@ TEST(FuseSourcesCli, TheCalibrationsDepthModelIsAppliedToTheDevicesRawShifts) {
   constexpr double kMinModelCompleteness = 0.05;
   EXPECT_GT(Report(scratch / "live")["completeness"].get<double>(), kMinModelCompleteness);
 
-  const auto device = RunRomunect("fuse " + Quote(DeviceUri(c.dir)) + kFuseArgs + PoseArgs(c) + " --device-depth --out " +
-                                  (scratch / "device").string());
+  const auto device = RunRomunect("fuse " + Quote(DeviceUri(c.dir)) + kFuseArgs + PoseArgs(c) +
+                                  " --device-depth --out " + (scratch / "device").string());
   ASSERT_EQ(device.exit_code, 0) << device.output;
   EXPECT_EQ(Report(scratch / "device")["depth_from"], "the device's metric depth");
   EXPECT_TRUE(ImagesBitEqual(ReadDepthExr(scratch / "device" / "fused_depth.exr"), device_map));
@@ -228,7 +226,8 @@ TEST(FuseSourcesCli, RecordingWithADepthModelWritesItsMetricDepth) {
                                c.poses.string() + " --calibration " + c.calibration.string() + " --no-ir");
   ASSERT_EQ(rec.exit_code, 0) << rec.output;
   // A recording's frames against a directory's: the same depth, bit for bit, raw shifts kept or not.
-  auto expect_frames = [](const std::filesystem::path& recorded_dir, const std::filesystem::path& source_dir, bool raw) {
+  auto expect_frames = [](const std::filesystem::path& recorded_dir, const std::filesystem::path& source_dir,
+                          bool raw) {
     const FrameDirectorySource recorded(recorded_dir), source(source_dir);
     ASSERT_EQ(recorded.manifest().frames.size(), static_cast<size_t>(kFrames));
     for (int i = 0; i < kFrames; ++i) {
@@ -243,7 +242,8 @@ TEST(FuseSourcesCli, RecordingWithADepthModelWritesItsMetricDepth) {
 
   // --device-depth records the device's own depth, as fuse --device-depth fuses it.
   const auto dev = RunRomunect("record " + Quote(DeviceUri(c.dir)) + " " + (scratch / "dev").string() + " --pose-log " +
-                               c.poses.string() + " --calibration " + c.calibration.string() + " --no-ir --device-depth");
+                               c.poses.string() + " --calibration " + c.calibration.string() +
+                               " --no-ir --device-depth");
   ASSERT_EQ(dev.exit_code, 0) << dev.output;
   expect_frames(scratch / "dev", c.dir, /*raw=*/false);
   EXPECT_EQ(nlohmann::json::parse(ReadText(scratch / "dev" / "frames.json"))["recording"]["depth_from"],
@@ -306,7 +306,8 @@ TEST(FuseSourcesCli, FramesTheDeviceDroppedAreCounted) {
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const nlohmann::json report = Report(scratch / "out");
   ASSERT_TRUE(report.contains("dropped_frames"));
-  EXPECT_EQ(report["frames"].get<int>() + report["bad_frames"].get<int>() + report["dropped_frames"].get<int>(), kFrames);
+  EXPECT_EQ(report["frames"].get<int>() + report["bad_frames"].get<int>() + report["dropped_frames"].get<int>(),
+            kFrames);
   EXPECT_THAT(r.output, HasSubstr(std::to_string(report["dropped_frames"].get<int>()) + " dropped by the device"));
 }
 

@@ -52,7 +52,9 @@ TEST(CliScan, RejectsBadArgumentsBeforeAnyWork) {
                   "'purple' is not bright, dark or shiny");
   // Too large for the bin (a 400 mm cube), or so small that its unit is likely wrong (18 um).
   WriteCubeObj(dir / "crate.obj", 200.0);
-  ExpectFailsWith("--mesh " + (dir / "crate.obj").string() + out, "crate.obj: size: 692.8 mm across at 0.001 m per file unit: wider than the bin's inner diagonal, 132 mm");
+  ExpectFailsWith(
+      "--mesh " + (dir / "crate.obj").string() + out,
+      "crate.obj: size: 692.8 mm across at 0.001 m per file unit: wider than the bin's inner diagonal, 132 mm");
   ExpectFailsWith("--mesh " + (dir / "cube.obj").string() + " --mesh-unit 1e-6" + out,
                   "cube.obj: size: 0.031177 mm across at 0.000001 m per file unit: below 1 mm; is the unit right?");
   // Content errors name the mesh file, not the scene MuJoCo composes from it.
@@ -83,7 +85,8 @@ TEST(CliScan, NeverOverwritesAFinishedRun) {
 TEST(CliScan, NeverRemovesWhatTheOutputPathHolds) {
   ScratchDir dir("scan");
   testing::WriteText(dir / "mine" / "notes.txt", "precious");
-  ExpectFailsWith("--out " + (dir / "mine").string() + "/", (dir / "mine").string() + ": exists and is not an empty folder");
+  ExpectFailsWith("--out " + (dir / "mine").string() + "/",
+                  (dir / "mine").string() + ": exists and is not an empty folder");
   EXPECT_EQ(testing::ReadText(dir / "mine" / "notes.txt"), "precious");
   testing::WriteText(dir / "notes.txt", "precious");
   ExpectFailsWith("--out " + (dir / "notes.txt").string(), "exists and is not an empty folder");
@@ -133,9 +136,9 @@ TEST(CliScanIntegration, SmallPileEndToEnd) {
   const auto r = RunRomunect("scan --objects 4 --seed 3 --out " + run.string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_FALSE(fs::exists(run.string() + ".incomplete"));
-  for (const char* file : {"report.json", "report.html", "figure2.png", "overview.png", "fused_depth.exr",
-                           "fused_depth.png", "fused_points.ply", "gt_height.exr", "completeness.png",
-                           "error.png", "frames/frames.json", "scene.json"}) {
+  for (const char* file :
+       {"report.json", "report.html", "figure2.png", "overview.png", "fused_depth.exr", "fused_depth.png",
+        "fused_points.ply", "gt_height.exr", "completeness.png", "error.png", "frames/frames.json", "scene.json"}) {
     EXPECT_TRUE(fs::exists(run / file)) << file;
   }
   const auto report = nlohmann::json::parse(testing::ReadText(run / "report.json"));
@@ -164,8 +167,8 @@ TEST(CliScanIntegration, SmallPileEndToEnd) {
   // The run's scene.json reloads its settled pile exactly, and a seed gives the same bytes at
   // any thread count: the same frames, fused map and pick without settling, on one thread.
   const fs::path again = dir / "again";
-  const auto reload = RunRomunect("scan --saved-scene " + (run / "scene.json").string() + " --seed 3 --threads 1 --out " +
-                                  again.string());
+  const auto reload = RunRomunect("scan --saved-scene " + (run / "scene.json").string() +
+                                  " --seed 3 --threads 1 --out " + again.string());
   ASSERT_EQ(reload.exit_code, 0) << reload.output;
   size_t frame_files = 0;
   for (const auto& entry : fs::recursive_directory_iterator(run / "frames")) {

@@ -23,17 +23,14 @@ ScenePtr NewScene(RTCDevice device, RTCBuildQuality quality, RTCSceneFlags flags
 }
 
 // Attaches a triangle geometry holding mesh_O moved by T_S_O into `scene`; returns its id.
-unsigned AttachMesh(RTCDevice device, RTCScene scene, const TriangleMesh& mesh_O,
-                    const Pose& T_S_O) {
+unsigned AttachMesh(RTCDevice device, RTCScene scene, const TriangleMesh& mesh_O, const Pose& T_S_O) {
   RTCGeometry geometry = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
   CheckDevice(device, "rtcNewGeometry");
   rtcSetGeometryBuildQuality(geometry, RTC_BUILD_QUALITY_HIGH);
-  auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(
-      geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float),
-      mesh_O.vertices_O.size()));
-  auto* indices = static_cast<unsigned*>(rtcSetNewGeometryBuffer(
-      geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned),
-      mesh_O.triangles.size()));
+  auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                                               3 * sizeof(float), mesh_O.vertices_O.size()));
+  auto* indices = static_cast<unsigned*>(rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                                                 3 * sizeof(unsigned), mesh_O.triangles.size()));
   CheckDevice(device, "rtcSetNewGeometryBuffer");
   const bool identity = T_S_O.isApprox(Pose::Identity(), 0.0);
   const Eigen::Isometry3d T = T_S_O;
@@ -98,8 +95,7 @@ std::string RaySceneOptions::Problem() const {
 RayScene::RayScene(const RaySceneOptions& options) : impl_(std::make_unique<Impl>()) {
   ROMUNECT_CHECK_MSG(options.Problem().empty(), options.Problem().c_str());
   impl_->options = options;
-  const std::string config =
-      options.build_threads > 0 ? "threads=" + std::to_string(options.build_threads) : "";
+  const std::string config = options.build_threads > 0 ? "threads=" + std::to_string(options.build_threads) : "";
   impl_->device.reset(rtcNewDevice(config.c_str()));
   ROMUNECT_CHECK_MSG(impl_->device != nullptr, "rtcNewDevice failed");
   rtcSetDeviceErrorFunction(impl_->device.get(), ErrorCallback, nullptr);
@@ -113,8 +109,7 @@ RayScene::~RayScene() = default;
 RayScene::RayScene(RayScene&&) noexcept = default;
 RayScene& RayScene::operator=(RayScene&&) noexcept = default;
 
-void RayScene::AddStatic(const TriangleMesh& mesh_O, const Pose& T_W_O,
-                         const IrMaterial& material, int object_id) {
+void RayScene::AddStatic(const TriangleMesh& mesh_O, const Pose& T_W_O, const IrMaterial& material, int object_id) {
   ROMUNECT_CHECK_MSG(mesh_O.Problem().empty(), mesh_O.Problem().c_str());
   Impl& s = *impl_;
   // Static meshes are placed in W once: no per-hit transform for the part rays hit most.
@@ -127,8 +122,7 @@ void RayScene::AddStatic(const TriangleMesh& mesh_O, const Pose& T_W_O,
   s.top_dirty = true;
 }
 
-int RayScene::AddMoving(const TriangleMesh& mesh_O, const Pose& T_W_O, const IrMaterial& material,
-                        int object_id) {
+int RayScene::AddMoving(const TriangleMesh& mesh_O, const Pose& T_W_O, const IrMaterial& material, int object_id) {
   ROMUNECT_CHECK_MSG(mesh_O.Problem().empty(), mesh_O.Problem().c_str());
   Impl& s = *impl_;
   RTCDevice device = s.device.get();

@@ -6,8 +6,8 @@
 #include <memory>
 #include <vector>
 
-#include <Eigen/Geometry>
 #include <embree3/rtcore.h>
+#include <Eigen/Geometry>
 
 #include "romunect/sensor/embree/ray_scene.h"
 
@@ -23,18 +23,18 @@ using DevicePtr = std::unique_ptr<RTCDeviceTy, DeviceDeleter>;
 using ScenePtr = std::unique_ptr<RTCSceneTy, SceneDeleter>;
 
 struct GeometryInfo {
-  int material = -1;   // index into RayScene::materials()
+  int material = -1;  // index into RayScene::materials()
   int object_id = -1;
 };
 
 // The static part (meshes pre-placed in W, traced directly) or a moving part (one mesh in O,
 // pose T_W_O, an instance in the top level).
 struct Part {
-  ScenePtr scene;                          // its own BVH
+  ScenePtr scene;  // its own BVH
   Pose T_W_O = Pose::Identity();
-  std::vector<GeometryInfo> geometries;    // by geometry id within `scene`
+  std::vector<GeometryInfo> geometries;            // by geometry id within `scene`
   unsigned instance_id = RTC_INVALID_GEOMETRY_ID;  // moving parts: geometry id of the instance in top
-  Eigen::AlignedBox3d bounds_O;            // moving parts: the box of the mesh's vertices in O
+  Eigen::AlignedBox3d bounds_O;                    // moving parts: the box of the mesh's vertices in O
 };
 
 struct RayScene::Impl {

@@ -107,8 +107,7 @@ cv::Mat OffsetRayTable(const CameraModel& camera, const Eigen::Vector2f& offset_
   for (int v = 0; v < camera.height; ++v) {
     auto* row = table.ptr<cv::Vec2f>(v);
     for (int u = 0; u < camera.width; ++u) {
-      const Eigen::Vector3d ray =
-          camera.Ray(Eigen::Vector2d(u + offset_px.x(), v + offset_px.y()));
+      const Eigen::Vector3d ray = camera.Ray(Eigen::Vector2d(u + offset_px.x(), v + offset_px.y()));
       row[u] = cv::Vec2f(static_cast<float>(ray.x()), static_cast<float>(ray.y()));
     }
   }
@@ -148,17 +147,19 @@ constexpr double kReachMarginM = 1e-4;
 // convex. A part whose bounding box (its eight corners in C) lies beyond one of them cannot be
 // met. The test only skips work: a part in reach is traced as before.
 std::vector<std::array<bool, 2>> MovingPartsOutOfReach(const std::vector<Part>& moving, const Pose& T_W_C,
-                                                        const Eigen::Vector3d& p_P_C,
-                                                        const std::vector<LensSample>& samples,
-                                                        const std::vector<Eigen::Vector4d>& table_bounds,
-                                                        double inv_focus_m, double bias_m) {
+                                                       const Eigen::Vector3d& p_P_C,
+                                                       const std::vector<LensSample>& samples,
+                                                       const std::vector<Eigen::Vector4d>& table_bounds,
+                                                       double inv_focus_m, double bias_m) {
   Eigen::Vector4d slopes(kInf, -kInf, kInf, -kInf);
   Eigen::Vector2d lens(0.0, 0.0);
   for (size_t l = 0; l < samples.size(); ++l) {
     const Eigen::Vector2d o = samples[l].lens_offset_m.cast<double>();
     const Eigen::Vector4d& b = table_bounds[l];
-    slopes = Eigen::Vector4d(std::min(slopes[0], b[0] - o.x() * inv_focus_m), std::max(slopes[1], b[1] - o.x() * inv_focus_m),
-                             std::min(slopes[2], b[2] - o.y() * inv_focus_m), std::max(slopes[3], b[3] - o.y() * inv_focus_m));
+    slopes = Eigen::Vector4d(std::min(slopes[0], b[0] - o.x() * inv_focus_m),
+                             std::max(slopes[1], b[1] - o.x() * inv_focus_m),
+                             std::min(slopes[2], b[2] - o.y() * inv_focus_m),
+                             std::max(slopes[3], b[3] - o.y() * inv_focus_m));
     lens = lens.cwiseMax(o.cwiseAbs());
   }
   const HalfSpace view[] = {{Eigen::Vector3d(0, 0, 1), 0.0},
@@ -229,8 +230,8 @@ std::string RenderOptions::Problem() const {
 
 std::string RenderStats::BriefReport() const {
   std::ostringstream s;
-  s << "render: " << camera_rays << " camera rays, " << hits << " hits, " << shadow_rays
-    << " shadow rays, " << lit << " lit, " << refined_pixels << " refined, " << seconds * 1e3 << " ms";
+  s << "render: " << camera_rays << " camera rays, " << hits << " hits, " << shadow_rays << " shadow rays, " << lit
+    << " lit, " << refined_pixels << " refined, " << seconds * 1e3 << " ms";
   return s.str();
 }
 
@@ -260,7 +261,7 @@ struct GeometryRenderer::Cache {
   std::vector<Eigen::Vector2f> offsets;  // the pixel offset each table was made for
   std::vector<cv::Mat> tables;
   std::vector<Eigen::Vector4d> table_bounds;  // RayTableBounds of each table
-  cv::Mat refine;  // adaptive sampling: pixels that get the extra samples
+  cv::Mat refine;                             // adaptive sampling: pixels that get the extra samples
 
   // Ray tables depend only on the camera and the fixed pixel offsets: computed once.
   void PrepareTables(const CameraModel& cam, const std::vector<LensSample>& samples) {

@@ -19,8 +19,8 @@
 #include <limits>
 #include <vector>
 
-#include <Eigen/Core>
 #include <embree3/rtcore.h>
+#include <Eigen/Core>
 #include <opencv2/core.hpp>
 
 #include "ray_scene_impl.h"

@@ -29,9 +29,9 @@ inline void StoreXyz4(float* to, const float* x, const float* y, const float* z)
   const __m128 xy_lo = _mm_unpacklo_ps(vx, vy), xy_hi = _mm_unpackhi_ps(vx, vy);  // x0 y0 x1 y1, x2 y2 x3 y3
   const __m128 zx_lo = _mm_unpacklo_ps(vz, vx), zx_hi = _mm_unpackhi_ps(vz, vx);  // z0 x0 z1 x1, z2 x2 z3 x3
   const __m128 yz_lo = _mm_unpacklo_ps(vy, vz), yz_hi = _mm_unpackhi_ps(vy, vz);  // y0 z0 y1 z1, y2 z2 y3 z3
-  _mm_storeu_ps(to, _mm_shuffle_ps(xy_lo, zx_lo, _MM_SHUFFLE(3, 0, 1, 0)));      // x0 y0 z0 x1
-  _mm_storeu_ps(to + 4, _mm_shuffle_ps(yz_lo, xy_hi, _MM_SHUFFLE(1, 0, 3, 2)));  // y1 z1 x2 y2
-  _mm_storeu_ps(to + 8, _mm_shuffle_ps(zx_hi, yz_hi, _MM_SHUFFLE(3, 2, 3, 0)));  // z2 x3 y3 z3
+  _mm_storeu_ps(to, _mm_shuffle_ps(xy_lo, zx_lo, _MM_SHUFFLE(3, 0, 1, 0)));       // x0 y0 z0 x1
+  _mm_storeu_ps(to + 4, _mm_shuffle_ps(yz_lo, xy_hi, _MM_SHUFFLE(1, 0, 3, 2)));   // y1 z1 x2 y2
+  _mm_storeu_ps(to + 8, _mm_shuffle_ps(zx_hi, yz_hi, _MM_SHUFFLE(3, 2, 3, 0)));   // z2 x3 y3 z3
 }
 
 // One packet's lanes through the steps of RenderPacket: 16 entries each, one per sample.

@@ -28,7 +28,7 @@ bool EveryFrameHas(const std::vector<FrameRecord>& frames, Field field) {
 
 DeviceContent OpenFrameDirectory(const std::filesystem::path& dir, bool loop) {
   FrameDirectoryManifest manifest = ReadFrameDirectoryManifest(dir);  // throws InputError
-  for (FrameRecord& r : manifest.frames) r.gt_depth.clear();  // no device sends ground truth
+  for (FrameRecord& r : manifest.frames) r.gt_depth.clear();          // no device sends ground truth
   const std::vector<FrameRecord>& frames = manifest.frames;
   // A device without frames would open with no sensor at all and be reported as one lacking a
   // depth sensor.

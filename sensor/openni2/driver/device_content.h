@@ -13,8 +13,8 @@ namespace romunect::openni2 {
 struct DeviceContent {
   std::unique_ptr<FrameSource> source;
   bool has_depth = false, has_ir = false, has_raw = false;  // the images every frame holds
-  int frame_count = 0;         // frames the source will deliver; 0 = endless
-  double fps = 0.0;            // the source's own rate; 0 = unknown
+  int frame_count = 0;                                      // frames the source will deliver; 0 = endless
+  double fps = 0.0;                                         // the source's own rate; 0 = unknown
   std::string extra_json;      // frames.json's unknown top-level keys (the chip's "ps1080")
   double time_origin_s = 0.0;  // the source time that becomes the device's timestamp 0
 };

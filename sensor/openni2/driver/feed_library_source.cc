@@ -57,8 +57,8 @@ void FeedLibrarySource::CreateFeed(const std::string& query) {
   if (info.abi_version != ROMUNECT_FEED_ABI_VERSION || info.width <= 0 || info.height <= 0 ||
       !(info.fx > 0.0 && info.fy > 0.0)) {
     destroy_(feed_);
-    throw std::runtime_error(path_ + ": unsupported feed (ABI version " + std::to_string(info.abi_version) +
-                             ", size " + std::to_string(info.width) + "x" + std::to_string(info.height) + ")");
+    throw std::runtime_error(path_ + ": unsupported feed (ABI version " + std::to_string(info.abi_version) + ", size " +
+                             std::to_string(info.width) + "x" + std::to_string(info.height) + ")");
   }
   info_ = info;
 }

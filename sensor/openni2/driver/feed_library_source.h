@@ -4,10 +4,10 @@
 
 #include <string>
 
-#include "romunect/sensor/openni2/feed_abi.h"
 #include "romunect/sensor/camera_model.h"
 #include "romunect/sensor/frame.h"
 #include "romunect/sensor/frame_source.h"
+#include "romunect/sensor/openni2/feed_abi.h"
 
 namespace romunect::openni2 {
 

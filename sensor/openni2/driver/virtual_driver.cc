@@ -30,12 +30,12 @@
 #include <Driver/OniDriverAPI.h>
 #include <PS1080.h>
 
-#include "romunect/sensor/openni2/depth_units.h"
-#include "romunect/sensor/openni2/virtual_device.h"
+#include "device_content.h"
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/depth_engine.h"
+#include "romunect/sensor/openni2/depth_units.h"
+#include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/sensor/rig.h"
-#include "device_content.h"
 #include "virtual_device_uri.h"
 
 namespace romunect::openni2 {
@@ -178,10 +178,8 @@ class VirtualDevice : public oni::driver::DeviceBase {
 
   OniStatus getProperty(int id, void* data, int* size) override {
     switch (id) {
-      case ONI_DEVICE_PROPERTY_IMAGE_REGISTRATION:
-        return Answer(ONI_IMAGE_REGISTRATION_OFF, data, size);
-      case ONI_DEVICE_PROPERTY_DRIVER_VERSION:
-        return Answer(OniVersion{0, 1, 0, 0}, data, size);
+      case ONI_DEVICE_PROPERTY_IMAGE_REGISTRATION: return Answer(ONI_IMAGE_REGISTRATION_OFF, data, size);
+      case ONI_DEVICE_PROPERTY_DRIVER_VERSION: return Answer(OniVersion{0, 1, 0, 0}, data, size);
       case ONI_DEVICE_PROPERTY_SERIAL_NUMBER: {
         const char serial[] = "romunect-virtual";
         if (*size < static_cast<int>(sizeof(serial))) return ONI_STATUS_BAD_PARAMETER;
@@ -189,14 +187,14 @@ class VirtualDevice : public oni::driver::DeviceBase {
         *size = sizeof(serial);
         return ONI_STATUS_OK;
       }
-      default:
-        return ONI_STATUS_NOT_SUPPORTED;
+      default: return ONI_STATUS_NOT_SUPPORTED;
     }
   }
   OniStatus setProperty(int id, const void* data, int size) override {
     if (id == ONI_DEVICE_PROPERTY_IMAGE_REGISTRATION && size == sizeof(OniImageRegistrationMode)) {
-      return *static_cast<const OniImageRegistrationMode*>(data) == ONI_IMAGE_REGISTRATION_OFF ? ONI_STATUS_OK
-                                                                                                : ONI_STATUS_NOT_SUPPORTED;
+      return *static_cast<const OniImageRegistrationMode*>(data) == ONI_IMAGE_REGISTRATION_OFF
+                 ? ONI_STATUS_OK
+                 : ONI_STATUS_NOT_SUPPORTED;
     }
     return ONI_STATUS_NOT_SUPPORTED;
   }
@@ -227,8 +225,8 @@ class VirtualDevice : public oni::driver::DeviceBase {
   }
   bool IsOffered(OniSensorType type, const OniVideoMode& mode) const {
     for (const OniVideoMode& m : type == ONI_SENSOR_DEPTH ? depth_modes_ : ir_modes_) {
-      if (m.pixelFormat == mode.pixelFormat && m.resolutionX == mode.resolutionX &&
-          m.resolutionY == mode.resolutionY && m.fps == mode.fps) {
+      if (m.pixelFormat == mode.pixelFormat && m.resolutionX == mode.resolutionX && m.resolutionY == mode.resolutionY &&
+          m.fps == mode.fps) {
         return true;
       }
     }
@@ -289,7 +287,8 @@ class VirtualDevice : public oni::driver::DeviceBase {
       } else if (s->mode().pixelFormat == ONI_PIXEL_FORMAT_SHIFT_9_2) {
         s->Send(frame.raw, frame_index, timestamp_us);
       } else {
-        const DepthUnit unit = s->mode().pixelFormat == ONI_PIXEL_FORMAT_DEPTH_1_MM ? DepthUnit::k1mm : DepthUnit::k100um;
+        const DepthUnit unit = s->mode().pixelFormat == ONI_PIXEL_FORMAT_DEPTH_1_MM ? DepthUnit::k1mm
+                                                                                    : DepthUnit::k100um;
         cv::Mat counts(frame.depth_m.size(), CV_16U);
         for (int v = 0; v < counts.rows; ++v) {
           const float* in = frame.depth_m.ptr<float>(v);
@@ -320,8 +319,8 @@ class VirtualDevice : public oni::driver::DeviceBase {
         start = SteadyClock::now() + std::chrono::milliseconds(50);
         start_t_s = t_s;
       }
-      const auto due =
-          start + std::chrono::duration_cast<SteadyClock::duration>(std::chrono::duration<double>(t_s - start_t_s));
+      const auto due = start + std::chrono::duration_cast<SteadyClock::duration>(
+                                   std::chrono::duration<double>(t_s - start_t_s));
       if (wake_.wait_until(lock, due, [this] { return closing_; })) break;
       if (SteadyClock::now() < due) continue;
       if (AnyStartedLocked() && CanSendLocked()) SendPendingLocked();
@@ -398,8 +397,7 @@ OniStatus VirtualStream::setProperty(int id, const void* data, int size) {
     case ONI_STREAM_PROPERTY_CROPPING:
       if (size != sizeof(OniCropping)) return ONI_STATUS_BAD_PARAMETER;
       return static_cast<const OniCropping*>(data)->enabled ? ONI_STATUS_NOT_SUPPORTED : ONI_STATUS_OK;
-    default:
-      return ONI_STATUS_NOT_SUPPORTED;
+    default: return ONI_STATUS_NOT_SUPPORTED;
   }
 }
 
@@ -408,8 +406,7 @@ OniStatus VirtualStream::getProperty(int id, void* data, int* size) {
   const ChipParameters& chip = device_->chip();
   const bool depth = type_ == ONI_SENSOR_DEPTH;
   switch (id) {
-    case ONI_STREAM_PROPERTY_VIDEO_MODE:
-      return Answer(mode_, data, size);
+    case ONI_STREAM_PROPERTY_VIDEO_MODE: return Answer(mode_, data, size);
     case ONI_STREAM_PROPERTY_CROPPING:
       return Answer(OniCropping{FALSE, 0, 0, mode_.resolutionX, mode_.resolutionY}, data, size);
     case ONI_STREAM_PROPERTY_HORIZONTAL_FOV:
@@ -417,19 +414,16 @@ OniStatus VirtualStream::getProperty(int id, void* data, int* size) {
     case ONI_STREAM_PROPERTY_VERTICAL_FOV:
       return Answer(static_cast<float>(2.0 * std::atan(c.height / (2.0 * c.fy))), data, size);
     case ONI_STREAM_PROPERTY_MAX_VALUE:
-      if (depth && mode_.pixelFormat == ONI_PIXEL_FORMAT_SHIFT_9_2) return Answer(static_cast<int>(kRawInvalid), data, size);
+      if (depth && mode_.pixelFormat == ONI_PIXEL_FORMAT_SHIFT_9_2)
+        return Answer(static_cast<int>(kRawInvalid), data, size);
       return Answer(depth ? (mode_.pixelFormat == ONI_PIXEL_FORMAT_DEPTH_1_MM ? 10000 : 65535) : 1023, data, size);
-    case ONI_STREAM_PROPERTY_MIN_VALUE:
-      return Answer(0, data, size);
-    case ONI_STREAM_PROPERTY_STRIDE:
-      return Answer(mode_.resolutionX * 2, data, size);
-    case ONI_STREAM_PROPERTY_MIRRORING:
-      return Answer(OniBool{FALSE}, data, size);
+    case ONI_STREAM_PROPERTY_MIN_VALUE: return Answer(0, data, size);
+    case ONI_STREAM_PROPERTY_STRIDE: return Answer(mode_.resolutionX * 2, data, size);
+    case ONI_STREAM_PROPERTY_MIRRORING: return Answer(OniBool{FALSE}, data, size);
     case ONI_STREAM_PROPERTY_NUMBER_OF_FRAMES:
       if (device_->total_frames() == 0) return ONI_STATUS_NOT_SUPPORTED;
       return Answer(device_->total_frames(), data, size);
-    default:
-      break;
+    default: break;
   }
   if (!depth) return ONI_STATUS_NOT_SUPPORTED;
   switch (id) {
@@ -455,10 +449,8 @@ OniBool VirtualStream::isPropertySupported(int id) {
     case ONI_STREAM_PROPERTY_MAX_VALUE:
     case ONI_STREAM_PROPERTY_MIN_VALUE:
     case ONI_STREAM_PROPERTY_STRIDE:
-    case ONI_STREAM_PROPERTY_MIRRORING:
-      return TRUE;
-    case ONI_STREAM_PROPERTY_NUMBER_OF_FRAMES:
-      return device_->total_frames() > 0;
+    case ONI_STREAM_PROPERTY_MIRRORING: return TRUE;
+    case ONI_STREAM_PROPERTY_NUMBER_OF_FRAMES: return device_->total_frames() > 0;
     case XN_STREAM_PROPERTY_ZERO_PLANE_DISTANCE:
     case XN_STREAM_PROPERTY_ZERO_PLANE_PIXEL_SIZE:
     case XN_STREAM_PROPERTY_EMITTER_DCMOS_DISTANCE:
@@ -467,24 +459,30 @@ OniBool VirtualStream::isPropertySupported(int id) {
     case XN_STREAM_PROPERTY_PARAM_COEFF:
     case XN_STREAM_PROPERTY_SHIFT_SCALE:
     case XN_STREAM_PROPERTY_MAX_SHIFT:
-    case XN_STREAM_PROPERTY_PIXEL_SIZE_FACTOR:
-      return type_ == ONI_SENSOR_DEPTH;
-    default:
-      return FALSE;
+    case XN_STREAM_PROPERTY_PIXEL_SIZE_FACTOR: return type_ == ONI_SENSOR_DEPTH;
+    default: return FALSE;
   }
 }
 
 // Raised when a recorder attaches, so .oni files carry the mode, fields of view and chip geometry
 // (a stream without CROPPING records but plays back no frames).
 void VirtualStream::notifyAllProperties() {
-  static const int kIds[] = {ONI_STREAM_PROPERTY_VIDEO_MODE, ONI_STREAM_PROPERTY_CROPPING,
-                             ONI_STREAM_PROPERTY_HORIZONTAL_FOV, ONI_STREAM_PROPERTY_VERTICAL_FOV,
-                             ONI_STREAM_PROPERTY_MAX_VALUE, ONI_STREAM_PROPERTY_STRIDE,
-                             ONI_STREAM_PROPERTY_MIRRORING, XN_STREAM_PROPERTY_ZERO_PLANE_DISTANCE,
-                             XN_STREAM_PROPERTY_ZERO_PLANE_PIXEL_SIZE, XN_STREAM_PROPERTY_EMITTER_DCMOS_DISTANCE,
-                             XN_STREAM_PROPERTY_DCMOS_RCMOS_DISTANCE, XN_STREAM_PROPERTY_CONST_SHIFT,
-                             XN_STREAM_PROPERTY_PARAM_COEFF, XN_STREAM_PROPERTY_SHIFT_SCALE,
-                             XN_STREAM_PROPERTY_MAX_SHIFT, XN_STREAM_PROPERTY_PIXEL_SIZE_FACTOR};
+  static const int kIds[] = {ONI_STREAM_PROPERTY_VIDEO_MODE,
+                             ONI_STREAM_PROPERTY_CROPPING,
+                             ONI_STREAM_PROPERTY_HORIZONTAL_FOV,
+                             ONI_STREAM_PROPERTY_VERTICAL_FOV,
+                             ONI_STREAM_PROPERTY_MAX_VALUE,
+                             ONI_STREAM_PROPERTY_STRIDE,
+                             ONI_STREAM_PROPERTY_MIRRORING,
+                             XN_STREAM_PROPERTY_ZERO_PLANE_DISTANCE,
+                             XN_STREAM_PROPERTY_ZERO_PLANE_PIXEL_SIZE,
+                             XN_STREAM_PROPERTY_EMITTER_DCMOS_DISTANCE,
+                             XN_STREAM_PROPERTY_DCMOS_RCMOS_DISTANCE,
+                             XN_STREAM_PROPERTY_CONST_SHIFT,
+                             XN_STREAM_PROPERTY_PARAM_COEFF,
+                             XN_STREAM_PROPERTY_SHIFT_SCALE,
+                             XN_STREAM_PROPERTY_MAX_SHIFT,
+                             XN_STREAM_PROPERTY_PIXEL_SIZE_FACTOR};
   for (int id : kIds) {
     if (!isPropertySupported(id)) continue;
     alignas(8) unsigned char buffer[sizeof(OniVideoMode) + sizeof(OniCropping)];
@@ -520,13 +518,15 @@ class VirtualDriver : public oni::driver::DriverBase {
  public:
   explicit VirtualDriver(OniDriverServices* services) : DriverBase(services) {}
 
-  OniStatus initialize(oni::driver::DeviceConnectedCallback connected, oni::driver::DeviceDisconnectedCallback disconnected,
+  OniStatus initialize(oni::driver::DeviceConnectedCallback connected,
+                       oni::driver::DeviceDisconnectedCallback disconnected,
                        oni::driver::DeviceStateChangedCallback state_changed, void* cookie) override {
     const OniStatus status = DriverBase::initialize(connected, disconnected, state_changed, cookie);
     // ROMUNECT_VIRTUAL_DEVICE lets any OpenNI2 program (NiViewer, ...) find a device at start-up.
     if (const char* env = std::getenv("ROMUNECT_VIRTUAL_DEVICE"); env != nullptr && *env != '\0') {
       std::string uri = env;
-      if (!IsVirtualDeviceUri(uri)) uri = kVirtualDeviceScheme + std::filesystem::absolute(uri).lexically_normal().string();
+      if (!IsVirtualDeviceUri(uri))
+        uri = kVirtualDeviceScheme + std::filesystem::absolute(uri).lexically_normal().string();
       if (tryDevice(uri.c_str()) != ONI_STATUS_OK) {
         getServices().errorLoggerAppend("ROMUNECT_VIRTUAL_DEVICE=%s: not a usable frame directory", env);
       }

@@ -14,10 +14,10 @@
 #include <OpenNI.h>
 #include <PS1080.h>
 
-#include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/errors.h"
+#include "romunect/sensor/openni2/virtual_device.h"
 #include "virtual_device_uri.h"
 
 namespace romunect::openni2 {
@@ -144,11 +144,15 @@ std::string OpenNI2SourceOptions::Problem() const {
   auto bad = [](const std::string& field, const std::string& value, const std::string& rule) {
     return field + " = " + value + ": " + rule;
   };
-  if (width < 0 || height < 0 || fps < 0) return bad("width/height/fps", std::to_string(width) + "/" + std::to_string(height) + "/" + std::to_string(fps), "must be >= 0 (0 = default)");
-  if ((width == 0) != (height == 0)) return bad("width/height", std::to_string(width) + "/" + std::to_string(height), "give both or neither");
+  if (width < 0 || height < 0 || fps < 0)
+    return bad("width/height/fps", std::to_string(width) + "/" + std::to_string(height) + "/" + std::to_string(fps),
+               "must be >= 0 (0 = default)");
+  if ((width == 0) != (height == 0))
+    return bad("width/height", std::to_string(width) + "/" + std::to_string(height), "give both or neither");
   if (!depth && !ir) return bad("depth/ir", "false/false", "at least one stream must be opened");
   if (raw && !depth) return bad("raw", "true", "reads the depth stream: needs depth = true");
-  if (!(timeout_s > 0.0 && timeout_s <= 3600.0)) return bad("timeout_s", std::to_string(timeout_s), "must be in (0, 3600]");
+  if (!(timeout_s > 0.0 && timeout_s <= 3600.0))
+    return bad("timeout_s", std::to_string(timeout_s), "must be in (0, 3600]");
   if (max_frames < 0) return bad("max_frames", std::to_string(max_frames), "must be >= 0 (0 = no limit)");
   if (camera) {
     const std::string p = camera->Problem();
@@ -162,7 +166,8 @@ std::string PS1080Properties::Describe() const {
   s.precision(6);
   auto m = [&s](const char* name, const std::optional<double>& v, double scale, const char* unit) {
     s << name << ' ';
-    if (v) s << *v * scale << ' ' << unit; else s << "n/a";
+    if (v) s << *v * scale << ' ' << unit;
+    else s << "n/a";
   };
   m("zero plane", zero_plane_distance_m, 1e3, "mm");
   s << ", ";
@@ -261,8 +266,8 @@ struct OpenNI2Source::Impl {
     player_settled = SteadyClock::now() + kPlayerSettlePause;
     if (waited != openni::STATUS_OK) {
       std::ostringstream s;
-      s << "no frame for " << options.timeout_s << " s (device unplugged or stalled); "
-        << stats.frames << " frames were delivered before"
+      s << "no frame for " << options.timeout_s << " s (device unplugged or stalled); " << stats.frames
+        << " frames were delivered before"
         << (stats.frames > 0 ? ", the last at index " + std::to_string(last_index - first_index) : std::string());
       throw InputError(name, std::string(what) + " stream", s.str());
     }
@@ -302,7 +307,8 @@ struct OpenNI2Source::Impl {
     } else if (options.raw) {
       formats = {openni::PIXEL_FORMAT_SHIFT_9_2};
     } else if (options.depth_unit) {
-      formats = {*options.depth_unit == DepthUnit::k100um ? openni::PIXEL_FORMAT_DEPTH_100_UM : openni::PIXEL_FORMAT_DEPTH_1_MM};
+      formats = {*options.depth_unit == DepthUnit::k100um ? openni::PIXEL_FORMAT_DEPTH_100_UM
+                                                          : openni::PIXEL_FORMAT_DEPTH_1_MM};
     } else {
       formats = {openni::PIXEL_FORMAT_DEPTH_100_UM, openni::PIXEL_FORMAT_DEPTH_1_MM};
     }
@@ -320,7 +326,8 @@ struct OpenNI2Source::Impl {
     }
     std::ostringstream want;
     want << SensorName(type) << ' ';
-    if (w > 0) want << w << 'x' << h; else want << "640x480 or the current size";
+    if (w > 0) want << w << 'x' << h;
+    else want << "640x480 or the current size";
     if (fps > 0 || w == 0) want << " @" << (fps > 0 ? fps : 30) << " Hz";
     want << " in ";
     for (size_t i = 0; i < formats.size(); ++i) want << (i ? " or " : "") << FormatName(formats[i]);
@@ -333,9 +340,9 @@ struct OpenNI2Source::Impl {
   void CheckDepthFormat();   // raw shifts or a depth unit, as asked; sets unit
   void MatchIrMode();        // IR in depth's size, in gray16
   void MakeCamera();
-  void ReadChip();           // the PS1080 geometry the depth stream answers
-  void ReadLength();         // total_frames of recordings and finite devices
-  void StartRecorder();      // when record_oni is set
+  void ReadChip();       // the PS1080 geometry the depth stream answers
+  void ReadLength();     // total_frames of recordings and finite devices
+  void StartRecorder();  // when record_oni is set
   void StartStreams();
 };
 
@@ -358,8 +365,9 @@ void CheckBeforeOpening(const OpenNI2SourceOptions& options) {
     if (!parsed) throw InputError(options.uri, "", "not a valid virtual-device URI: " + why);
     std::error_code ec;
     if (!parsed->feed && !std::filesystem::is_regular_file(parsed->dir / "frames.json", ec)) {
-      throw InputError(options.uri, "", "no OpenNI2 device opens with this URI: " + parsed->dir.string() +
-                                            " is not a frame directory (no frames.json)");
+      throw InputError(options.uri, "",
+                       "no OpenNI2 device opens with this URI: " + parsed->dir.string() +
+                           " is not a frame directory (no frames.json)");
     }
   }
 }
@@ -371,15 +379,17 @@ void OpenNI2Source::Impl::OpenDevice() {
   if (device.open(uri.empty() ? openni::ANY_DEVICE : uri.c_str()) != openni::STATUS_OK) {
     if (IsOniPath(uri)) throw InputError(name, "", "not a readable .oni recording: " + ExtendedError());
     if (uri.empty()) {
-      throw InputError("OpenNI2", "", "no device found (" + ExtendedError() + "); is the sensor plugged in and its driver in " +
-                                          DriverDirectory().string() + "?");
+      throw InputError("OpenNI2", "",
+                       "no device found (" + ExtendedError() + "); is the sensor plugged in and its driver in " +
+                           DriverDirectory().string() + "?");
     }
     if (IsVirtualDeviceUri(uri)) {
       const std::string why = VirtualDeviceOpenError();
       if (!why.empty()) throw InputError(name, "", "the virtual device cannot open: " + why);
     }
-    throw InputError(name, "", "no OpenNI2 device opens with this URI (" + ExtendedError() + "); devices found: " +
-                                   DeviceListText());
+    throw InputError(name, "",
+                     "no OpenNI2 device opens with this URI (" + ExtendedError() +
+                         "); devices found: " + DeviceListText());
   }
   file = device.isFile();
   if (file) {
@@ -406,13 +416,14 @@ void OpenNI2Source::Impl::SelectPrimaryMode() {
   }
   // Recordings play in their recorded mode; check it against what was asked for.
   mode = stream.getVideoMode();
-  const bool size_ok =
-      options.width == 0 || (mode.getResolutionX() == options.width && mode.getResolutionY() == options.height);
+  const bool size_ok = options.width == 0 ||
+                       (mode.getResolutionX() == options.width && mode.getResolutionY() == options.height);
   const bool fps_ok = options.fps == 0 || mode.getFps() == options.fps;
   if (!size_ok || !fps_ok) {
-    throw InputError(name, "video mode", "the recording holds " + ModeString(type, mode) + ", not the requested " +
-                                             std::to_string(options.width) + "x" + std::to_string(options.height) +
-                                             " @" + std::to_string(options.fps) + " Hz");
+    throw InputError(name, "video mode",
+                     "the recording holds " + ModeString(type, mode) + ", not the requested " +
+                         std::to_string(options.width) + "x" + std::to_string(options.height) + " @" +
+                         std::to_string(options.fps) + " Hz");
   }
 }
 
@@ -421,16 +432,18 @@ void OpenNI2Source::Impl::CheckDepthFormat() {
   const openni::PixelFormat f = depth.getVideoMode().getPixelFormat();
   if (options.raw) {
     if (f != openni::PIXEL_FORMAT_SHIFT_9_2) {
-      throw InputError(name, "depth stream", std::string("pixel format ") + FormatName(f) +
-                                                 ", not the raw shifts (shift9.2) asked for (a calibration's depth "
-                                                 "model reads raw shifts; `fuse --device-depth` fuses the metric "
-                                                 "depth instead)");
+      throw InputError(name, "depth stream",
+                       std::string("pixel format ") + FormatName(f) +
+                           ", not the raw shifts (shift9.2) asked for (a calibration's depth "
+                           "model reads raw shifts; `fuse --device-depth` fuses the metric "
+                           "depth instead)");
     }
     return;
   }
   if (f == openni::PIXEL_FORMAT_SHIFT_9_2) {
-    throw InputError(name, "depth stream", "holds the chip's raw shifts (shift9.2), not metric depth: `record --raw` "
-                                           "copies them, `fuse` needs a calibration with a depth model for them");
+    throw InputError(name, "depth stream",
+                     "holds the chip's raw shifts (shift9.2), not metric depth: `record --raw` "
+                     "copies them, `fuse` needs a calibration with a depth model for them");
   }
   if (!IsDepthFormat(f)) {
     throw InputError(name, "depth stream",
@@ -438,8 +451,8 @@ void OpenNI2Source::Impl::CheckDepthFormat() {
   }
   unit = f == openni::PIXEL_FORMAT_DEPTH_100_UM ? DepthUnit::k100um : DepthUnit::k1mm;
   if (file && options.depth_unit && *options.depth_unit != unit) {
-    throw InputError(name, "depth unit", std::string("the recording holds ") + ToString(unit) + ", not " +
-                                             ToString(*options.depth_unit));
+    throw InputError(name, "depth unit",
+                     std::string("the recording holds ") + ToString(unit) + ", not " + ToString(*options.depth_unit));
   }
 }
 
@@ -447,18 +460,19 @@ void OpenNI2Source::Impl::MatchIrMode() {
   if (!(options.depth && options.ir)) return;
   // IR in the same size and rate as depth, so every Frame's images share one camera.
   if (!file) {
-    const openni::VideoMode ir_mode =
-        ChooseMode(ir, openni::SENSOR_IR, mode.getResolutionX(), mode.getResolutionY(), mode.getFps());
+    const openni::VideoMode ir_mode = ChooseMode(ir, openni::SENSOR_IR, mode.getResolutionX(), mode.getResolutionY(),
+                                                 mode.getFps());
     if (ir.setVideoMode(ir_mode) != openni::STATUS_OK) {
-      throw InputError(name, "video mode", "the device refused " + ModeString(openni::SENSOR_IR, ir_mode) + ": " +
-                                               ExtendedError());
+      throw InputError(name, "video mode",
+                       "the device refused " + ModeString(openni::SENSOR_IR, ir_mode) + ": " + ExtendedError());
     }
   }
   const openni::VideoMode m = ir.getVideoMode();
   if (m.getResolutionX() != mode.getResolutionX() || m.getResolutionY() != mode.getResolutionY() ||
       m.getPixelFormat() != openni::PIXEL_FORMAT_GRAY16) {
-    throw InputError(name, "IR stream", ModeString(openni::SENSOR_IR, m) + " does not match depth " +
-                                            ModeString(openni::SENSOR_DEPTH, mode) + " in size, or is not gray16");
+    throw InputError(name, "IR stream",
+                     ModeString(openni::SENSOR_IR, m) + " does not match depth " +
+                         ModeString(openni::SENSOR_DEPTH, mode) + " in size, or is not gray16");
   }
 }
 
@@ -467,17 +481,19 @@ void OpenNI2Source::Impl::MakeCamera() {
   const int w = mode.getResolutionX(), h = mode.getResolutionY();
   if (options.camera) {
     if (options.camera->width != w || options.camera->height != h) {
-      throw InputError(name, "camera", "the given camera is " + std::to_string(options.camera->width) + "x" +
-                                           std::to_string(options.camera->height) + " but the stream is " +
-                                           std::to_string(w) + "x" + std::to_string(h));
+      throw InputError(name, "camera",
+                       "the given camera is " + std::to_string(options.camera->width) + "x" +
+                           std::to_string(options.camera->height) + " but the stream is " + std::to_string(w) + "x" +
+                           std::to_string(h));
     }
     camera = *options.camera;
     return;
   }
   const double hfov = primary().getHorizontalFieldOfView(), vfov = primary().getVerticalFieldOfView();
   if (!(hfov > 0.0 && hfov < M_PI && vfov > 0.0 && vfov < M_PI)) {
-    throw InputError(name, "field of view", "the device reports " + std::to_string(hfov) + " x " +
-                                                std::to_string(vfov) + " rad; give a camera model instead");
+    throw InputError(name, "field of view",
+                     "the device reports " + std::to_string(hfov) + " x " + std::to_string(vfov) +
+                         " rad; give a camera model instead");
   }
   camera.width = w;
   camera.height = h;
@@ -580,9 +596,10 @@ std::string OpenNI2Source::Describe() const {
   const openni::DeviceInfo& info = s.device.getDeviceInfo();
   std::ostringstream d;
   d << (s.file ? "OpenNI2 recording " : "OpenNI2 device ") << info.getUri() << " (" << info.getVendor() << ' '
-    << info.getName() << "), " << s.mode.getResolutionX() << 'x' << s.mode.getResolutionY() << " @"
-    << s.mode.getFps() << " Hz";
-  if (s.options.depth) d << (s.options.raw ? std::string(", raw shifts") : std::string(", depth in ") + ToString(s.unit));
+    << info.getName() << "), " << s.mode.getResolutionX() << 'x' << s.mode.getResolutionY() << " @" << s.mode.getFps()
+    << " Hz";
+  if (s.options.depth)
+    d << (s.options.raw ? std::string(", raw shifts") : std::string(", depth in ") + ToString(s.unit));
   if (s.options.ir) d << ", IR";
   if (s.total_frames > 0) d << ", " << s.total_frames << " frames";
   if (s.chip.zero_plane_distance_m || s.chip.emitter_camera_distance_m) d << "; chip: " << s.chip.Describe();
@@ -685,7 +702,9 @@ std::vector<std::string> ListVideoModes(const std::string& uri) {
   openni::Device device;
   const std::string name = uri.empty() ? "the first OpenNI2 device" : uri;
   if (device.open(uri.empty() ? openni::ANY_DEVICE : uri.c_str()) != openni::STATUS_OK) {
-    throw InputError(name, "", "no OpenNI2 device opens with this URI (" + ExtendedError() + "); devices found: " + DeviceListText());
+    throw InputError(name, "",
+                     "no OpenNI2 device opens with this URI (" + ExtendedError() +
+                         "); devices found: " + DeviceListText());
   }
   std::vector<std::string> out;
   for (openni::SensorType t : {openni::SENSOR_DEPTH, openni::SENSOR_IR, openni::SENSOR_COLOR}) {

@@ -84,15 +84,18 @@ PoseLog PoseLog::Load(const std::filesystem::path& path) {
       ++n;
     }
     if (n != 8) {
-      throw InputError(source, where, std::to_string(n) + " columns, expected 8 (time_s, x_m, y_m, z_m, qw, qx, qy, qz)");
+      throw InputError(source, where,
+                       std::to_string(n) + " columns, expected 8 (time_s, x_m, y_m, z_m, qw, qx, qy, qz)");
     }
     if (!poses.empty() && !(v[0] > poses.back().time_s)) {
-      throw InputError(source, where + ": time_s", std::to_string(v[0]) + " does not follow " +
-                                                       std::to_string(poses.back().time_s) + " (times must strictly increase)");
+      throw InputError(source, where + ": time_s",
+                       std::to_string(v[0]) + " does not follow " + std::to_string(poses.back().time_s) +
+                           " (times must strictly increase)");
     }
     const double norm = std::sqrt(v[4] * v[4] + v[5] * v[5] + v[6] * v[6] + v[7] * v[7]);
     if (std::abs(norm - 1.0) > kQuaternionNormTolerance) {
-      throw InputError(source, where + ": qw..qz", "quaternion norm " + std::to_string(norm) + " is not 1 (within 1e-3)");
+      throw InputError(source, where + ": qw..qz",
+                       "quaternion norm " + std::to_string(norm) + " is not 1 (within 1e-3)");
     }
     TimedPose p;
     p.time_s = v[0];
@@ -144,8 +147,8 @@ PoseLogSource::PoseLogSource(std::unique_ptr<FrameSource> inner, PoseLog log, co
 
 std::string PoseLogSource::Describe() const {
   std::ostringstream d;
-  d << inner_->Describe() << ", poses from a log of " << log_.poses().size() << " entries (" << log_.begin_s()
-    << " .. " << log_.end_s() << " s)";
+  d << inner_->Describe() << ", poses from a log of " << log_.poses().size() << " entries (" << log_.begin_s() << " .. "
+    << log_.end_s() << " s)";
   return d.str();
 }
 

@@ -95,7 +95,8 @@ std::optional<ParsedVirtualDeviceUri> ParseVirtualDeviceUri(const std::string& u
       const std::string value = eq == std::string::npos ? "" : item.substr(eq + 1);
       char* end = nullptr;
       if (key == "pace" && (value == "step" || value == "realtime")) {
-        parsed.options.pace = value == "step" ? VirtualDeviceOptions::Pace::kStep : VirtualDeviceOptions::Pace::kRealtime;
+        parsed.options.pace = value == "step" ? VirtualDeviceOptions::Pace::kStep
+                                              : VirtualDeviceOptions::Pace::kRealtime;
       } else if (key == "stop_after" && !value.empty()) {
         const long n = std::strtol(value.c_str(), &end, 10);
         if (*end != '\0') {

@@ -19,9 +19,9 @@ inline constexpr const char* kVirtualDeviceLastErrorSymbol = "romunect_virtual_d
 struct ParsedVirtualDeviceUri {
   std::filesystem::path dir;  // a frame directory; empty for a feed
   VirtualDeviceOptions options;
-  bool feed = false;          // frames from a feed library (romunect-sim:)
-  std::string feed_library;   // feed=PATH; empty = the simulator's, beside the driver folder
-  std::string feed_query;     // the keys the driver does not read, for the feed
+  bool feed = false;         // frames from a feed library (romunect-sim:)
+  std::string feed_library;  // feed=PATH; empty = the simulator's, beside the driver folder
+  std::string feed_query;    // the keys the driver does not read, for the feed
 };
 
 // True when `uri` uses one of the virtual device's schemes (whether or not it is valid).

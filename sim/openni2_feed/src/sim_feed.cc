@@ -65,8 +65,9 @@ SimFeedOptions SimFeedOptions::Parse(const std::string& query) {
     } else if (key == "threads") {
       o.threads = static_cast<int>(ParseInteger(key, value));
     } else {
-      throw InputError("sim feed", key, "unknown or malformed key '" + item +
-                                            "' (expected seed, objects, rig, scale, depth=sensor|ideal, frames, threads)");
+      throw InputError("sim feed", key,
+                       "unknown or malformed key '" + item +
+                           "' (expected seed, objects, rig, scale, depth=sensor|ideal, frames, threads)");
     }
   }
   if (const std::string p = o.Problem(); !p.empty()) throw InputError("sim feed", "", p);

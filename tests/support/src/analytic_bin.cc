@@ -38,8 +38,7 @@ double SolidHit(const AnalyticBin::Solid& s, const Eigen::Vector3d& o_W, const E
   const Eigen::Vector3d o = s.R_W_L.transpose() * (o_W - s.centre_W);
   const Eigen::Vector3d d = s.R_W_L.transpose() * d_W;
   switch (s.kind) {
-    case AnalyticBin::Solid::kBox:
-      return SlabHit(o, d, -s.half_size, s.half_size);
+    case AnalyticBin::Solid::kBox: return SlabHit(o, d, -s.half_size, s.half_size);
     case AnalyticBin::Solid::kSphere: {
       const double r = s.half_size.x();
       const double a = d.squaredNorm(), b = o.dot(d), c = o.squaredNorm() - r * r;
@@ -84,7 +83,7 @@ AnalyticBin::Solid Box(const Eigen::Vector3d& centre, const Eigen::Vector3d& hal
 AnalyticBin::AnalyticBin(const AnalyticBinOptions& options) : options_(options) {
   camera_.width = options.width;
   camera_.height = options.height;
-  camera_.fx = options.width * 0.200 / 0.060;  // 60 mm across at 200 mm
+  camera_.fx = options.width * 0.200 / 0.060;   // 60 mm across at 200 mm
   camera_.fy = options.height * 0.200 / 0.045;  // 45 mm down at 200 mm
   camera_.cx = (options.width - 1) / 2.0;
   camera_.cy = (options.height - 1) / 2.0;
@@ -185,9 +184,8 @@ Frame AnalyticBin::RenderFrame(int i) const {
       const double gx = (kGw - 1) * (u + 0.5) / w;
       const int x0 = std::min(static_cast<int>(gx), kGw - 2);
       const double fx = gx - x0;
-      blob.at<float>(v, u) = static_cast<float>(
-          (1 - fy) * ((1 - fx) * field[y0][x0] + fx * field[y0][x0 + 1]) +
-          fy * ((1 - fx) * field[y0 + 1][x0] + fx * field[y0 + 1][x0 + 1]));
+      blob.at<float>(v, u) = static_cast<float>((1 - fy) * ((1 - fx) * field[y0][x0] + fx * field[y0][x0 + 1]) +
+                                                fy * ((1 - fx) * field[y0 + 1][x0] + fx * field[y0 + 1][x0 + 1]));
     }
   }
   std::vector<float> sorted(blob.begin<float>(), blob.end<float>());
@@ -214,8 +212,8 @@ cv::Mat AnalyticBin::GroundTruthHeightMap(const Eigen::Vector3d& min_W, double v
   cv::Mat height(ny, nx, CV_32F);
   for (int j = 0; j < ny; ++j) {
     for (int i = 0; i < nx; ++i) {
-      height.at<float>(j, i) =
-          static_cast<float>(HeightAt(min_W.x() + (i + 0.5) * voxel_m, min_W.y() + (j + 0.5) * voxel_m));
+      height.at<float>(j, i) = static_cast<float>(
+          HeightAt(min_W.x() + (i + 0.5) * voxel_m, min_W.y() + (j + 0.5) * voxel_m));
     }
   }
   return height;

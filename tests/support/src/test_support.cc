@@ -33,8 +33,8 @@ ScratchDir::~ScratchDir() {
 ::testing::AssertionResult ImagesBitEqual(const cv::Mat& a, const cv::Mat& b) {
   if (a.size() != b.size() || a.type() != b.type()) {
     return ::testing::AssertionFailure() << "size/type differ: " << a.cols << "x" << a.rows << " "
-                                         << cv::typeToString(a.type()) << " vs " << b.cols << "x"
-                                         << b.rows << " " << cv::typeToString(b.type());
+                                         << cv::typeToString(a.type()) << " vs " << b.cols << "x" << b.rows << " "
+                                         << cv::typeToString(b.type());
   }
   const size_t row_bytes = a.cols * a.elemSize();
   for (int r = 0; r < a.rows; ++r) {
@@ -48,8 +48,8 @@ ScratchDir::~ScratchDir() {
 ::testing::AssertionResult PosesNear(const Pose& a, const Pose& b, double angle_rad, double translation_m) {
   const PoseError e = ComparePoses(a, b);
   if (e.angle_rad <= angle_rad && e.translation_m <= translation_m) return ::testing::AssertionSuccess();
-  return ::testing::AssertionFailure() << "poses differ by " << e.angle_rad << " rad (max " << angle_rad
-                                       << ") and " << e.translation_m << " m (max " << translation_m << ")";
+  return ::testing::AssertionFailure() << "poses differ by " << e.angle_rad << " rad (max " << angle_rad << ") and "
+                                       << e.translation_m << " m (max " << translation_m << ")";
 }
 
 fs::path RomunectBinary() { return fs::path(ROMUNECT_BINARY_DIR) / "bin" / "romunect"; }
@@ -122,9 +122,9 @@ std::vector<Frame> SampleFrames(const CameraModel& camera, int count, uint32_t s
       }
     }
     // Looking down (z_C = -z_W) from 0.4 m, descending 1 cm per frame, slightly rotated.
-    const Eigen::Matrix3d R_W_C =
-        (Eigen::AngleAxisd(0.01 * i, Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()))
-            .toRotationMatrix();
+    const Eigen::Matrix3d R_W_C = (Eigen::AngleAxisd(0.01 * i, Eigen::Vector3d::UnitZ()) *
+                                   Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()))
+                                      .toRotationMatrix();
     f.T_W_C = MakePose(R_W_C, Eigen::Vector3d(0.001 * i, -0.002 * i, 0.4 - 0.01 * i));
     if (i % 2 == 0) f.T_B_H = MakePose(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.5, 0.0, 0.3 + 0.01 * i));
     frames.push_back(std::move(f));
@@ -132,8 +132,7 @@ std::vector<Frame> SampleFrames(const CameraModel& camera, int count, uint32_t s
   return frames;
 }
 
-void WriteSampleFrameDirectory(const std::filesystem::path& dir, const CameraModel& camera, int count,
-                               uint32_t seed) {
+void WriteSampleFrameDirectory(const std::filesystem::path& dir, const CameraModel& camera, int count, uint32_t seed) {
   FrameDirectoryWriter writer(dir, camera);
   for (const Frame& f : SampleFrames(camera, count, seed)) writer.Add(f);
   writer.Finish();

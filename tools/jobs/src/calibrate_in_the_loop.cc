@@ -8,15 +8,15 @@
 #include <opencv2/imgproc.hpp>
 
 #include "romunect/calib/chain.h"
-#include "romunect/tools/jobs/calibrate.h"
-#include "romunect/tools/jobs/output_folder.h"
-#include "romunect/tools/jobs/rig_argument.h"
-#include "romunect/tools/jobs/text.h"
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/image_io.h"
 #include "romunect/sim/calibration_rig.h"
 #include "romunect/sim/scanner.h"
+#include "romunect/tools/jobs/calibrate.h"
+#include "romunect/tools/jobs/output_folder.h"
+#include "romunect/tools/jobs/rig_argument.h"
+#include "romunect/tools/jobs/text.h"
 
 namespace romunect::jobs {
 namespace {
@@ -72,15 +72,18 @@ cv::Mat ReprojectionPicture(const std::vector<double>& per_view_px, double rms_p
   const double bar_w = static_cast<double>(w - left - 10) / n;
   auto y_of = [&](double v) { return static_cast<int>(h - bottom - (h - bottom - top) * v / max_px); };
   for (int i = 0; i < static_cast<int>(per_view_px.size()); ++i) {
-    const int x0 = left + static_cast<int>(i * bar_w + 0.15 * bar_w), x1 = left + static_cast<int>((i + 1) * bar_w - 0.15 * bar_w);
-    cv::rectangle(out, cv::Point(x0, y_of(per_view_px[i])), cv::Point(x1, h - bottom), cv::Scalar(180, 110, 40), cv::FILLED);
-    cv::putText(out, std::to_string(i), cv::Point(x0, h - bottom + 14), cv::FONT_HERSHEY_SIMPLEX, 0.35, cv::Scalar(0, 0, 0), 1);
+    const int x0 = left + static_cast<int>(i * bar_w + 0.15 * bar_w),
+              x1 = left + static_cast<int>((i + 1) * bar_w - 0.15 * bar_w);
+    cv::rectangle(out, cv::Point(x0, y_of(per_view_px[i])), cv::Point(x1, h - bottom), cv::Scalar(180, 110, 40),
+                  cv::FILLED);
+    cv::putText(out, std::to_string(i), cv::Point(x0, h - bottom + 14), cv::FONT_HERSHEY_SIMPLEX, 0.35,
+                cv::Scalar(0, 0, 0), 1);
   }
   cv::line(out, cv::Point(left, y_of(rms_px)), cv::Point(w - 10, y_of(rms_px)), cv::Scalar(0, 0, 200), 1);
   cv::line(out, cv::Point(left, top), cv::Point(left, h - bottom), cv::Scalar(0, 0, 0), 1);
   cv::line(out, cv::Point(left, h - bottom), cv::Point(w - 10, h - bottom), cv::Scalar(0, 0, 0), 1);
-  cv::putText(out, Format("%.3f px", max_px / 1.2), cv::Point(2, y_of(max_px / 1.2) + 4), cv::FONT_HERSHEY_SIMPLEX,
-              0.3, cv::Scalar(0, 0, 0), 1);
+  cv::putText(out, Format("%.3f px", max_px / 1.2), cv::Point(2, y_of(max_px / 1.2) + 4), cv::FONT_HERSHEY_SIMPLEX, 0.3,
+              cv::Scalar(0, 0, 0), 1);
   cv::putText(out, Format("reprojection RMS per view (px); red: all views %.3f px", rms_px), cv::Point(left, h - 8),
               cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0), 1);
   return out;
@@ -133,10 +136,14 @@ json IntrinsicsJson(const Measured& m) {
   json rejected = json::array();
   for (const auto& [name, why] : r.rejected) rejected.push_back({{"name", name}, {"reason", why}});
   const CameraModel& c = r.calibration.camera;
-  return {{"views_used", r.view_names.size()}, {"rejected", rejected}, {"rms_px", r.intrinsics.rms_px},
-          {"holdout_rms_px", r.intrinsics.holdout_rms_px}, {"views", views},
+  return {{"views_used", r.view_names.size()},
+          {"rejected", rejected},
+          {"rms_px", r.intrinsics.rms_px},
+          {"holdout_rms_px", r.intrinsics.holdout_rms_px},
+          {"views", views},
           {"coverage_cell_fraction", r.intrinsics.coverage.cell_fraction},
-          {"truth_mapping_rms_px", m.truth.mapping.rms_px}, {"truth_mapping_max_px", m.truth.mapping.max_px},
+          {"truth_mapping_rms_px", m.truth.mapping.rms_px},
+          {"truth_mapping_max_px", m.truth.mapping.max_px},
           {"truth_mapping_uncompensated_rms_px", m.truth.mapping_uncompensated.rms_px},
           {"truth_mapping_zhang_rms_px", m.truth.mapping_zhang.rms_px},
           {"camera", {{"fx", c.fx}, {"fy", c.fy}, {"cx", c.cx}, {"cy", c.cy}, {"distortion", c.distortion}}},
@@ -145,20 +152,27 @@ json IntrinsicsJson(const Measured& m) {
 
 json HomographyJson(const Measured& m) {
   const ChainResult& r = m.r;
-  return {{"captures", r.homography.captures}, {"converged", r.homography.converged},
-          {"observed_rms_px", r.homography.observed_rms_px}, {"predicted_rms_px", r.homography.predicted_rms_px},
-          {"truth_residual_px", m.homography_px}, {"points", m.truth.homography_points},
-          {"depth_engine_valid_fraction", {{"unwarped", r.raw_valid_fraction_unwarped},
-                                           {"nominal_prewarp", r.raw_valid_fraction_initial},
-                                           {"calibrated", r.raw_valid_fraction_final}}},
+  return {{"captures", r.homography.captures},
+          {"converged", r.homography.converged},
+          {"observed_rms_px", r.homography.observed_rms_px},
+          {"predicted_rms_px", r.homography.predicted_rms_px},
+          {"truth_residual_px", m.homography_px},
+          {"points", m.truth.homography_points},
+          {"depth_engine_valid_fraction",
+           {{"unwarped", r.raw_valid_fraction_unwarped},
+            {"nominal_prewarp", r.raw_valid_fraction_initial},
+            {"calibrated", r.raw_valid_fraction_final}}},
           {"compute_s", r.times.homography_s}};
 }
 
 json HandEyeJson(const Measured& m) {
   const ChainResult& r = m.r;
   const sim::ChainTruthErrors& t = m.truth;
-  return {{"stations", r.stations_used}, {"initial_method", r.hand_eye.initial_method}, {"rms_px", r.hand_eye.rms_px},
-          {"truth_rotation_deg", t.hand_eye.angle_rad / kDeg}, {"truth_translation_mm", 1e3 * t.hand_eye.translation_m},
+  return {{"stations", r.stations_used},
+          {"initial_method", r.hand_eye.initial_method},
+          {"rms_px", r.hand_eye.rms_px},
+          {"truth_rotation_deg", t.hand_eye.angle_rad / kDeg},
+          {"truth_translation_mm", 1e3 * t.hand_eye.translation_m},
           {"truth_known_intrinsics_rotation_deg", t.hand_eye_known_intrinsics.angle_rad / kDeg},
           {"truth_known_intrinsics_translation_mm", 1e3 * t.hand_eye_known_intrinsics.translation_m},
           {"truth_line_of_sight_rms_deg", t.line_of_sight_rms_rad / kDeg},
@@ -176,13 +190,21 @@ json DepthJson(const Measured& m) {
   json planes = json::array();
   for (size_t i = 0; i < t.depth_exact.size(); ++i) {
     const sim::PlaneDepthError& e = t.depth_exact[i];
-    planes.push_back({{"distance_m", e.distance_m}, {"tilt_rad", e.tilt_rad}, {"exact_rms_mm", 1e3 * e.rms_m},
-                      {"exact_mean_mm", 1e3 * e.mean_m}, {"affine_rms_mm", 1e3 * t.depth_affine[i].rms_m},
+    planes.push_back({{"distance_m", e.distance_m},
+                      {"tilt_rad", e.tilt_rad},
+                      {"exact_rms_mm", 1e3 * e.rms_m},
+                      {"exact_mean_mm", 1e3 * e.mean_m},
+                      {"affine_rms_mm", 1e3 * t.depth_affine[i].rms_m},
                       {"valid_fraction", e.valid_fraction}});
   }
-  return {{"planes", r.planes_used}, {"model", "inverse_affine_in_raw"},
-          {"fit_exact_rms_mm", 1e3 * r.depth.inverse_rms_m}, {"fit_affine_rms_mm", 1e3 * r.depth.affine_rms_m}, {"fitted_pixels", r.depth.fitted_pixels},
-          {"truth_planes", planes}, {"truth_rms_mm", m.depth_mm}, {"truth_affine_rms_mm", m.affine_mm},
+  return {{"planes", r.planes_used},
+          {"model", "inverse_affine_in_raw"},
+          {"fit_exact_rms_mm", 1e3 * r.depth.inverse_rms_m},
+          {"fit_affine_rms_mm", 1e3 * r.depth.affine_rms_m},
+          {"fitted_pixels", r.depth.fitted_pixels},
+          {"truth_planes", planes},
+          {"truth_rms_mm", m.depth_mm},
+          {"truth_affine_rms_mm", m.affine_mm},
           {"compute_s", r.times.depth_s}};
 }
 
@@ -191,15 +213,21 @@ json GoalsJson(const Measured& m) {
   const PoseError& end_to_end = m.truth.hand_eye;
   return {{"intrinsics_mapping_px",
            {{"goal", kGoalMappingPx}, {"value", m.truth.mapping.rms_px}, {"met", m.met_mapping}}},
-          {"hand_eye", {{"goal_deg", kGoalHandEyeDeg}, {"goal_mm", kGoalHandEyeMm},
-                        {"condition", "intrinsics known (true camera, the chain's stations)"},
-                        {"deg", known.angle_rad / kDeg}, {"mm", 1e3 * known.translation_m},
-                        {"end_to_end_deg", end_to_end.angle_rad / kDeg},
-                        {"end_to_end_mm", 1e3 * end_to_end.translation_m},
-                        {"end_to_end_line_of_sight_rms_deg", m.truth.line_of_sight_rms_rad / kDeg},
-                        {"met", m.met_hand_eye}}},
-          {"homography_px", {{"goal", kGoalHomographyPx}, {"value", m.homography_px},
-                             {"captures", m.r.homography.captures}, {"met", m.met_homography}}},
+          {"hand_eye",
+           {{"goal_deg", kGoalHandEyeDeg},
+            {"goal_mm", kGoalHandEyeMm},
+            {"condition", "intrinsics known (true camera, the chain's stations)"},
+            {"deg", known.angle_rad / kDeg},
+            {"mm", 1e3 * known.translation_m},
+            {"end_to_end_deg", end_to_end.angle_rad / kDeg},
+            {"end_to_end_mm", 1e3 * end_to_end.translation_m},
+            {"end_to_end_line_of_sight_rms_deg", m.truth.line_of_sight_rms_rad / kDeg},
+            {"met", m.met_hand_eye}}},
+          {"homography_px",
+           {{"goal", kGoalHomographyPx},
+            {"value", m.homography_px},
+            {"captures", m.r.homography.captures},
+            {"met", m.met_homography}}},
           {"depth_rms_mm", {{"goal", kGoalDepthMm}, {"value", m.depth_mm}, {"met", m.met_depth}}},
           {"compute_s", {{"goal", kGoalComputeS}, {"value", m.compute_s}, {"met", m.met_compute}}}};
 }

@@ -10,15 +10,14 @@
 #include "romunect/calib/depth_correction.h"
 #include "romunect/calib/hand_eye.h"
 #include "romunect/calib/intrinsics.h"
-#include "romunect/sensor/openni2/open_source.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
+#include "romunect/sensor/openni2/open_source.h"
 
 namespace romunect::jobs {
 namespace {
 namespace fs = std::filesystem;
 using namespace romunect::calib;
-
 
 // The existing calibration at `path` to update, or a fresh one. An unreadable file is an
 // error, unless the user asked to overwrite: then it is replaced (Save says so).
@@ -33,8 +32,8 @@ Calibration Existing(const fs::path& path, bool overwrite) {
 }
 
 void Save(const CalibrationFileOptions& args, const Calibration& calibration) {
-  const SaveReport report =
-      SaveCalibration(args.output, calibration, {.maps_as_exr = args.maps_as_exr, .overwrite_worse = args.overwrite_worse});
+  const SaveReport report = SaveCalibration(args.output, calibration,
+                                            {.maps_as_exr = args.maps_as_exr, .overwrite_worse = args.overwrite_worse});
   if (!report.worse_than_existing.empty()) {
     std::printf("warning: replaced %s with a WORSE result (--overwrite-worse): %s\n", args.output.c_str(),
                 report.worse_than_existing.c_str());
@@ -80,8 +79,9 @@ namespace {
 // Every frame of a recorded source (OpenSource: frame directory, .oni file with a pose log,
 // device) with its T_B_H and the image a step needs; bad frames are reported and skipped. The
 // source's camera must have the image size of `calibration` (read from `calibration_file`).
-void ForEachFrame(const std::string& source_text, const PoseLogOptions& poses, bool need_raw, const Calibration& calibration,
-                  const std::string& calibration_file, const std::function<void(const Frame&)>& use) {
+void ForEachFrame(const std::string& source_text, const PoseLogOptions& poses, bool need_raw,
+                  const Calibration& calibration, const std::string& calibration_file,
+                  const std::function<void(const Frame&)>& use) {
   if (poses.offset_given && poses.log.empty()) {
     throw InputError("--pose-offset", "", "applies with --poses: it shifts frame times onto the pose log's clock");
   }

@@ -13,16 +13,16 @@
 #include "romunect/calib/calibration_file.h"
 #include "romunect/fusion/metrics.h"
 #include "romunect/fusion/voting_grid.h"
-#include "romunect/tools/jobs/fusion_loop.h"
-#include "romunect/tools/jobs/output_folder.h"
-#include "romunect/tools/jobs/text.h"
-#include "romunect/sensor/openni2/open_source.h"
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/image_io.h"
+#include "romunect/sensor/openni2/open_source.h"
 #include "romunect/sensor/world_box.h"
+#include "romunect/tools/jobs/fusion_loop.h"
+#include "romunect/tools/jobs/output_folder.h"
+#include "romunect/tools/jobs/text.h"
 
 namespace romunect::jobs {
 namespace {
@@ -34,7 +34,8 @@ void ParseBox(const std::string& text, fusion::GridOptions* options) {
   std::stringstream s(text);
   std::string item;
   if (text.empty() || text.back() == ',') {
-    throw InputError("--box", "", "'" + text + "': expected 6 comma-separated numbers xmin,ymin,zmin,xmax,ymax,zmax (metres)");
+    throw InputError("--box", "",
+                     "'" + text + "': expected 6 comma-separated numbers xmin,ymin,zmin,xmax,ymax,zmax (metres)");
   }
   while (std::getline(s, item, ',')) {
     try {
@@ -42,12 +43,14 @@ void ParseBox(const std::string& text, fusion::GridOptions* options) {
       values.push_back(std::stod(item, &used));
       if (used != item.size()) throw std::invalid_argument(item);
     } catch (const std::exception&) {
-      throw InputError("--box", "", "'" + item + "' is not a number (expected xmin,ymin,zmin,xmax,ymax,zmax in metres)");
+      throw InputError("--box", "",
+                       "'" + item + "' is not a number (expected xmin,ymin,zmin,xmax,ymax,zmax in metres)");
     }
   }
   if (values.size() != 6) {
-    throw InputError("--box", "", "expected 6 comma-separated numbers xmin,ymin,zmin,xmax,ymax,zmax (metres), got " +
-                                      std::to_string(values.size()) + " in '" + text + "'");
+    throw InputError("--box", "",
+                     "expected 6 comma-separated numbers xmin,ymin,zmin,xmax,ymax,zmax (metres), got " +
+                         std::to_string(values.size()) + " in '" + text + "'");
   }
   options->min_W = Eigen::Vector3d(values[0], values[1], values[2]);
   options->max_W = Eigen::Vector3d(values[3], values[4], values[5]);
@@ -60,7 +63,8 @@ void CheckVoxelFitsBox(const fusion::GridOptions& options) {
   for (int a = 0; a < 3; ++a) {
     if (n[a] >= 2) continue;
     std::ostringstream s;
-    s << options.voxel_m << " m: the box's " << "xyz"[a] << " extent " << (options.max_W[a] - options.min_W[a])
+    s << options.voxel_m << " m: the box's "
+      << "xyz"[a] << " extent " << (options.max_W[a] - options.min_W[a])
       << " m holds fewer than 2 voxels (the voxel is in metres: 0.00025 is 0.25 mm)";
     throw InputError("--voxel", "", s.str());
   }
@@ -110,8 +114,9 @@ fs::path DefaultOutput(const FuseOptions& o) {
 fs::path OutputOf(const FuseOptions& o) {
   const fs::path out = o.out.empty() ? DefaultOutput(o) : OutputFolder(o.out, "--out");
   if (fs::exists(out / "report.json")) {
-    throw InputError(out.string(), "", "holds a finished fusion (report.json); refusing to overwrite it: give "
-                                       "another --out or remove the folder");
+    throw InputError(out.string(), "",
+                     "holds a finished fusion (report.json); refusing to overwrite it: give "
+                     "another --out or remove the folder");
   }
   CheckFolderCanBeCreated(out, "--out");
   return out;
@@ -135,8 +140,9 @@ void RefuseStreamOptions(const FuseOptions& o) {
                                     {"--device-depth", o.device_depth},
                                     {"--timeout", o.timeout_given}}) {
     if (given) {
-      throw InputError(flag, "", std::string("applies to .oni files and devices; ") + o.source +
-                                     " is a frame directory, whose frames.json holds the camera and the poses");
+      throw InputError(flag, "",
+                       std::string("applies to .oni files and devices; ") + o.source +
+                           " is a frame directory, whose frames.json holds the camera and the poses");
     }
   }
 }
@@ -152,12 +158,14 @@ FuseSource OpenFuseSource(const FuseOptions& o) {
     return {openni2::OpenSource(o.source, options), std::nullopt, {}, "the frame directory's depth"};
   }
   if (o.poses.empty()) {
-    throw InputError("--poses", "", "missing: " + o.source +
-                                        " carries no robot poses; give the robot's pose log (CSV of T_B_H with times)");
+    throw InputError("--poses", "",
+                     "missing: " + o.source +
+                         " carries no robot poses; give the robot's pose log (CSV of T_B_H with times)");
   }
   if (o.calibration.empty()) {
-    throw InputError("--calibration", "", "missing: turning the pose log's flange poses into camera poses needs "
-                                          "the calibration file's hand-eye pose T_H_C");
+    throw InputError("--calibration", "",
+                     "missing: turning the pose log's flange poses into camera poses needs "
+                     "the calibration file's hand-eye pose T_H_C");
   }
   const calib::Calibration calibration = calib::LoadDeviceCalibration(o.calibration);
   if (const std::string warning = calib::HandEyeWarning(calibration, o.calibration); !warning.empty()) {
@@ -175,14 +183,14 @@ FuseSource OpenFuseSource(const FuseOptions& o) {
     if (calibration.depth->a.cols != camera.width || calibration.depth->a.rows != camera.height) {
       throw InputError(o.calibration, "depth_model",
                        "maps are " + std::to_string(calibration.depth->a.cols) + " x " +
-                           std::to_string(calibration.depth->a.rows) + ", the camera is " + std::to_string(camera.width) +
-                           " x " + std::to_string(camera.height));
+                           std::to_string(calibration.depth->a.rows) + ", the camera is " +
+                           std::to_string(camera.width) + " x " + std::to_string(camera.height));
     }
     options.openni2.raw = true;  // the model reads the chip's raw shifts
     fuse.depth_model = calibration.depth;
     fuse.chip = calibration.chip;
-    fuse.depth_from = std::string("the calibration's depth model (") + DepthCorrectionModelName(calibration.depth->model) +
-                      ") on the device's raw shifts";
+    fuse.depth_from = std::string("the calibration's depth model (") +
+                      DepthCorrectionModelName(calibration.depth->model) + ") on the device's raw shifts";
   } else {
     fuse.depth_from = "the device's metric depth";
   }
@@ -300,8 +308,8 @@ void CheckSomethingFused(const FuseOptions& o, const FusionSummary& fused, bool 
   if (report.stats.rays == 0) {
     throw InputError(o.source, "",
                      "nothing to fuse: no frame has a valid depth pixel: of the " +
-                         std::to_string(report.stats.pixels) + " pixels of the " + std::to_string(report.frames) + " frames, " +
-                         std::to_string(report.stats.no_measurement) + " have no measurement and " +
+                         std::to_string(report.stats.pixels) + " pixels of the " + std::to_string(report.frames) +
+                         " frames, " + std::to_string(report.stats.no_measurement) + " have no measurement and " +
                          std::to_string(report.stats.invalid_depth) + " NaN, inf or negative depth (depth from " +
                          depth_from + ")" + stopped);
   }
@@ -317,8 +325,8 @@ void CheckSomethingFused(const FuseOptions& o, const FusionSummary& fused, bool 
                                  ? " enters the box "
                                  : " ends inside the box (" +
                                        std::to_string(report.stats.rays - report.stats.rays_missing_box) +
-                                       " cross it to points beyond, " +
-                                       std::to_string(report.stats.rays_missing_box) + " miss it) ";
+                                       " cross it to points beyond, " + std::to_string(report.stats.rays_missing_box) +
+                                       " miss it) ";
     throw InputError(o.box_given ? "--box" : o.source, "",
                      "none of the " + std::to_string(report.stats.rays) + " depth rays of the " +
                          std::to_string(report.frames) + " frames" + what + box_text + "; the cameras were at " +
@@ -382,8 +390,10 @@ FuseJobSummary RunFuse(const FuseOptions& o) {
   const openni2::OpenNI2Source* device = openni2::FindOpenNI2Source(opened.source.get());
   s.dropped_frames = device != nullptr ? device->stats().dropped_frames : 0;
   if (s.dropped_frames > 0) {
-    std::fprintf(stderr, "romunect: warning: %s dropped %d frame(s) (gaps in its frame numbers): fusion was too slow "
-                 "for its rate, or the link lost them\n", o.source.c_str(), s.dropped_frames);
+    std::fprintf(stderr,
+                 "romunect: warning: %s dropped %d frame(s) (gaps in its frame numbers): fusion was too slow "
+                 "for its rate, or the link lost them\n",
+                 o.source.c_str(), s.dropped_frames);
   }
   CheckSomethingFused(o, fused, directory != nullptr, opened.depth_from, box_text);
 

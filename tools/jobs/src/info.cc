@@ -3,8 +3,8 @@
 #include <algorithm>
 #include <limits>
 
-#include "romunect/tools/jobs/text.h"
 #include "romunect/sensor/frame_io.h"
+#include "romunect/tools/jobs/text.h"
 
 namespace romunect::jobs {
 
@@ -75,8 +75,8 @@ std::string FrameDirectoryInfoText(const FrameDirectoryInfo& info) {
   if (info.with_pose > 0) {
     const Eigen::Vector3d& lo = info.cameras_min_W;
     const Eigen::Vector3d& hi = info.cameras_max_W;
-    text += Format("camera positions (world, m): x %.4f .. %.4f, y %.4f .. %.4f, z %.4f .. %.4f; path %.4f m\n",
-                   lo.x(), hi.x(), lo.y(), hi.y(), lo.z(), hi.z(), info.path_m);
+    text += Format("camera positions (world, m): x %.4f .. %.4f, y %.4f .. %.4f, z %.4f .. %.4f; path %.4f m\n", lo.x(),
+                   hi.x(), lo.y(), hi.y(), lo.z(), hi.z(), info.path_m);
   }
   if (const std::optional<WorldBox>& r = info.region_W) {
     text += Format("region (world, m; fuse's default box): x %.4f .. %.4f, y %.4f .. %.4f, z %.4f .. %.4f\n",

@@ -13,12 +13,12 @@
 #include <nlohmann/json.hpp>
 
 #include "romunect/calib/calibration_file.h"
-#include "romunect/tools/jobs/output_folder.h"
-#include "romunect/sensor/openni2/open_source.h"
-#include "romunect/sensor/openni2/openni2_source.h"
 #include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
+#include "romunect/sensor/openni2/open_source.h"
+#include "romunect/sensor/openni2/openni2_source.h"
+#include "romunect/tools/jobs/output_folder.h"
 
 namespace romunect::jobs {
 namespace {
@@ -38,7 +38,8 @@ std::string ExtraJson(const RecordOptions& o, FrameSource& source, const std::st
   // A copied frame directory keeps its unknown keys (its "ps1080" chip among them); "recording"
   // says where this copy came from.
   const FrameDirectorySource* directory = openni2::FindFrameDirectorySource(&source);
-  nlohmann::json extra = directory != nullptr ? nlohmann::json::parse(directory->manifest().extra_json) : nlohmann::json::object();
+  nlohmann::json extra = directory != nullptr ? nlohmann::json::parse(directory->manifest().extra_json)
+                                              : nlohmann::json::object();
   extra["recording"] = nlohmann::json::object();
   extra["recording"]["source"] = o.source;
   extra["recording"]["depth_from"] = depth_from;
@@ -105,8 +106,10 @@ Capture CaptureOptions(const RecordOptions& o) {
     device.camera = calibration.camera;
     c.options.pose.T_H_C = calibration.T_H_C;  // with a pose log: T_W_C = T_B_H T_H_C (world = robot base)
     if (c.from_directory && calibration.depth) {
-      std::fprintf(stderr, "romunect: warning: %s: its depth model is not applied: a frame directory is copied with "
-                   "its own depth\n", o.calibration.c_str());
+      std::fprintf(stderr,
+                   "romunect: warning: %s: its depth model is not applied: a frame directory is copied with "
+                   "its own depth\n",
+                   o.calibration.c_str());
     }
     if (!c.from_directory && calibration.depth) {
       if (o.device_depth) {
@@ -129,7 +132,9 @@ void CheckOutputs(const RecordOptions& o, bool from_directory) {
                                         std::pair{o.raw, "--raw"}, std::pair{!o.depth_unit.empty(), "--depth-unit"},
                                         std::pair{o.width != 0, "--width"}, std::pair{o.height != 0, "--height"},
                                         std::pair{o.fps != 0, "--fps"}, std::pair{o.device_depth, "--device-depth"}}) {
-      if (given) throw InputError(option, "", "only an OpenNI2 source (device or .oni file) takes it; a frame directory is copied as it is");
+      if (given)
+        throw InputError(option, "",
+                         "only an OpenNI2 source (device or .oni file) takes it; a frame directory is copied as it is");
     }
   }
   CheckFolderCanBeCreated(o.out_dir, "OUT_DIR");
@@ -146,8 +151,9 @@ void CheckOutputs(const RecordOptions& o, bool from_directory) {
   // OpenNI2 crashes when its recorder cannot create the file (a missing or read-only folder).
   const fs::path folder = fs::path(o.oni).has_parent_path() ? fs::path(o.oni).parent_path() : fs::path(".");
   if (std::error_code ec; !fs::is_directory(folder, ec) || ::access(folder.c_str(), W_OK | X_OK) != 0) {
-    throw InputError("--oni", "", o.oni + ": cannot be created: " + folder.string() +
-                                      " is not an existing folder this process may write in");
+    throw InputError("--oni", "",
+                     o.oni + ": cannot be created: " + folder.string() +
+                         " is not an existing folder this process may write in");
   }
 }
 
@@ -248,9 +254,9 @@ RecordSummary Record(const RecordOptions& o) {
     // No frame directory claims a capture that holds nothing; a folder this run made is removed.
     std::error_code ec;
     if (!out_dir_existed) fs::remove(o.out_dir, ec);
-    throw InputError(o.source, "", "recorded no frames (" + std::to_string(s.skipped) + " skipped" + s.dropped +
-                                       "); " + o.out_dir + " was not written" +
-                                       (o.oni.empty() ? "" : "; the streams are in " + o.oni));
+    throw InputError(o.source, "",
+                     "recorded no frames (" + std::to_string(s.skipped) + " skipped" + s.dropped + "); " + o.out_dir +
+                         " was not written" + (o.oni.empty() ? "" : "; the streams are in " + o.oni));
   }
   writer.SetExtraJson(ExtraJson(o, *source, g_interrupted ? "interrupted" : "", depth_from));
   writer.Finish();

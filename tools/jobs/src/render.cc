@@ -8,8 +8,6 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "romunect/tools/jobs/rig_argument.h"
-#include "romunect/tools/jobs/text.h"
 #include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/embree/ray_scene.h"
 #include "romunect/sensor/embree/renderer.h"
@@ -20,6 +18,8 @@
 #include "romunect/sensor/mesh.h"
 #include "romunect/sensor/rig.h"
 #include "romunect/sim/sensor_imager.h"
+#include "romunect/tools/jobs/rig_argument.h"
+#include "romunect/tools/jobs/text.h"
 
 namespace romunect::jobs {
 namespace {

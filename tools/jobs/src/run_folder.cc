@@ -2,8 +2,8 @@
 
 #include <system_error>
 
-#include "romunect/tools/jobs/output_folder.h"
 #include "romunect/sensor/errors.h"
+#include "romunect/tools/jobs/output_folder.h"
 
 namespace romunect::jobs {
 namespace fs = std::filesystem;
@@ -36,8 +36,8 @@ void RunFolder::Commit() {
   if (fs::exists(dir_)) {
     if (!fs::is_directory(dir_) || !fs::is_empty(dir_)) {
       done_ = true;  // the finished run stays where it is
-      throw InputError(dir_.string(), "", "was filled while the " + job_ + " ran; the finished run is in " +
-                                              work_dir_.string());
+      throw InputError(dir_.string(), "",
+                       "was filled while the " + job_ + " ran; the finished run is in " + work_dir_.string());
     }
     fs::remove(dir_);  // the empty folder the run replaces
   }

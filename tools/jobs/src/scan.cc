@@ -14,9 +14,6 @@
 #include "romunect/fusion/metrics.h"
 #include "romunect/fusion/outputs.h"
 #include "romunect/fusion/voting_grid.h"
-#include "romunect/tools/jobs/fusion_loop.h"
-#include "romunect/tools/jobs/rig_argument.h"
-#include "romunect/tools/jobs/run_folder.h"
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
@@ -26,6 +23,9 @@
 #include "romunect/sim/pile.h"
 #include "romunect/sim/scanner.h"
 #include "romunect/sim/sensor_imager.h"
+#include "romunect/tools/jobs/fusion_loop.h"
+#include "romunect/tools/jobs/rig_argument.h"
+#include "romunect/tools/jobs/run_folder.h"
 
 namespace romunect::jobs {
 namespace {
@@ -72,8 +72,8 @@ sim::ScanOptions SimulatorOptions(const ScanJobOptions& o, std::optional<calib::
   if (o.sweep != "columns" && o.sweep != "levels") {
     throw InputError("--sweep", "", "'" + o.sweep + "' is not columns or levels");
   }
-  options.approach.sweep =
-      o.sweep == "levels" ? sim::ApproachOptions::Sweep::kLevels : sim::ApproachOptions::Sweep::kColumns;
+  options.approach.sweep = o.sweep == "levels" ? sim::ApproachOptions::Sweep::kLevels
+                                               : sim::ApproachOptions::Sweep::kColumns;
   // A calibration replaces the simulator's truth wherever the real system would use it: the
   // projector's pre-warp, the depth correction, the camera model and the hand-eye pose that
   // fusion uses. The simulated hardware itself stays the rig.
@@ -182,8 +182,8 @@ void FuseApproach(const ScanJobOptions& o, sim::Scanner& scanner, const std::opt
   writer.SetRegion({box.min_W, box.max_W});  // `romunect fuse` re-runs the scan over the same box
   const int total = scanner.frame_count();
   std::fprintf(stderr, "scan: approach of %d frames (%.2f s at %.0f Hz), fusing into %d x %d x %d voxels of %.2f mm\n",
-               total, scanner.plan().duration_s(), scanner.options().rig.frame_rate_hz, grid.nx(), grid.ny(),
-               grid.nz(), grid.voxel_m() * 1e3);
+               total, scanner.plan().duration_s(), scanner.options().rig.frame_rate_hz, grid.nx(), grid.ny(), grid.nz(),
+               grid.voxel_m() * 1e3);
   const Stopwatch loop;
   const double cpu_loop = ProcessCpuSeconds();
   ScanHooks hooks(report, calibration, scanner.world().T_W_B(), total);

@@ -12,9 +12,9 @@
 #include <opencv2/imgproc.hpp>
 
 #include "romunect/fusion/outputs.h"
-#include "romunect/tools/jobs/text.h"
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/image_io.h"
+#include "romunect/tools/jobs/text.h"
 
 namespace romunect::jobs {
 namespace {
@@ -76,8 +76,8 @@ cv::Mat Figure2(const ScanReport& r) {
   fusion::ValueRange(r.height_m, /*zero_is_empty=*/false, &lo, &hi);
   const cv::Mat fused = fusion::ColourMapped(r.height_m, lo, hi, /*flip_rows=*/true, /*zero_is_empty=*/false, kWhite);
   panels.push_back(Panel(fused, height_px,
-                         "fused, " + std::to_string(r.fusion.completeness_per_frame.size()) + " frames: " +
-                             Format("%.1f %% complete", 100.0 * fusion::Completeness(r.height_m))));
+                         "fused, " + std::to_string(r.fusion.completeness_per_frame.size()) +
+                             " frames: " + Format("%.1f %% complete", 100.0 * fusion::Completeness(r.height_m))));
   for (cv::Mat& p : panels) cv::copyMakeBorder(p, p, 0, 0, 0, 12, cv::BORDER_CONSTANT, cv::Scalar(255, 255, 255));
   cv::Mat figure;
   cv::hconcat(panels, figure);
@@ -146,23 +146,22 @@ std::string Html(const ScanReport& r, const fs::path& dir) {
        "body{font-family:sans-serif;margin:2em;max-width:1300px}table{border-collapse:collapse;margin:1em 0}"
        "td,th{border:1px solid #bbb;padding:4px 10px;text-align:right}th{background:#eee}"
        "img{max-width:100%;border:1px solid #ddd;margin:4px 0}</style></head><body>";
-  h << "<h1>romunect scan</h1><p>" << Escape(r.scan_description) << "<br>rig <b>" << Escape(r.rig_name)
-    << "</b>, seed " << r.seed << ", " << r.objects << " objects, " << r.options.threads << " threads (fusion "
-    << r.fusion.threads << "), " << r.samples << " sample(s) per pixel.<br>Depth correction: "
-    << Escape(r.depth_correction) << "</p>";
+  h << "<h1>romunect scan</h1><p>" << Escape(r.scan_description) << "<br>rig <b>" << Escape(r.rig_name) << "</b>, seed "
+    << r.seed << ", " << r.objects << " objects, " << r.options.threads << " threads (fusion " << r.fusion.threads
+    << "), " << r.samples << " sample(s) per pixel.<br>Depth correction: " << Escape(r.depth_correction) << "</p>";
   h << "<h2>Completeness (the paper's table 1)</h2><table><tr><th>frames</th>";
   for (int n : kTableFrames) h << "<th>" << n << "</th>";
   h << "<th>all (" << r.fusion.completeness_per_frame.size() << ")</th></tr><tr><th>completeness [%]</th>";
   for (int n : kTableFrames) h << "<td>" << cell(CompletenessAfter(r, n), "%.2f", 100.0) << "</td>";
   h << "<td>" << Format("%.2f", 100.0 * m.completeness) << "</td></tr></table><p>Frames are counted from "
-    << "frame " << FirstFrameWithDepth(r) << ", the first with at least 5 % valid depth pixels (the descent starts above the focused "
+    << "frame " << FirstFrameWithDepth(r)
+    << ", the first with at least 5 % valid depth pixels (the descent starts above the focused "
     << "range).</p>";
   h << InlinePng(dir / "completeness.png");
   h << "<h2>Accuracy against ground truth</h2><table><tr><th>RMSE [mm]</th><th>MAE [mm]</th><th>within 1 mm</th>"
        "<th>cells compared</th></tr><tr><td>"
     << Format("%.3f", m.rmse_mm) << "</td><td>" << Format("%.3f", m.mae_mm) << "</td><td>"
-    << Format("%.1f %%", 100.0 * m.within_1mm) << "</td><td>" << m.compared_cells
-    << "</td></tr></table>";
+    << Format("%.1f %%", 100.0 * m.within_1mm) << "</td><td>" << m.compared_cells << "</td></tr></table>";
   h << "<h2>Depth maps</h2>" << InlinePng(dir / "figure2.png") << InlinePng(dir / "fused_depth.png")
     << InlinePng(dir / "error.png");
   h << "<h2>Pick</h2><p>" << Escape(r.pick.BriefReport()) << "</p>" << InlinePng(dir / "overview.png");
@@ -172,8 +171,8 @@ std::string Html(const ScanReport& r, const fs::path& dir) {
       << "</td></tr>";
   }
   h << "</table><p>Simulated approach " << Format("%.2f s", j["realtime"]["simulated_s"].get<double>())
-    << ", scan loop " << Format("%.2f s", j["realtime"]["loop_wall_s"].get<double>()) << " of wall time: "
-    << Format("%.2fx real time", j["realtime"]["factor"].get<double>()) << ", "
+    << ", scan loop " << Format("%.2f s", j["realtime"]["loop_wall_s"].get<double>())
+    << " of wall time: " << Format("%.2fx real time", j["realtime"]["factor"].get<double>()) << ", "
     << Format("%.2f s", j["realtime"]["loop_cpu_s"].get<double>()) << " of CPU on "
     << j["realtime"]["cores"].get<unsigned>() << " cores.</p>";
   h << "<h2>report.json</h2><pre>" << Escape(j.dump(1)) << "</pre></body></html>\n";
@@ -198,22 +197,34 @@ std::string ScanReportJson(const ScanReport& r) {
   j["samples_per_pixel"] = r.samples;
   j["depth_correction"] = r.depth_correction;
   const ScanJobOptions& a = r.options;  // `romunect scan` with these repeats the run (same bytes)
-  j["options"] = {{"scene", a.scene},         {"saved_scene", a.saved_scene}, {"seed", a.seed},
-                  {"objects", a.objects},     {"meshes", a.meshes},           {"mesh_unit_m", a.mesh_unit_m},
-                  {"mesh_material", a.mesh_material}, {"rig", a.rig},         {"calibration", a.calibration},
-                  {"threads", a.threads},     {"samples", a.samples},         {"voxel_m", a.voxel_m},
-                  {"sweep", a.sweep},         {"ideal_depth", a.ideal_depth}, {"compress_frames", a.compress_frames}};
+  j["options"] = {{"scene", a.scene},
+                  {"saved_scene", a.saved_scene},
+                  {"seed", a.seed},
+                  {"objects", a.objects},
+                  {"meshes", a.meshes},
+                  {"mesh_unit_m", a.mesh_unit_m},
+                  {"mesh_material", a.mesh_material},
+                  {"rig", a.rig},
+                  {"calibration", a.calibration},
+                  {"threads", a.threads},
+                  {"samples", a.samples},
+                  {"voxel_m", a.voxel_m},
+                  {"sweep", a.sweep},
+                  {"ideal_depth", a.ideal_depth},
+                  {"compress_frames", a.compress_frames}};
   j["frames"] = r.fusion.completeness_per_frame.size();
   json table = json::object();
   for (int n : kTableFrames) table["after_" + std::to_string(n)] = CompletenessAfter(r, n);
   j["table1_completeness"] = table;
   j["table1_first_frame"] = FirstFrameWithDepth(r);  // frames counted from this one (holds depth)
   j["valid_fraction_per_frame"] = r.valid_fraction_per_frame;
-  j["accuracy"] = {{"completeness", m.completeness}, {"rmse_mm", m.rmse_mm},
-                   {"mae_mm", m.mae_mm},           {"within_1mm", m.within_1mm},
-                   {"cells", m.cells},             {"compared_cells", m.compared_cells}};
-  json pick = {{"grasp_found", r.pick.grasp_found}, {"contact", r.pick.contact}, {"object", r.pick.object},
-               {"success", r.pick.success},         {"failure", r.pick.failure}};
+  j["accuracy"] = {{"completeness", m.completeness}, {"rmse_mm", m.rmse_mm}, {"mae_mm", m.mae_mm},
+                   {"within_1mm", m.within_1mm},     {"cells", m.cells},     {"compared_cells", m.compared_cells}};
+  json pick = {{"grasp_found", r.pick.grasp_found},
+               {"contact", r.pick.contact},
+               {"object", r.pick.object},
+               {"success", r.pick.success},
+               {"failure", r.pick.failure}};
   if (r.pick.grasp_found) {
     const auto& g = r.pick.grasp;
     pick["grasp_point_W"] = {g.p_W.x(), g.p_W.y(), g.p_W.z()};
@@ -245,8 +256,9 @@ std::string ScanReportJson(const ScanReport& r) {
   j["tracking"] = {{"max_position_error_mm", 1e3 * s.tracking.max_position_error_m},
                    {"rms_position_error_mm", 1e3 * s.tracking.rms_position_error_m},
                    {"max_angle_error_deg", s.tracking.max_angle_error_rad * 180.0 / M_PI}};
-  j["outputs"] = {"frames/", "scene.json", "fused_depth.exr", "fused_depth.png", "fused_points.ply", "gt_height.exr",
-                  "figure2.png", "error.png", "overview.png", "completeness.png", "report.html"};
+  j["outputs"] = {"frames/",          "scene.json",       "fused_depth.exr", "fused_depth.png",
+                  "fused_points.ply", "gt_height.exr",    "figure2.png",     "error.png",
+                  "overview.png",     "completeness.png", "report.html"};
   return j.dump(1) + "\n";
 }
 
@@ -268,21 +280,21 @@ std::string ScanSummaryText(const ScanSummary& summary) {
   const fs::path& run_dir = summary.run_dir;
   const fusion::HeightMapMetrics& m = *r.fusion.metrics;
   std::ostringstream s;
-  s << "completeness after 1 / 20 / 50 frames (from frame " << FirstFrameWithDepth(r) << ", the first with >= 5 % valid depth):";
+  s << "completeness after 1 / 20 / 50 frames (from frame " << FirstFrameWithDepth(r)
+    << ", the first with >= 5 % valid depth):";
   for (int n : kTableFrames) {
     const json v = CompletenessAfter(r, n);
     s << (v.is_null() ? std::string(" -") : Format(" %.1f %%", 100.0 * v.get<double>()));
   }
   s << "   (all " << r.fusion.completeness_per_frame.size() << " frames: " << Format("%.1f %%", 100.0 * m.completeness)
     << ")\n";
-  s << "accuracy vs ground truth: RMSE " << Format("%.3f", m.rmse_mm) << " mm, MAE "
-    << Format("%.3f", m.mae_mm) << " mm, " << Format("%.1f %%", 100.0 * m.within_1mm)
-    << " within 1 mm\n";
+  s << "accuracy vs ground truth: RMSE " << Format("%.3f", m.rmse_mm) << " mm, MAE " << Format("%.3f", m.mae_mm)
+    << " mm, " << Format("%.1f %%", 100.0 * m.within_1mm) << " within 1 mm\n";
   s << "pick: " << r.pick.BriefReport() << "\n";
   const double simulated = r.scan_stats.simulated_s;
-  s << "time: scan loop " << Format("%.2f s", r.loop_wall_s) << " for " << Format("%.2f s", simulated)
-    << " simulated (" << Format("%.2fx real time", r.loop_wall_s > 0 ? simulated / r.loop_wall_s : 0.0)
-    << ", " << Format("%.1f", r.loop_wall_s > 0 ? r.loop_cpu_s / r.loop_wall_s : 0.0) << " cores busy), total "
+  s << "time: scan loop " << Format("%.2f s", r.loop_wall_s) << " for " << Format("%.2f s", simulated) << " simulated ("
+    << Format("%.2fx real time", r.loop_wall_s > 0 ? simulated / r.loop_wall_s : 0.0) << ", "
+    << Format("%.1f", r.loop_wall_s > 0 ? r.loop_cpu_s / r.loop_wall_s : 0.0) << " cores busy), total "
     << Format("%.1f s", r.total_wall_s) << "\n";
   s << "wrote " << run_dir.string() << "/ (report.html, report.json, figure2.png, fused_depth.*, frames/)\n";
   return s.str();

@@ -15,8 +15,8 @@
 namespace romunect::calib {
 
 struct BoardSpec {
-  int cols = 9;           // inner corners per row
-  int rows = 6;           // inner corners per column
+  int cols = 9;             // inner corners per row
+  int rows = 6;             // inner corners per column
   double square_m = 0.025;  // edge of one square, metres
 
   // Why the spec is unusable, or "": at least 3 x 3 inner corners, a positive finite square.
@@ -33,7 +33,7 @@ BoardSpec ParseBoardSize(const std::string& text, double square_m, const std::st
 
 // The corners of one view of the board, in pixels, OpenCV's order.
 struct BoardView {
-  std::string name;                   // image file or station label, for messages
+  std::string name;                     // image file or station label, for messages
   std::vector<cv::Point2f> corners_px;  // corner_count() points
 };
 

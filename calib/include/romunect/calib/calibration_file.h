@@ -1,5 +1,5 @@
-// The one calibration file (docs/design.md, "Formats"; keys in docs/calibrate.md): a cv::FileStorage YAML that plain OpenCV
-// reads without romunect. Keys:
+// The one calibration file (docs/design.md, "Formats"; keys in docs/calibrate.md): a cv::FileStorage YAML that plain
+// OpenCV reads without romunect. Keys:
 //   format: "romunect-calibration", version: 1, date: ISO 8601 UTC
 //   image_width, image_height, camera_matrix, distortion_coefficients  (OpenCV's names)
 //   H_P_rec: 3x3 (projector pre-warp homography, projector pixels)
@@ -57,7 +57,7 @@ struct Calibration {
 std::string WorseThan(const Calibration& candidate, const Calibration& existing);
 
 struct SaveOptions {
-  bool maps_as_exr = false;     // write depth maps as <stem>_depth_a.exr / _b.exr beside the file
+  bool maps_as_exr = false;      // write depth maps as <stem>_depth_a.exr / _b.exr beside the file
   bool overwrite_worse = false;  // replace an existing file even if the new one is worse
 };
 
@@ -69,8 +69,7 @@ struct SaveReport {
 // Writes atomically (maps first, YAML last). If `path` exists and the new calibration is worse
 // (WorseThan), throws InputError naming the file and the worse steps unless overwrite_worse.
 // An existing file that does not load is never replaced without overwrite_worse either.
-SaveReport SaveCalibration(const std::filesystem::path& path, Calibration calibration,
-                           const SaveOptions& options = {});
+SaveReport SaveCalibration(const std::filesystem::path& path, Calibration calibration, const SaveOptions& options = {});
 
 // Loads and validates every field; throws InputError naming the file and the field.
 Calibration LoadCalibration(const std::filesystem::path& path);

@@ -28,10 +28,10 @@ namespace romunect::calib {
 
 // What is known before calibrating: nominal values, good for planning moves only.
 struct CalibrationSetup {
-  Rig nominal_rig;      // camera, projector, T_C_P and chip from datasheets and CAD
-  Pose T_H_C_nominal;   // the sensor's mount on the flange (CAD)
-  Pose T_B_K_nominal;   // where the plate was put (marked spot on the table)
-  BoardSpec board;      // the checkerboard printed on the plate
+  Rig nominal_rig;     // camera, projector, T_C_P and chip from datasheets and CAD
+  Pose T_H_C_nominal;  // the sensor's mount on the flange (CAD)
+  Pose T_B_K_nominal;  // where the plate was put (marked spot on the table)
+  BoardSpec board;     // the checkerboard printed on the plate
   // Centre of the plate's plain (white, untextured) reference area, in K (z = 0): where the
   // homography and depth captures look.
   Eigen::Vector3d reference_centre_K = Eigen::Vector3d::Zero();
@@ -55,16 +55,16 @@ class CalibrationHardware {
 };
 
 struct ChainOptions {
-  int views = 20;         // intrinsics: planned board views
-  int stations = 15;      // hand-eye: the first stations of the views (more planned if needed)
-  int depth_planes = 12;  // depth: captures of the reference area
-  unsigned seed = 1;      // view planning jitter
+  int views = 20;                // intrinsics: planned board views
+  int stations = 15;             // hand-eye: the first stations of the views (more planned if needed)
+  int depth_planes = 12;         // depth: captures of the reference area
+  unsigned seed = 1;             // view planning jitter
   double view_distance_m = 0.2;  // camera to board centre
   // Views alternate between distance * (1 - spread) and * (1 + spread): known robot motion
   // along the optical axis is what pins the focal length down in the hand-eye refinement.
   double view_distance_spread = 0.08;
-  double max_tilt_rad = 0.5;     // board tilts of the views (stronger ones blur beyond detection)
-  double margin_px = 50.0;       // planned corners this far inside the image (nominal errors)
+  double max_tilt_rad = 0.5;  // board tilts of the views (stronger ones blur beyond detection)
+  double margin_px = 50.0;    // planned corners this far inside the image (nominal errors)
   // Projector homography: the feature grid, shown on the reference area from this distance.
   PatternSpec feature_pattern = [] {
     PatternSpec p;
@@ -101,16 +101,16 @@ struct ChainTimes {
 };
 
 struct ChainResult {
-  Calibration calibration;  // ready for SaveCalibration (exact depth model; hand-eye's camera)
-  IntrinsicsResult intrinsics;  // Zhang's camera, before the hand-eye refinement
-  std::vector<std::string> view_names;            // per used view, same order as per_view_rms
+  Calibration calibration;              // ready for SaveCalibration (exact depth model; hand-eye's camera)
+  IntrinsicsResult intrinsics;          // Zhang's camera, before the hand-eye refinement
+  std::vector<std::string> view_names;  // per used view, same order as per_view_rms
   std::vector<std::pair<std::string, std::string>> rejected;  // (view, why)
-  std::vector<Pose> view_T_B_H;                   // executed poses of the used views
+  std::vector<Pose> view_T_B_H;                               // executed poses of the used views
   ProjectorHomographyResult homography;
   std::vector<Eigen::Vector2d> homography_pattern, homography_target;  // eq. 1's x_P, x_C
-  double raw_valid_fraction_unwarped = 0.0;  // depth engine matches with H = I (before)
-  double raw_valid_fraction_initial = 0.0;   // ... with the nominal pre-warp
-  double raw_valid_fraction_final = 0.0;     // ... with the calibrated H_P_rec (after)
+  double raw_valid_fraction_unwarped = 0.0;                            // depth engine matches with H = I (before)
+  double raw_valid_fraction_initial = 0.0;                             // ... with the nominal pre-warp
+  double raw_valid_fraction_final = 0.0;                               // ... with the calibrated H_P_rec (after)
   HandEyeResult hand_eye;
   std::vector<HandEyeStation> hand_eye_stations;  // those of the final fit (outliers dropped)
   int stations_used = 0;

@@ -33,9 +33,9 @@ struct PlaneCapture {
 };
 
 struct DepthCorrectionOptions {
-  int min_planes = 3;               // per pixel; fewer captures in total: error
-  double min_plane_coverage = 0.9;  // fraction of pixels each plane must cover with valid raw
-  double min_depth_spread_m = 0.002;  // per pixel, max - min true depth, else the fit is blind
+  int min_planes = 3;                       // per pixel; fewer captures in total: error
+  double min_plane_coverage = 0.9;          // fraction of pixels each plane must cover with valid raw
+  double min_depth_spread_m = 0.002;        // per pixel, max - min true depth, else the fit is blind
   ChipGeometry chip = StockChipGeometry();  // its raw -> depth formula feeds the affine model
   std::string Problem() const;
 };
@@ -43,9 +43,9 @@ struct DepthCorrectionOptions {
 struct DepthCorrectionResult {
   // a and b hold float-rounded values (what the calibration file stores); a pixel is fitted in
   // both or NaN in both.
-  DepthCorrection affine;   // kAffineInChipDepth
-  DepthCorrection inverse;  // kInverseAffineInRaw
-  double affine_rms_m = 0.0;   // over all fitted samples, depth after correction vs truth
+  DepthCorrection affine;     // kAffineInChipDepth
+  DepthCorrection inverse;    // kInverseAffineInRaw
+  double affine_rms_m = 0.0;  // over all fitted samples, depth after correction vs truth
   double inverse_rms_m = 0.0;
   double affine_max_m = 0.0;
   double inverse_max_m = 0.0;
@@ -64,8 +64,7 @@ cv::Mat PlaneDepth(const CameraModel& camera, const Pose& T_C_K);
 
 // Fits both models. Throws InputError (source "depth correction", field "captures[i]") with
 // too few captures, a raw image of the wrong size or type, or a plane not covering the image.
-DepthCorrectionResult FitDepthCorrection(const CameraModel& camera,
-                                         const std::vector<PlaneCapture>& captures,
+DepthCorrectionResult FitDepthCorrection(const CameraModel& camera, const std::vector<PlaneCapture>& captures,
                                          const DepthCorrectionOptions& options = {});
 
 }  // namespace romunect::calib

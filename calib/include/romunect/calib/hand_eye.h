@@ -41,8 +41,8 @@ struct HandEyeOptions {
   int min_stations = 3;
   // Motion checks: at least `min_stations` with rotation between them; rotations about at
   // least two distinct axes (pure translation or one axis leaves T_H_C unobservable).
-  double min_rotation_rad = 0.035;         // 2 deg: relative rotations below count as none
-  double min_axis_spread_rad = 0.17;       // 10 deg between rotation axes
+  double min_rotation_rad = 0.035;    // 2 deg: relative rotations below count as none
+  double min_axis_spread_rad = 0.17;  // 10 deg between rotation axes
   int max_iterations = 100;
   std::string Problem() const;
 };
@@ -63,13 +63,12 @@ struct HandEyeResult {
 // Calibrates from stations with a known camera. Throws InputError (source "hand-eye") with too
 // few stations, a view with the wrong corner count, or degenerate motion (saying which and what
 // would fix it).
-HandEyeResult CalibrateHandEye(const std::vector<HandEyeStation>& stations,
-                               const CameraModel& camera, const BoardSpec& board,
-                               const HandEyeOptions& options = {});
+HandEyeResult CalibrateHandEye(const std::vector<HandEyeStation>& stations, const CameraModel& camera,
+                               const BoardSpec& board, const HandEyeOptions& options = {});
 
 // OpenCV's calibrateHandEye alone (no guard, no refinement), for comparison: T_H_C.
-Pose OpenCvHandEye(const std::vector<HandEyeStation>& stations, const CameraModel& camera,
-                   const BoardSpec& board, HandEyeInitialMethod method);
+Pose OpenCvHandEye(const std::vector<HandEyeStation>& stations, const CameraModel& camera, const BoardSpec& board,
+                   HandEyeInitialMethod method);
 
 // The board pose in the camera from one view (solvePnP, iterative), with a known camera.
 Pose EstimateBoardPose(const BoardView& view, const CameraModel& camera, const BoardSpec& board);

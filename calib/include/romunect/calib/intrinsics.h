@@ -19,12 +19,11 @@ namespace romunect::calib {
 
 // Finds the board's inner corners in an 8-bit or 16-bit grey (or BGR) image and refines them
 // to sub-pixel precision. nullopt (with *reason) when the board is not found completely.
-std::optional<std::vector<cv::Point2f>> DetectBoard(const cv::Mat& image, const BoardSpec& board,
-                                                    std::string* reason);
+std::optional<std::vector<cv::Point2f>> DetectBoard(const cv::Mat& image, const BoardSpec& board, std::string* reason);
 
 struct DetectedViews {
   cv::Size image_size;
-  std::vector<BoardView> views;                            // views where the board was found
+  std::vector<BoardView> views;                               // views where the board was found
   std::vector<std::pair<std::string, std::string>> rejected;  // (file, reason)
 };
 
@@ -51,10 +50,10 @@ struct IntrinsicsOptions {
 // How well a set of views covers the image and the tilts (coverage, not the RMS, decides the
 // error away from the image centre).
 struct Coverage {
-  double cell_fraction = 0.0;    // fraction of coverage cells holding at least one corner
+  double cell_fraction = 0.0;      // fraction of coverage cells holding at least one corner
   double tilt_x_spread_rad = 0.0;  // max - min board tilt about the camera x axis
   double tilt_y_spread_rad = 0.0;  // max - min board tilt about the camera y axis
-  double max_tilt_rad = 0.0;     // largest angle between board normal and optical axis
+  double max_tilt_rad = 0.0;       // largest angle between board normal and optical axis
 };
 
 struct IntrinsicsResult {
@@ -69,12 +68,12 @@ struct IntrinsicsResult {
 
 // Calibrates from board views of one camera with image size `image_size`. Throws InputError
 // (source "intrinsics") with too few views, or views with a wrong corner count.
-IntrinsicsResult CalibrateIntrinsics(const std::vector<BoardView>& views, const BoardSpec& board,
-                                     cv::Size image_size, const IntrinsicsOptions& options = {});
+IntrinsicsResult CalibrateIntrinsics(const std::vector<BoardView>& views, const BoardSpec& board, cv::Size image_size,
+                                     const IntrinsicsOptions& options = {});
 
 // Coverage of views given their corners and board poses T_C_K.
-Coverage MeasureCoverage(const std::vector<BoardView>& views, const std::vector<Pose>& T_C_K,
-                         cv::Size image_size, int cells_x, int cells_y);
+Coverage MeasureCoverage(const std::vector<BoardView>& views, const std::vector<Pose>& T_C_K, cv::Size image_size,
+                         int cells_x, int cells_y);
 
 // The full-image mapping error between an estimated and a true camera: for pixels on a grid
 // of step `step_px` over the whole image, the distance between the pixel and where the
@@ -86,16 +85,16 @@ struct MappingError {
   double rms_px = 0.0;
   double max_px = 0.0;
 };
-MappingError FullImageMappingError(const CameraModel& estimate, const CameraModel& truth,
-                                   int step_px = 8, bool compensate_rotation = true);
+MappingError FullImageMappingError(const CameraModel& estimate, const CameraModel& truth, int step_px = 8,
+                                   bool compensate_rotation = true);
 
 struct ViewPlanOptions {
   int view_count = 20;
-  double distance_m = 0.25;      // camera to board centre along the optical axis
-  double max_tilt_rad = 0.8;     // tilts of the board about camera x and y, up to this (tilt
-                                 // spread pins the focal length down)
-  double margin_px = 10.0;       // every corner this far inside the image
-  unsigned seed = 1;             // jitter of the targets and tilts
+  double distance_m = 0.25;   // camera to board centre along the optical axis
+  double max_tilt_rad = 0.8;  // tilts of the board about camera x and y, up to this (tilt
+                              // spread pins the focal length down)
+  double margin_px = 10.0;    // every corner this far inside the image
+  unsigned seed = 1;          // jitter of the targets and tilts
   std::string Problem() const;
 };
 
@@ -104,7 +103,6 @@ struct ViewPlanOptions {
 // spread of tilts about both axes. Every proposed view keeps all corners on the image.
 // Throws InputError (source "view planner") when the board cannot fit the image at that
 // distance.
-std::vector<Pose> PlanViews(const CameraModel& camera, const BoardSpec& board,
-                            const ViewPlanOptions& options = {});
+std::vector<Pose> PlanViews(const CameraModel& camera, const BoardSpec& board, const ViewPlanOptions& options = {});
 
 }  // namespace romunect::calib

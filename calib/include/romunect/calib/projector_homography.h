@@ -28,19 +28,19 @@ struct ProjectorCapture {
 };
 
 struct ProjectorHomographyOptions {
-  int max_captures = 5;            // loop: stop after this many captures
-  double tolerance_px = 0.05;      // loop: stop when an update moves no feature's predicted
-                                   // camera position by more than this (camera px)
-  int min_points = 8;              // detected features per capture, at least
-  int max_iterations = 100;        // Levenberg-Marquardt
+  int max_captures = 5;        // loop: stop after this many captures
+  double tolerance_px = 0.05;  // loop: stop when an update moves no feature's predicted
+                               // camera position by more than this (camera px)
+  int min_points = 8;          // detected features per capture, at least
+  int max_iterations = 100;    // Levenberg-Marquardt
   std::string Problem() const;
 };
 
 struct ProjectorHomographyStep {
   Eigen::Matrix3d H_P_rec = Eigen::Matrix3d::Identity();  // normalized: H(2,2) = 1
-  Eigen::Matrix3d F_img = Eigen::Matrix3d::Identity();  // fitted: projector px -> ideal camera px
-  double predicted_rms_px = 0.0;  // || F_img(H x_P) - x_C || with the fitted F_img
-  double mapping_fit_rms_px = 0.0;  // how well the homography model explains the captures
+  Eigen::Matrix3d F_img = Eigen::Matrix3d::Identity();    // fitted: projector px -> ideal camera px
+  double predicted_rms_px = 0.0;                          // || F_img(H x_P) - x_C || with the fitted F_img
+  double mapping_fit_rms_px = 0.0;                        // how well the homography model explains the captures
   int points_used = 0;
   int iterations = 0;
 };

@@ -72,8 +72,7 @@ class FrameInserter {
   // Casts every pixel of depth_m (CV_32FC1, camera-sized, metres along the optical axis,
   // 0 = none) from the camera at T_W_C (rigid) into the grid. Adds to *stats when not null.
   // The camera's per-pixel rays are computed on the first call and whenever the camera changes.
-  void Insert(const CameraModel& camera, const cv::Mat& depth_m, const Pose& T_W_C,
-              InsertStats* stats);
+  void Insert(const CameraModel& camera, const cv::Mat& depth_m, const Pose& T_W_C, InsertStats* stats);
 
   // The columns (x = ix, y = iy) whose votes the last Insert may have changed: the others kept
   // theirs, so CompletenessTracker looks again at just these (voting_grid.h). Empty before the

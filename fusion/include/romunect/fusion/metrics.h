@@ -10,14 +10,14 @@
 namespace romunect::fusion {
 
 struct HeightMapMetrics {
-  size_t cells = 0;            // all cells of the region
-  size_t valued_cells = 0;     // cells of the fused map with a value
-  size_t compared_cells = 0;   // valued cells where the ground truth has a value too
-  double completeness = 0.0;   // valued_cells / cells
+  size_t cells = 0;           // all cells of the region
+  size_t valued_cells = 0;    // cells of the fused map with a value
+  size_t compared_cells = 0;  // valued cells where the ground truth has a value too
+  double completeness = 0.0;  // valued_cells / cells
   // Over compared cells; NaN when there are none (JSON null: no error, not a zero one).
   double rmse_mm = 0.0;
   double mae_mm = 0.0;
-  double within_1mm = 0.0;     // share of compared cells with |error| <= 1 mm
+  double within_1mm = 0.0;  // share of compared cells with |error| <= 1 mm
 };
 
 // Share of cells with a (finite) value.

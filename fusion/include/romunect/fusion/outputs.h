@@ -35,26 +35,25 @@ void WriteHeightMapPicture(const std::filesystem::path& path, const cv::Mat& hei
 
 // One vertex (x, y, z in W, metres, float32) per valued cell, binary little-endian PLY (MeshLab,
 // CloudCompare and Open3D read it).
-void WriteHeightMapPly(const std::filesystem::path& path, const cv::Mat& height_m,
-                       const HeightMapGeometry& geometry);
+void WriteHeightMapPly(const std::filesystem::path& path, const cv::Mat& height_m, const HeightMapGeometry& geometry);
 
 // Completeness (%) over frames, as a line plot PNG.
 void WriteCompletenessPlot(const std::filesystem::path& path, const std::vector<double>& completeness);
 
 // Everything report.json holds.
 struct FusionReport {
-  std::string input;                 // what was fused (a directory, "simulation")
-  size_t frames = 0;                 // frames inserted
-  size_t bad_frames = 0;             // frames skipped (unreadable or unusable)
+  std::string input;      // what was fused (a directory, "simulation")
+  size_t frames = 0;      // frames inserted
+  size_t bad_frames = 0;  // frames skipped (unreadable or unusable)
   std::vector<std::string> bad_frame_messages;
   int threads = 1;
   HeightMapGeometry geometry;
   double max_x_m = 0.0, max_y_m = 0.0, max_z_m = 0.0;  // the box's maximum as given
-  std::vector<double> insert_ms;     // per frame (CPU wall time of Insert)
-  double extract_ms = 0.0;           // final extraction
+  std::vector<double> insert_ms;                       // per frame (CPU wall time of Insert)
+  double extract_ms = 0.0;                             // final extraction
   double peak_rss_mb = 0.0;
   double grid_mb = 0.0;
-  size_t skipped_pixels = 0;         // NaN/inf/negative pixels set to "none" while loading
+  size_t skipped_pixels = 0;  // NaN/inf/negative pixels set to "none" while loading
   InsertStats stats;
   std::vector<double> completeness_per_frame;
   double completeness = 0.0;

@@ -19,10 +19,10 @@
 namespace romunect {
 
 struct CameraModel {
-  int width = 640;   // image width in pixels
-  int height = 480;  // image height in pixels
-  double fx = 525.0, fy = 525.0;  // focal lengths, px
-  double cx = 319.5, cy = 239.5;  // principal point, px (319.5 = centre of a 640-px row)
+  int width = 640;                     // image width in pixels
+  int height = 480;                    // image height in pixels
+  double fx = 525.0, fy = 525.0;       // focal lengths, px
+  double cx = 319.5, cy = 239.5;       // principal point, px (319.5 = centre of a 640-px row)
   std::array<double, 5> distortion{};  // k1, k2, p1, p2, k3 (OpenCV order)
 
   // Why the model is unusable, or "" when it is valid: positive size and focal lengths,

@@ -6,21 +6,20 @@
 #include <cstdio>
 #include <cstdlib>
 
-#define ROMUNECT_CHECK(condition)                                                     \
-  do {                                                                                \
-    if (!(condition)) {                                                               \
+#define ROMUNECT_CHECK(condition)                                                        \
+  do {                                                                                   \
+    if (!(condition)) {                                                                  \
       std::fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #condition); \
-      std::abort();                                                                   \
-    }                                                                                 \
+      std::abort();                                                                      \
+    }                                                                                    \
   } while (false)
 
-#define ROMUNECT_CHECK_MSG(condition, message)                                        \
-  do {                                                                                \
-    if (!(condition)) {                                                               \
-      std::fprintf(stderr, "%s:%d: check failed: %s (%s)\n", __FILE__, __LINE__,     \
-                   #condition, message);                                              \
-      std::abort();                                                                   \
-    }                                                                                 \
+#define ROMUNECT_CHECK_MSG(condition, message)                                                         \
+  do {                                                                                                 \
+    if (!(condition)) {                                                                                \
+      std::fprintf(stderr, "%s:%d: check failed: %s (%s)\n", __FILE__, __LINE__, #condition, message); \
+      std::abort();                                                                                    \
+    }                                                                                                  \
   } while (false)
 
 #ifdef NDEBUG

@@ -20,7 +20,7 @@ namespace romunect {
 // Narrowest first; kAuto asks for the widest the family implements and the CPU supports.
 enum class Isa { kAuto, kScalar, kSse2, kAvx2, kAvx512 };
 
-const char* ToString(Isa isa);  // "auto", "scalar", "sse2", "avx2", "avx512"
+const char* ToString(Isa isa);                       // "auto", "scalar", "sse2", "avx2", "avx512"
 std::optional<Isa> ParseIsa(std::string_view name);  // the inverse of ToString; nullopt if unknown
 
 // Whether this CPU runs code built for `isa` (kAuto, kScalar: always; kSse2: on x86-64).

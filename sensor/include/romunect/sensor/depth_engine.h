@@ -44,11 +44,11 @@ inline constexpr uint16_t kRawInvalid = 2047;
 
 struct DepthEngineStats {
   int valid = 0;
-  int flat = 0;        // texture too low (dark, saturated or unlit)
-  int weak = 0;        // best cost too high
-  int ambiguous = 0;   // second best too close
+  int flat = 0;          // texture too low (dark, saturated or unlit)
+  int weak = 0;          // best cost too high
+  int ambiguous = 0;     // second best too close
   int out_of_range = 0;  // best at the end of the search range, or raw outside 11 bits
-  int border = 0;      // window leaves the image
+  int border = 0;        // window leaves the image
   double seconds = 0.0;  // wall time of Compute
   // CPU time of the busiest thread (prefilter and search): at `threads` = 1 the frame's CPU time.
   double busiest_thread_cpu_s = 0.0;
@@ -56,9 +56,9 @@ struct DepthEngineStats {
 };
 
 struct DepthEngineOutput {
-  cv::Mat raw;      // CV_16U, 11-bit raw depth, kRawInvalid where no match
-  cv::Mat depth_m;  // CV_32F, the chip's reported depth (metres), 0 where invalid
-  cv::Mat shift_px; // CV_32F, the matched shift s in 1/8 px, NaN where invalid
+  cv::Mat raw;       // CV_16U, 11-bit raw depth, kRawInvalid where no match
+  cv::Mat depth_m;   // CV_32F, the chip's reported depth (metres), 0 where invalid
+  cv::Mat shift_px;  // CV_32F, the matched shift s in 1/8 px, NaN where invalid
   DepthEngineStats stats;
 };
 
@@ -117,8 +117,8 @@ class DepthEngine {
 // representation: the calibration fits a and b (calib/depth_correction.h), its file stores them
 // (calib/calibration_file.h), and the pipeline applies them here.
 enum class DepthCorrectionModel {
-  kAffineInChipDepth,      // Z = a * Z_chip + b  (the paper's correction)
-  kInverseAffineInRaw,     // 1/Z = a * raw + b   (exact for a pinhole camera)
+  kAffineInChipDepth,   // Z = a * Z_chip + b  (the paper's correction)
+  kInverseAffineInRaw,  // 1/Z = a * raw + b   (exact for a pinhole camera)
 };
 const char* DepthCorrectionModelName(DepthCorrectionModel model);  // "affine_in_chip_depth", ...
 
@@ -142,7 +142,7 @@ cv::Mat ApplyDepthCorrection(const DepthCorrection& correction, const DepthEngin
 cv::Mat ApplyDepthCorrection(const DepthCorrection& correction, const cv::Mat& raw, const ChipGeometry& chip);
 
 struct DepthFitOptions {
-  int min_samples = 2;             // per pixel, else NaN
+  int min_samples = 2;              // per pixel, else NaN
   double min_depth_spread_m = 0.0;  // per pixel, max - min truth depth, else NaN (a blind fit)
 };
 
@@ -151,8 +151,8 @@ struct DepthFitOptions {
 // kInverseAffineInRaw weighs each sample by Z^4 so that it minimizes depth error, not 1/Z
 // error. Pixels with too few samples, too little spread or one distinct value get NaN.
 DepthCorrection FitDepthCorrection(DepthCorrectionModel model, const std::vector<cv::Mat>& raw,
-                                   const std::vector<cv::Mat>& chip_depth_m,
-                                   const std::vector<cv::Mat>& truth_depth_m, const DepthFitOptions& options);
+                                   const std::vector<cv::Mat>& chip_depth_m, const std::vector<cv::Mat>& truth_depth_m,
+                                   const DepthFitOptions& options);
 // The same from the engine's outputs.
 DepthCorrection FitDepthCorrection(DepthCorrectionModel model, const std::vector<DepthEngineOutput>& outputs,
                                    const std::vector<cv::Mat>& truth_depth_m, int min_samples = 2);

@@ -26,18 +26,14 @@ class InputError : public std::runtime_error {
   // `field` the part that is wrong (a JSON key path, a channel, a pixel), `problem` says
   // what was found and what was expected. The message reads "source: field: problem".
   InputError(const std::string& source, const std::string& field, const std::string& problem)
-      : std::runtime_error(Compose(source, field, problem)),
-        source_(source),
-        field_(field),
-        problem_(problem) {}
+      : std::runtime_error(Compose(source, field, problem)), source_(source), field_(field), problem_(problem) {}
 
   const std::string& source() const { return source_; }
   const std::string& field() const { return field_; }
   const std::string& problem() const { return problem_; }
 
  private:
-  static std::string Compose(const std::string& source, const std::string& field,
-                             const std::string& problem) {
+  static std::string Compose(const std::string& source, const std::string& field, const std::string& problem) {
     std::string message = source;
     if (!field.empty()) message += ": " + field;
     return message + ": " + problem;

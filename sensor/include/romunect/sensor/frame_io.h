@@ -64,9 +64,8 @@ enum class InvalidDepthPolicy {
 
 // Loads the images of manifest.frames[i], checking each file's size, type and values.
 // Throws InputError naming the file. Pixels fixed under kSkip are added to *skipped_pixels.
-Frame LoadFrame(const std::filesystem::path& dir, const FrameDirectoryManifest& manifest,
-                size_t i, InvalidDepthPolicy policy = InvalidDepthPolicy::kReject,
-                size_t* skipped_pixels = nullptr);
+Frame LoadFrame(const std::filesystem::path& dir, const FrameDirectoryManifest& manifest, size_t i,
+                InvalidDepthPolicy policy = InvalidDepthPolicy::kReject, size_t* skipped_pixels = nullptr);
 
 // Writes a frame directory frame by frame. Images are written as frames arrive (each
 // atomically); frames.json is written by Finish(), atomically, so a directory without
@@ -107,8 +106,7 @@ class FrameDirectoryWriter {
 
 // Writes a manifest as frames.json into dir, atomically (used by the writer and by tools that
 // rewrite a manifest).
-void WriteFrameDirectoryManifest(const std::filesystem::path& dir,
-                                 const FrameDirectoryManifest& manifest);
+void WriteFrameDirectoryManifest(const std::filesystem::path& dir, const FrameDirectoryManifest& manifest);
 
 // Plays a frame directory back as a FrameSource. The constructor reads and validates the
 // manifest (throws InputError); a frame whose images are missing or invalid is kBadFrame,

@@ -71,8 +71,8 @@ class PipelineEngine {
   struct StageSlot {
     PipelineStageOptions options;
     Stage stage;
-    std::deque<Entry> input;   // empty for the source
-    bool done = false;         // the stage has ended (its thread returns)
+    std::deque<Entry> input;  // empty for the source
+    bool done = false;        // the stage has ended (its thread returns)
     PipelineStageTiming timing;
   };
   void RunSource();

@@ -40,8 +40,6 @@ inline Eigen::Quaterniond QuaternionFromWxyz(const std::array<double, 4>& wxyz) 
 }
 
 // Returns the w-first array {w, x, y, z} (MuJoCo, Ceres order) of a quaternion.
-inline std::array<double, 4> QuaternionToWxyz(const Eigen::Quaterniond& q) {
-  return {q.w(), q.x(), q.y(), q.z()};
-}
+inline std::array<double, 4> QuaternionToWxyz(const Eigen::Quaterniond& q) { return {q.w(), q.x(), q.y(), q.z()}; }
 
 }  // namespace romunect

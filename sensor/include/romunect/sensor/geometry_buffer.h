@@ -13,9 +13,9 @@ namespace romunect {
 
 // How a surface reflects the projector's (near-)IR light.
 struct IrMaterial {
-  float albedo = 0.5f;     // diffuse (Lambertian) reflectance in [0, 1]
-  float specular = 0.0f;   // weight of the specular lobe in [0, 1]; shiny parts saturate
-  float shininess = 50.0f; // Phong exponent of the specular lobe (> 0)
+  float albedo = 0.5f;      // diffuse (Lambertian) reflectance in [0, 1]
+  float specular = 0.0f;    // weight of the specular lobe in [0, 1]; shiny parts saturate
+  float shininess = 50.0f;  // Phong exponent of the specular lobe (> 0)
 };
 
 // One sample per pixel of the camera image: all Mats are height x width of the camera.

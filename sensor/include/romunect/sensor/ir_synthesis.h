@@ -44,8 +44,7 @@ class IrSynthesizer {
 
   // Writes the IR image (CV_16U, camera size, values in [0, 2^bits - 1]) into *ir. The
   // geometry must match rig.camera's size. stats may be null.
-  void Synthesize(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, cv::Mat* ir,
-                  IrSynthesisStats* stats);
+  void Synthesize(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, cv::Mat* ir, IrSynthesisStats* stats);
 
   // Expected electrons per pixel of the last frame, before noise and clipping (CV_32F).
   const cv::Mat& expected_electrons() const { return blurred_; }

@@ -57,8 +57,7 @@ TriangleMesh MakeTiltedPlaneTarget(double distance_m, double size_m, double tilt
 TriangleMesh MakeStepTarget(double distance_m, double step_m, double size_m);
 // A plane of side size_m at z = distance_m with a box (box_size_m square, box_height_m high)
 // standing on it at the centre, its top face at z = distance_m - box_height_m.
-TriangleMesh MakeBoxOnPlaneTarget(double distance_m, double size_m, double box_size_m,
-                                  double box_height_m);
+TriangleMesh MakeBoxOnPlaneTarget(double distance_m, double size_m, double box_size_m, double box_height_m);
 // An icosphere centred at (0, 0, distance_m + radius_m) (its front at distance_m) whose
 // vertices lie on the sphere; 20 * 4^subdivisions triangles.
 TriangleMesh MakeSphereTarget(double distance_m, double radius_m, int subdivisions = 4);
@@ -77,11 +76,11 @@ TriangleMesh MakeBuiltinTarget(const std::string& name, double distance_m, doubl
 
 struct BinSceneOptions {
   uint32_t seed = 1;
-  int triangle_count = 300000;  // approximate total (within one object's triangles)
-  double distance_m = 0.2;      // z of the bin floor in O (camera axes, looking into the bin)
-  double inner_width_m = 0.08;  // bin inner size along x
-  double inner_height_m = 0.06; // bin inner size along y
-  double wall_height_m = 0.04;  // walls rise from the floor towards the camera (-z)
+  int triangle_count = 300000;   // approximate total (within one object's triangles)
+  double distance_m = 0.2;       // z of the bin floor in O (camera axes, looking into the bin)
+  double inner_width_m = 0.08;   // bin inner size along x
+  double inner_height_m = 0.06;  // bin inner size along y
+  double wall_height_m = 0.04;   // walls rise from the floor towards the camera (-z)
   double min_object_radius_m = 0.003;
   double max_object_radius_m = 0.008;
   int object_subdivisions = 3;  // icosphere level of each object: 20 * 4^level triangles

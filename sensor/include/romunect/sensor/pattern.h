@@ -22,8 +22,7 @@ cv::Mat MakePattern(const PatternSpec& spec);
 
 // The image the projector displays: pattern warped by H_P_rec (x_P ~ H_P_rec x_pattern) to the
 // projector's resolution, bilinear, black outside the pattern. H_P_rec = I copies exactly.
-cv::Mat PrewarpPattern(const cv::Mat& pattern, const Eigen::Matrix3d& H_P_rec,
-                       const ProjectorModel& projector);
+cv::Mat PrewarpPattern(const cv::Mat& pattern, const Eigen::Matrix3d& H_P_rec, const ProjectorModel& projector);
 
 // MakePattern then PrewarpPattern for a rig.
 cv::Mat ProjectorImage(const Rig& rig);

@@ -30,12 +30,12 @@ namespace romunect {
 
 // A pinhole projector (no distortion) with a thin lens of finite aperture.
 struct ProjectorModel {
-  int width = 792;    // projector image size, px
+  int width = 792;  // projector image size, px
   int height = 594;
-  double fx = 580.0, fy = 580.0;  // focal lengths, px
-  double cx = 395.5, cy = 296.5;  // principal point, px
-  double focus_distance_m = 2.0;  // distance (along its axis) where the pattern is sharp
-  double aperture_m = 0.002;      // lens aperture diameter; 0 = pinhole (always sharp)
+  double fx = 580.0, fy = 580.0;      // focal lengths, px
+  double cx = 395.5, cy = 296.5;      // principal point, px
+  double focus_distance_m = 2.0;      // distance (along its axis) where the pattern is sharp
+  double aperture_m = 0.002;          // lens aperture diameter; 0 = pinhole (always sharp)
   double brightness_e_per_s = 1.0e6;  // see the radiometry note above
 
   // Why the model is unusable, or "" when valid: Check().ToString().
@@ -57,11 +57,11 @@ struct CameraOptics {
   double aperture_m = 0.001;      // aperture diameter (defocus); 0 = pinhole
   double psf_sigma_px = 0.7;      // blur of the focused lens and pixel, Gaussian sigma
   double exposure_s = 0.03;
-  double gain_dn_per_e = 0.25;    // digital numbers per electron
-  double full_well_e = 4000.0;    // electrons where a pixel saturates
-  double read_noise_e = 6.0;      // read noise, electrons RMS
-  bool shot_noise = true;         // photon (Poisson) noise, Gaussian approximation
-  int bits = 10;                  // quantization: output in [0, 2^bits - 1]
+  double gain_dn_per_e = 0.25;      // digital numbers per electron
+  double full_well_e = 4000.0;      // electrons where a pixel saturates
+  double read_noise_e = 6.0;        // read noise, electrons RMS
+  bool shot_noise = true;           // photon (Poisson) noise, Gaussian approximation
+  int bits = 10;                    // quantization: output in [0, 2^bits - 1]
   double ambient_e_per_s = 2000.0;  // ambient IR on a white surface, electrons per second
 
   std::string Problem() const;
@@ -87,10 +87,10 @@ std::optional<PatternKind> PatternKindFromName(const std::string& name);
 
 struct PatternSpec {
   PatternKind kind = PatternKind::kKinectDots;
-  int width = 792;   // pattern image size, px; Kinect dots need multiples of 3
+  int width = 792;  // pattern image size, px; Kinect dots need multiples of 3
   int height = 594;
   uint64_t seed = 1;
-  double dot_fill = 0.11;        // Kinect dots: share of lit pixels
+  double dot_fill = 0.11;          // Kinect dots: share of lit pixels
   double centre_spot_level = 1.0;  // Kinect dots: centre spot value (dots are dot_level)
   double dot_level = 0.6;          // Kinect dots: value of an ordinary dot
   int pitch_px = 8;                // grids and checkerboard
@@ -106,9 +106,9 @@ struct PatternSpec {
 // reference image of the Kinect pattern on a plane at reference_distance_m stored in the chip.
 // Raw values follow Z = 8 f b / (raw_offset - raw) (depth_engine.h documents raw depth).
 struct ChipGeometry {
-  CameraModel camera;          // stock IR camera: 640 x 480, f = 580 px
-  ProjectorModel projector;    // stock laser projector (its pattern frame); aperture ~0
-  PatternSpec pattern;         // the Kinect pattern burnt into the DOE (kind kKinectDots)
+  CameraModel camera;        // stock IR camera: 640 x 480, f = 580 px
+  ProjectorModel projector;  // stock laser projector (its pattern frame); aperture ~0
+  PatternSpec pattern;       // the Kinect pattern burnt into the DOE (kind kKinectDots)
   double baseline_m = 0.075;
   double reference_distance_m = 1.0;
   double raw_offset = 1090.0;  // raw value at zero disparity (infinite depth), "doff"
@@ -121,8 +121,8 @@ struct ChipGeometry {
 
 struct DepthEngineOptions {
   ChipGeometry chip;
-  int window_px = 9;         // correlation window, odd
-  int min_shift_px = -32;    // search along the row: shifts [min, min + range) vs reference
+  int window_px = 9;       // correlation window, odd
+  int min_shift_px = -32;  // search along the row: shifts [min, min + range) vs reference
   int search_range_px = 64;
   int subpixel_steps = 8;    // 1/8 px
   double min_texture = 6.0;  // mean |prefiltered| in the window below this: flat -> invalid

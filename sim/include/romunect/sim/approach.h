@@ -20,15 +20,15 @@
 namespace romunect::sim {
 
 struct ApproachOptions {
-  double start_distance_m = 0.40;  // camera height above the bin floor at the start
-  double end_distance_m = 0.20;    // ... at the end (the working distance)
-  double speed_m_s = 0.3;          // along the path
-  double acceleration_m_s2 = 1.5;  // speed ramps at both ends
+  double start_distance_m = 0.40;             // camera height above the bin floor at the start
+  double end_distance_m = 0.20;               // ... at the end (the working distance)
+  double speed_m_s = 0.3;                     // along the path
+  double acceleration_m_s2 = 1.5;             // speed ramps at both ends
   Eigen::Vector2d region_size_m{0.15, 0.08};  // region of interest (bin x, y), centred on the bin
-  double pass_overlap = 0.1;       // fraction of the footprint shared by neighbouring passes
-  double corner_smoothing_s = 0.1;  // box filter over the path's corners (0: sharp corners)
-  double joint_speed_rad_s = 1.0;  // peak joint speed of the move to the start
-  double hold_before_s = 0.3;      // still time at the start, for the servos to settle
+  double pass_overlap = 0.1;                  // fraction of the footprint shared by neighbouring passes
+  double corner_smoothing_s = 0.1;            // box filter over the path's corners (0: sharp corners)
+  double joint_speed_rad_s = 1.0;             // peak joint speed of the move to the start
+  double hold_before_s = 0.3;                 // still time at the start, for the servos to settle
   // Stand-off levels (used when focused_far_m > 0): the sensor measures only depths (along
   // its axis) in [focused_near_m, focused_far_m] (see MeasurableDepthRange). The levels put
   // the middle of the focused range evenly from the highest surface (bin floor +
@@ -54,12 +54,12 @@ struct ApproachOptions {
 };
 
 struct ApproachPlan {
-  double timestep_s = 0.0;               // one sample per physics step
-  std::vector<Pose> T_W_C;               // planned camera poses, one per step
-  std::vector<World::ArmVector> q;       // joint angles that reach them (IK)
-  int passes_x = 1, passes_y = 1;        // lateral passes over the region (per level)
-  std::vector<double> levels_m;          // camera heights above the bin floor of the passes
-  double length_m = 0.0;                 // path length
+  double timestep_s = 0.0;          // one sample per physics step
+  std::vector<Pose> T_W_C;          // planned camera poses, one per step
+  std::vector<World::ArmVector> q;  // joint angles that reach them (IK)
+  int passes_x = 1, passes_y = 1;   // lateral passes over the region (per level)
+  std::vector<double> levels_m;     // camera heights above the bin floor of the passes
+  double length_m = 0.0;            // path length
   double duration_s() const { return T_W_C.empty() ? 0.0 : (T_W_C.size() - 1) * timestep_s; }
 };
 

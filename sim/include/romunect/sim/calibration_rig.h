@@ -29,17 +29,17 @@
 namespace romunect::sim {
 
 struct CalibrationRigOptions {
-  Rig rig = RigPreset("romunect");  // the sensor's truth (its H_P_rec is what the chain sets)
+  Rig rig = RigPreset("romunect");      // the sensor's truth (its H_P_rec is what the chain sets)
   calib::BoardSpec board{9, 6, 0.003};  // printed on the plate: 10 x 7 squares of 3 mm
-  bool print_board = true;               // false: a plain plate (the target cannot be found)
+  bool print_board = true;              // false: a plain plate (the target cannot be found)
   // The plate on the table: K's origin (the first inner corner) in W, yawed about W's z.
   Eigen::Vector3d plate_origin_W{0.40, 0.2, 0.001};
-  double plate_yaw_rad = M_PI;  // K x towards the robot: the reference area nearer the base
+  double plate_yaw_rad = M_PI;        // K x towards the robot: the reference area nearer the base
   double reference_offset_m = 0.075;  // reference area's centre: this far along K's x from the board's
   // Nominal errors: each pose perturbed by exactly this angle (random axis) and distance
   // (random direction); focal lengths scaled by 1 +- focal_error, principal point moved.
-  double mount_error_rad = 0.005, mount_error_m = 0.001;       // T_H_C, CAD of the bracket
-  double plate_error_rad = 0.01, plate_error_m = 0.002;        // T_B_K, placed by hand
+  double mount_error_rad = 0.005, mount_error_m = 0.001;           // T_H_C, CAD of the bracket
+  double plate_error_rad = 0.01, plate_error_m = 0.002;            // T_B_K, placed by hand
   double projector_error_rad = 0.002, projector_error_m = 0.0003;  // T_C_P
   double focal_error = 0.01, principal_error_px = 4.0;
   double lamp_e_per_s = 1.0e5;  // IR lamp for board views (ambient on white, electrons/s)
@@ -105,10 +105,10 @@ struct ChainTruthErrors {
   calib::MappingError mapping, mapping_uncompensated;  // the calibration's (final) camera
   calib::MappingError mapping_zhang;                   // Zhang's, before the hand-eye refinement
   PoseError hand_eye, hand_eye_initial, board;
-  // The hand-eye goal (0.02 deg, 0.15 mm; docs/calibrate.md) holds for KNOWN intrinsics: the hand-eye step re-run on the
-  // chain's own stations with the true camera (not refined), for the report only. The chain's
-  // T_H_C (hand_eye) goes with its estimated camera: a principal point d px off turns it by
-  // about d / f, which the lines of sight below do not show.
+  // The hand-eye goal (0.02 deg, 0.15 mm; docs/calibrate.md) holds for KNOWN intrinsics: the hand-eye step re-run on
+  // the chain's own stations with the true camera (not refined), for the report only. The chain's T_H_C (hand_eye) goes
+  // with its estimated camera: a principal point d px off turns it by about d / f, which the lines of sight below do
+  // not show.
   PoseError hand_eye_known_intrinsics;
   // Lines of sight in H (the hand-eye rotation together with the intrinsics): the angle
   // between estimated and true rays of pixels over the image. A principal point off by d px

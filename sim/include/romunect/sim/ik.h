@@ -12,9 +12,9 @@ namespace romunect::sim {
 
 struct IkOptions {
   int max_iterations = 200;
-  double damping = 0.01;             // lambda, in the units of e (m and rad); > 0
-  double max_step_rad = 0.2;         // largest change of any joint per iteration
-  double tolerance_m = 1e-6;         // converged when both errors are below these
+  double damping = 0.01;      // lambda, in the units of e (m and rad); > 0
+  double max_step_rad = 0.2;  // largest change of any joint per iteration
+  double tolerance_m = 1e-6;  // converged when both errors are below these
   double tolerance_rad = 1e-6;
 
   std::string Problem() const;  // "" when valid; otherwise names the field, value and rule

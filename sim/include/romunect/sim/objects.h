@@ -31,7 +31,7 @@ struct Mesh {
 
 struct ObjectSpec {
   ObjectKind kind = ObjectKind::kPillBox;
-  uint32_t seed = 0;             // the seed that made it (sizes vary a little per seed)
+  uint32_t seed = 0;  // the seed that made it (sizes vary a little per seed)
   // Convex parts in O, each a closed convex mesh: the collision geometry, and what is rendered
   // unless visual_O is given.
   std::vector<Mesh> parts_O;
@@ -52,8 +52,8 @@ ObjectSpec MakeObject(ObjectKind kind, uint32_t seed);
 
 // A user mesh object (the file is read to check it). Throws InputError naming the file when it
 // is missing, not .stl/.obj, malformed, under 1 mm across at scale_to_m, or encloses no volume.
-ObjectSpec MakeUserMeshObject(const std::filesystem::path& mesh_file, double scale_to_m,
-                              const IrMaterial& material, double density_kg_m3 = 1000.0);
+ObjectSpec MakeUserMeshObject(const std::filesystem::path& mesh_file, double scale_to_m, const IrMaterial& material,
+                              double density_kg_m3 = 1000.0);
 
 // Named materials for the paper's cases: bright plastic, dark (albedo 0.05), shiny metal.
 IrMaterial BrightMaterial();

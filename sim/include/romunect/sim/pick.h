@@ -17,22 +17,22 @@
 namespace romunect::sim {
 
 struct PickOptions {
-  double cup_radius_m = 0.008;        // the patch the cup needs (its lip, 9 mm, minus a margin)
-  double candidate_step_m = 1e-3;     // grasp candidates on this grid
-  double min_valid_fraction = 0.9;    // of the patch's cells that must hold a height
-  double max_rms_m = 0.4e-3;          // plane-fit residual over the patch
-  double max_tilt_rad = 0.5;          // patch normal from vertical
-  double pre_grasp_m = 0.04;          // approach starts this far out along the normal
-  double approach_speed_m_s = 0.05;   // along the normal, until the cup touches
-  double overtravel_m = 0.01;         // past the surface without contact: give up
-  double lift_above_rim_m = 0.06;     // the cup rises to this height above the bin's rim
-  double move_speed_m_s = 0.2;        // Cartesian moves other than the approach
+  double cup_radius_m = 0.008;       // the patch the cup needs (its lip, 9 mm, minus a margin)
+  double candidate_step_m = 1e-3;    // grasp candidates on this grid
+  double min_valid_fraction = 0.9;   // of the patch's cells that must hold a height
+  double max_rms_m = 0.4e-3;         // plane-fit residual over the patch
+  double max_tilt_rad = 0.5;         // patch normal from vertical
+  double pre_grasp_m = 0.04;         // approach starts this far out along the normal
+  double approach_speed_m_s = 0.05;  // along the normal, until the cup touches
+  double overtravel_m = 0.01;        // past the surface without contact: give up
+  double lift_above_rim_m = 0.06;    // the cup rises to this height above the bin's rim
+  double move_speed_m_s = 0.2;       // Cartesian moves other than the approach
 
   std::string Problem() const;  // "" when valid; otherwise "field = value: rule"
 };
 
 struct GraspPoint {
-  Eigen::Vector3d p_W = Eigen::Vector3d::Zero();       // patch centre on the fitted plane
+  Eigen::Vector3d p_W = Eigen::Vector3d::Zero();        // patch centre on the fitted plane
   Eigen::Vector3d normal_W = Eigen::Vector3d::UnitZ();  // fitted plane normal, pointing up
   double rms_m = 0.0;                                   // plane-fit residual
   int row = 0, col = 0;                                 // height-map cell of the centre
@@ -52,7 +52,7 @@ struct PickResult {
   bool success = false;     // the gripped object ended above the bin's rim, held by the cup
   double simulated_s = 0.0;
   double wall_s = 0.0;
-  std::string failure;      // why not, when success is false
+  std::string failure;  // why not, when success is false
   std::string BriefReport() const;
 };
 

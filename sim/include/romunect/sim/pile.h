@@ -17,8 +17,8 @@ struct PileOptions {
   int num_objects = 10;
   std::vector<ObjectKind> kinds;  // drawn from these (seeded); empty: the five generated kinds
   uint32_t seed = 1;
-  double drop_interval_s = 0.12;     // one object after the other, so none lands inside another
-  double drop_height_m = 0.02;       // above the bin's rim
+  double drop_interval_s = 0.12;  // one object after the other, so none lands inside another
+  double drop_height_m = 0.02;    // above the bin's rim
   // Physics time step while settling (the scene's own is restored afterwards): millimetre
   // parts falling at 1 m/s need sub-millimetre steps not to sink into each other.
   double timestep_s = 0.001;
@@ -28,7 +28,7 @@ struct PileOptions {
   double max_drop_speed_m_s = 0.3;
   double kinetic_energy_threshold_j = 2e-6;  // settled when the pile's energy stays below this
   double quiet_time_s = 0.1;                 // ... for this long
-  double max_settle_time_s = 6.0;    // after the last drop; longer: not converged
+  double max_settle_time_s = 6.0;            // after the last drop; longer: not converged
 
   std::string Problem() const;  // "" when valid; otherwise "field = value: rule"
 };
@@ -38,11 +38,11 @@ std::vector<ObjectSpec> MakePileObjects(const PileOptions& options);
 
 struct SettleSummary {
   bool converged = false;
-  double simulated_s = 0.0;     // physics time from the first drop to settled (or giving up)
+  double simulated_s = 0.0;  // physics time from the first drop to settled (or giving up)
   double kinetic_energy_j = 0.0;
-  int objects_in_bin = 0;       // objects whose centre lies inside the bin's inner box
-  double wall_s = 0.0;          // wall-clock time spent
-  std::string loaded_from;      // a SaveSettledScene() file the pile came from: nothing settled
+  int objects_in_bin = 0;   // objects whose centre lies inside the bin's inner box
+  double wall_s = 0.0;      // wall-clock time spent
+  std::string loaded_from;  // a SaveSettledScene() file the pile came from: nothing settled
 
   std::string BriefReport() const;
 };

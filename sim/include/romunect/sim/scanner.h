@@ -57,20 +57,20 @@ struct DepthRange {
 DepthRange MeasurableDepthRange(const Rig& rig, double usable_fraction = 0.8);
 
 struct ScanOptions {
-  std::filesystem::path scene_file;   // MJCF with the arm and a bin; empty: the default scene
-  std::filesystem::path saved_scene;  // a SaveSettledScene() file: its pile, no settling
-  PileOptions pile;                   // the random pile (ignored with saved_scene)
+  std::filesystem::path scene_file;       // MJCF with the arm and a bin; empty: the default scene
+  std::filesystem::path saved_scene;      // a SaveSettledScene() file: its pile, no settling
+  PileOptions pile;                       // the random pile (ignored with saved_scene)
   std::vector<ObjectSpec> extra_objects;  // added to the pile (user meshes)
   Rig rig = RigPreset("romunect");
-  std::optional<Pose> T_H_C;          // hand-eye; default: the scene's camera site
+  std::optional<Pose> T_H_C;  // hand-eye; default: the scene's camera site
   ApproachOptions approach;
   // Fill approach.focused_near_m/far_m from MeasurableDepthRange(rig) when they are 0, so the
   // passes run at stand-off levels where the rig measures.
   bool levels_from_rig = true;
   IkOptions ik;
-  int samples_per_pixel = 1;          // renderer: 1 (pinhole) or 4 (thin lens, defocus)
-  int threads = 2;                    // renderer threads
-  uint64_t seed = 1;                  // per-frame imaging seeds derive from it
+  int samples_per_pixel = 1;  // renderer: 1 (pinhole) or 4 (thin lens, defocus)
+  int threads = 2;            // renderer threads
+  uint64_t seed = 1;          // per-frame imaging seeds derive from it
 
   std::string Problem() const;  // "" when valid; otherwise "field = value: rule"
 };
@@ -79,12 +79,12 @@ struct ScanStats {
   SettleSummary settle;
   TrackingStats tracking;
   int frames = 0;
-  double setup_s = 0.0;        // wall: loading, planning, scene building (settle excluded)
+  double setup_s = 0.0;          // wall: loading, planning, scene building (settle excluded)
   double move_to_start_s = 0.0;  // simulated time of the joint-space move
-  double physics_s = 0.0;      // wall, per stage, summed over the frames delivered
+  double physics_s = 0.0;        // wall, per stage, summed over the frames delivered
   double render_s = 0.0;
-  double imaging_s = 0.0;      // IR synthesis + depth engine (the FrameImager)
-  double simulated_s = 0.0;    // approach time of the last frame
+  double imaging_s = 0.0;    // IR synthesis + depth engine (the FrameImager)
+  double simulated_s = 0.0;  // approach time of the last frame
   std::string BriefReport() const;
 };
 

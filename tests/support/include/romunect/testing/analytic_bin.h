@@ -23,10 +23,10 @@ struct AnalyticBinOptions {
   int width = 640, height = 480;  // image size; intrinsics scale so the FOV stays 60 x 45 mm
   int frames = 50;
   uint32_t seed = 1;
-  double noise_m = 1e-4;            // depth noise, standard deviation along the optical axis
-  double min_invalid = 0.3, max_invalid = 0.8;  // invalid share per frame, drawn uniformly
+  double noise_m = 1e-4;                            // depth noise, standard deviation along the optical axis
+  double min_invalid = 0.3, max_invalid = 0.8;      // invalid share per frame, drawn uniformly
   double start_height_m = 0.4, end_height_m = 0.2;  // camera z in W, first and last frame
-  std::array<double, 5> distortion{};  // k1, k2, p1, p2, k3 of the camera
+  std::array<double, 5> distortion{};               // k1, k2, p1, p2, k3 of the camera
 };
 
 class AnalyticBin {
@@ -57,8 +57,8 @@ class AnalyticBin {
   struct Solid {
     enum Kind { kBox, kSphere, kCylinder } kind;
     Eigen::Vector3d centre_W;
-    Eigen::Matrix3d R_W_L;       // local axes (the cylinder's axis is local z)
-    Eigen::Vector3d half_size;   // box: half extents; sphere: (r, r, r); cylinder: (r, r, half length)
+    Eigen::Matrix3d R_W_L;      // local axes (the cylinder's axis is local z)
+    Eigen::Vector3d half_size;  // box: half extents; sphere: (r, r, r); cylinder: (r, r, half length)
   };
   const std::vector<Solid>& solids() const { return solids_; }
 

@@ -59,7 +59,6 @@ CameraModel SmallCamera();
 std::vector<Frame> SampleFrames(const CameraModel& camera, int count, uint32_t seed);
 
 // Writes SampleFrames() as a complete frame directory at dir.
-void WriteSampleFrameDirectory(const std::filesystem::path& dir, const CameraModel& camera, int count,
-                               uint32_t seed);
+void WriteSampleFrameDirectory(const std::filesystem::path& dir, const CameraModel& camera, int count, uint32_t seed);
 
 }  // namespace romunect::testing

@@ -28,9 +28,9 @@ struct RaySceneStats {
   size_t static_triangles = 0;
   size_t moving_triangles = 0;
   int moving_parts = 0;
-  int static_builds = 0;           // how often the static BVH was built (1 in normal use)
-  double static_build_s = 0.0;     // wall time of the last static BVH build
-  double last_commit_s = 0.0;      // wall time of the last Commit()
+  int static_builds = 0;        // how often the static BVH was built (1 in normal use)
+  double static_build_s = 0.0;  // wall time of the last static BVH build
+  double last_commit_s = 0.0;   // wall time of the last Commit()
 };
 
 class GeometryRenderer;
@@ -47,13 +47,11 @@ class RayScene {
   // Adds a mesh to the static part, placed with T_W_O once and for all. Its BVH is built at
   // the next Commit(); add every static mesh before the first Commit (a later one rebuilds the
   // whole static part). The mesh must be valid (mesh.Problem() == ""; loaders check it).
-  void AddStatic(const TriangleMesh& mesh_O, const Pose& T_W_O, const IrMaterial& material,
-                 int object_id);
+  void AddStatic(const TriangleMesh& mesh_O, const Pose& T_W_O, const IrMaterial& material, int object_id);
 
   // Adds a moving part (an instance with its own BVH) at pose T_W_O. Returns its handle for
   // SetPose(). The mesh must be valid.
-  int AddMoving(const TriangleMesh& mesh_O, const Pose& T_W_O, const IrMaterial& material,
-                int object_id);
+  int AddMoving(const TriangleMesh& mesh_O, const Pose& T_W_O, const IrMaterial& material, int object_id);
 
   // Moves a moving part; takes effect at the next Commit(), which is cheap (top level only).
   void SetPose(int moving, const Pose& T_W_O);

@@ -31,13 +31,13 @@
 namespace romunect::embree {
 
 struct RenderOptions {
-  int samples_per_pixel = 1;        // 1 (pinhole) or 4 (quality mode, thin lens)
-  double focus_distance_m = 0.2;    // camera lens focus: depth (z in C) that is sharp, > 0
-  double aperture_radius_m = 0.0;   // camera lens aperture radius, >= 0; 0 = pinhole
-  int threads = 1;                  // render threads (tiles handed out in order), >= 1
-  int tile_size_px = 32;            // square tiles, a multiple of 4 (the packet size)
-  double shadow_bias_m = 2e-6;      // shadow rays leave this far off the surface (self-hits)
-  bool adaptive = false;            // with 4 samples: extra samples only at edges (see above)
+  int samples_per_pixel = 1;       // 1 (pinhole) or 4 (quality mode, thin lens)
+  double focus_distance_m = 0.2;   // camera lens focus: depth (z in C) that is sharp, > 0
+  double aperture_radius_m = 0.0;  // camera lens aperture radius, >= 0; 0 = pinhole
+  int threads = 1;                 // render threads (tiles handed out in order), >= 1
+  int tile_size_px = 32;           // square tiles, a multiple of 4 (the packet size)
+  double shadow_bias_m = 2e-6;     // shadow rays leave this far off the surface (self-hits)
+  bool adaptive = false;           // with 4 samples: extra samples only at edges (see above)
   // Adaptive: neighbouring depths further apart than this many pixel footprints (z / fx) mark
   // a depth edge; 4 = surfaces steeper than 76 degrees to the view count as edges.
   double edge_slope = 4.0;
@@ -51,17 +51,17 @@ struct RenderOptions {
 };
 
 struct RenderStats {
-  int64_t camera_rays = 0;   // over all layers
-  int64_t hits = 0;          // camera rays that hit something
-  int64_t shadow_rays = 0;   // traced shadow rays (hits facing the projector)
-  int64_t lit = 0;           // hits the projector centre sees
+  int64_t camera_rays = 0;     // over all layers
+  int64_t hits = 0;            // camera rays that hit something
+  int64_t shadow_rays = 0;     // traced shadow rays (hits facing the projector)
+  int64_t lit = 0;             // hits the projector centre sees
   int64_t refined_pixels = 0;  // adaptive: pixels that got the extra samples
   // Moving parts that no camera ray (no shadow ray) of the frame can reach, from their bounding
   // boxes against the view's bounds. When that is all of them, those rays skip the moving parts
   // (on a hand-held sensor the arm's links sit behind the camera); the image is the same.
   int64_t moving_out_of_view = 0;
   int64_t moving_out_of_shadows = 0;
-  double seconds = 0.0;      // wall time of Render()
+  double seconds = 0.0;  // wall time of Render()
   std::string BriefReport() const;
 };
 
@@ -87,8 +87,8 @@ class GeometryRenderer {
   // Renders the committed scene seen by `camera` at pose T_W_C with the projector at T_C_P
   // into *out (its Mats are reused when they already have the right size). Ray tables of a
   // camera are computed on first use and kept. Options must be valid (Problem() == "").
-  RenderStats Render(const RayScene& scene, const CameraModel& camera, const Pose& T_W_C,
-                     const Pose& T_C_P, const RenderOptions& options, GeometryBuffer* out);
+  RenderStats Render(const RayScene& scene, const CameraModel& camera, const Pose& T_W_C, const Pose& T_C_P,
+                     const RenderOptions& options, GeometryBuffer* out);
 
  private:
   struct Cache;

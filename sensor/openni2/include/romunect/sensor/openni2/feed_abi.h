@@ -19,17 +19,17 @@ extern "C" {
 #define ROMUNECT_FEED_ABI_VERSION 1
 
 typedef struct RomunectFeedInfo {
-  int abi_version;            /* ROMUNECT_FEED_ABI_VERSION of the feed */
-  int width, height;          /* image size (px) */
-  double fx, fy, cx, cy;      /* pinhole of the images (px): the device's fields of view */
-  double fps;                 /* frame rate (Hz) */
-  int frame_count;            /* frames the feed will deliver; 0 = endless */
-  int has_depth, has_ir;      /* which images every frame holds */
+  int abi_version;       /* ROMUNECT_FEED_ABI_VERSION of the feed */
+  int width, height;     /* image size (px) */
+  double fx, fy, cx, cy; /* pinhole of the images (px): the device's fields of view */
+  double fps;            /* frame rate (Hz) */
+  int frame_count;       /* frames the feed will deliver; 0 = endless */
+  int has_depth, has_ir; /* which images every frame holds */
 } RomunectFeedInfo;
 
 typedef struct RomunectFeedFrame {
-  const float* depth_m;       /* width * height, or NULL without depth */
-  const uint16_t* ir;         /* width * height, or NULL without IR */
+  const float* depth_m; /* width * height, or NULL without depth */
+  const uint16_t* ir;   /* width * height, or NULL without IR */
   double time_s;
 } RomunectFeedFrame;
 

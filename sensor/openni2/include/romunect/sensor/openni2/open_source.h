@@ -14,17 +14,17 @@
 #include <memory>
 #include <string>
 
-#include "romunect/sensor/openni2/openni2_source.h"
-#include "romunect/sensor/openni2/pose_log.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/frame_source.h"
+#include "romunect/sensor/openni2/openni2_source.h"
+#include "romunect/sensor/openni2/pose_log.h"
 
 namespace romunect::openni2 {
 
 struct OpenSourceOptions {
-  std::filesystem::path pose_log;        // CSV pose log (pose_log.h); empty = none
-  PoseLogSourceOptions pose;             // clock offset and hand-eye, with a pose log
-  OpenNI2SourceOptions openni2;          // device options (uri is taken from the string)
+  std::filesystem::path pose_log;  // CSV pose log (pose_log.h); empty = none
+  PoseLogSourceOptions pose;       // clock offset and hand-eye, with a pose log
+  OpenNI2SourceOptions openni2;    // device options (uri is taken from the string)
   // What a frame directory's loader does with NaN/inf/negative depth pixels.
   InvalidDepthPolicy invalid_depth = InvalidDepthPolicy::kReject;
 };

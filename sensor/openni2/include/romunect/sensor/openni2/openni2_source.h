@@ -20,9 +20,9 @@
 #include <string>
 #include <vector>
 
-#include "romunect/sensor/openni2/depth_units.h"
 #include "romunect/sensor/camera_model.h"
 #include "romunect/sensor/frame_source.h"
+#include "romunect/sensor/openni2/depth_units.h"
 
 namespace romunect::openni2 {
 
@@ -53,10 +53,10 @@ struct OpenNI2SourceOptions {
 // The PS1080 chip's hard-coded geometry as the device reports it (SI units); absent when the
 // device does not answer (calibration needs these to undo the chip's depth formula).
 struct PS1080Properties {
-  std::optional<double> zero_plane_distance_m;       // ZPD: reference-pattern distance
-  std::optional<double> zero_plane_pixel_size_m;     // ZPPS: pixel size at the zero plane
-  std::optional<double> emitter_camera_distance_m;   // LDDIS: projector-camera baseline
-  std::optional<double> depth_rgb_camera_distance_m; // DCRCDIS
+  std::optional<double> zero_plane_distance_m;        // ZPD: reference-pattern distance
+  std::optional<double> zero_plane_pixel_size_m;      // ZPPS: pixel size at the zero plane
+  std::optional<double> emitter_camera_distance_m;    // LDDIS: projector-camera baseline
+  std::optional<double> depth_rgb_camera_distance_m;  // DCRCDIS
   std::optional<long long> const_shift, param_coeff, shift_scale, max_shift, pixel_size_factor;
   std::string Describe() const;
 };

@@ -48,15 +48,15 @@ class PoseLog {
 };
 
 struct PoseLogSourceOptions {
-  double time_offset_s = 0.0;      // log time = frame time + offset (aligns the two clocks)
-  std::optional<Pose> T_H_C;       // hand-eye pose; with it, frames also get T_W_C
-  Pose T_W_B = Pose::Identity();   // robot base in the world (used with T_H_C)
+  double time_offset_s = 0.0;     // log time = frame time + offset (aligns the two clocks)
+  std::optional<Pose> T_H_C;      // hand-eye pose; with it, frames also get T_W_C
+  Pose T_W_B = Pose::Identity();  // robot base in the world (used with T_H_C)
   std::string Problem() const;
 };
 
 struct PoseLogSourceStats {
-  int frames = 0;          // frames that got a pose
-  int outside_log = 0;     // frames whose time fell outside the log (kBadFrame)
+  int frames = 0;       // frames that got a pose
+  int outside_log = 0;  // frames whose time fell outside the log (kBadFrame)
 };
 
 // Wraps any FrameSource and sets each frame's T_B_H (and T_W_C = T_W_B T_B_H T_H_C when the

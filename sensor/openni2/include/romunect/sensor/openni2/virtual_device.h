@@ -36,8 +36,7 @@ struct VirtualDeviceOptions {
 
 // The URI that opens `frame_dir` (made absolute) as a virtual device with `options`.
 // Throws InputError if the options are invalid or the path holds '?' (the URI's separator).
-std::string VirtualDeviceUri(const std::filesystem::path& frame_dir,
-                             const VirtualDeviceOptions& options = {});
+std::string VirtualDeviceUri(const std::filesystem::path& frame_dir, const VirtualDeviceOptions& options = {});
 
 // The URI of a live feed device (see above): `feed_query` holds the feed's own keys.
 // Throws InputError if the options are invalid (loop is not offered for feeds).

@@ -26,8 +26,8 @@ struct CalibrationFileOptions {
 
 // Where the hand-eye and depth steps take T_B_H from when the frames do not carry it.
 struct PoseLogOptions {
-  std::string log;         // CSV pose log of T_B_H; empty: the frames' own (frames.json)
-  double offset_s = 0.0;   // added to frame times to get pose-log times
+  std::string log;        // CSV pose log of T_B_H; empty: the frames' own (frames.json)
+  double offset_s = 0.0;  // added to frame times to get pose-log times
   bool offset_given = false;
 };
 

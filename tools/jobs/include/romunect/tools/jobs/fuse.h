@@ -32,7 +32,7 @@ struct FuseJobSummary {
   std::filesystem::path out;
   fusion::FusionReport report;
   std::string depth_from, box_from;
-  int dropped_frames = 0;             // gaps in a device's frame numbers
+  int dropped_frames = 0;              // gaps in a device's frame numbers
   std::optional<std::string> stopped;  // why the source stopped before its end
 };
 

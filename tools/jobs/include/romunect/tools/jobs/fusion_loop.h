@@ -59,7 +59,7 @@ class FrameFuser {
   FrameFuser(const FrameFuser&) = delete;
   FrameFuser& operator=(const FrameFuser&) = delete;
 
-  void Fuse(Frame* frame);  // the next delivery, a good frame
+  void Fuse(Frame* frame);                                      // the next delivery, a good frame
   void BadFrame(const Frame& frame, const std::string& error);  // the next delivery, a bad frame
   void Stopped(const std::string& why) { summary_.stopped = why; }
   FusionSummary& summary() { return summary_; }

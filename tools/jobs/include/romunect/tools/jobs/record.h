@@ -14,7 +14,7 @@ struct RecordOptions {
   int frames = 0, width = 0, height = 0, fps = 0;  // 0: until the end / the device's default
   double timeout_s = 2.0, pose_offset_s = 0.0;
   bool no_ir = false, raw = false, compress_frames = false;
-  bool device_depth = false;  // record the device's metric depth even with a depth model
+  bool device_depth = false;       // record the device's metric depth even with a depth model
   bool pose_offset_given = false;  // to tell a given 0 from none
 };
 

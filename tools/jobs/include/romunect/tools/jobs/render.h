@@ -14,11 +14,11 @@ struct RenderJobOptions {
   std::string out_dir;
   std::string rig = "romunect";  // preset name or JSON file
   std::string target = "plane";
-  std::string mesh;              // a mesh file instead of a target (vertices in C, metres)
+  std::string mesh;  // a mesh file instead of a target (vertices in C, metres)
   double mesh_unit_m = 1.0;
-  double distance_m = 0.0;       // 0: the camera's focus distance
-  double size_m = 0.0;           // 0: 1.5 x the view's width at the distance
-  std::string samples = "1";     // 1, 4 (thin lens at every pixel) or adaptive (4 at edges only)
+  double distance_m = 0.0;    // 0: the camera's focus distance
+  double size_m = 0.0;        // 0: 1.5 x the view's width at the distance
+  std::string samples = "1";  // 1, 4 (thin lens at every pixel) or adaptive (4 at edges only)
   int threads = 2;
   uint64_t seed = 1;
   double albedo = 0.6;
