@@ -1,7 +1,7 @@
 // The one fusion loop of the jobs: frames from a source are inserted, one by one, into a voting
-// grid, with the completeness curve and the insert times per frame. `romunect scan` runs it on
-// the simulator's pipelined source, `romunect fuse` on a frame directory, a recording or a
-// device; what differs between them (bad frames, depth models, poses, progress lines, side
+// grid, with the completeness curve and the insert times per frame. `romunect scan` runs its body
+// (FrameFuser) as a stage of the frame pipeline, `romunect fuse` pulls frames from a directory, a
+// recording or a device (FuseFrames); what differs between them (bad frames, depth models, poses, progress lines, side
 // outputs) comes in through FrameHooks.
 #pragma once
 
