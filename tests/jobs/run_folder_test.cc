@@ -13,35 +13,25 @@ namespace romunect::jobs {
 namespace {
 namespace fs = std::filesystem;
 using ::testing::HasSubstr;
+using testing::InputErrorOf;
 using testing::ReadText;
 using testing::ScratchDir;
 using testing::WriteText;
 
-// The message of the InputError that `make` throws ("" when it throws none).
-template <typename F>
-std::string ErrorOf(F make) {
-  try {
-    make();
-  } catch (const InputError& e) {
-    return e.what();
-  }
-  return "";
-}
-
 TEST(RunFolder, RefusesAFolderThatHoldsAnythingAndTouchesNothing) {
   ScratchDir dir("run_folder");
   WriteText(dir / "mine" / "notes.txt", "precious");
-  EXPECT_THAT(ErrorOf([&] { RunFolder run((dir / "mine").string() + "/", "--out", "scan"); }),
+  EXPECT_THAT(InputErrorOf([&] { RunFolder run((dir / "mine").string() + "/", "--out", "scan"); }),
               HasSubstr((dir / "mine").string() + ": exists and is not an empty folder; choose another --out"));
   WriteText(dir / "file", "precious");
-  EXPECT_THAT(ErrorOf([&] { RunFolder run((dir / "file").string(), "--out", "scan"); }),
+  EXPECT_THAT(InputErrorOf([&] { RunFolder run((dir / "file").string(), "--out", "scan"); }),
               HasSubstr("exists and is not an empty folder"));
   WriteText(dir / "done" / "report.json", "{}");
-  EXPECT_THAT(ErrorOf([&] { RunFolder run((dir / "done").string(), "--out", "scan"); }),
+  EXPECT_THAT(InputErrorOf([&] { RunFolder run((dir / "done").string(), "--out", "scan"); }),
               HasSubstr("holds a finished scan (report.json); choose another --out"));
-  EXPECT_THAT(ErrorOf([&] { RunFolder run(".", "--out", "scan"); }),
+  EXPECT_THAT(InputErrorOf([&] { RunFolder run(".", "--out", "scan"); }),
               HasSubstr("--out: '.' names no folder of its own"));
-  EXPECT_THAT(ErrorOf([&] { RunFolder run((dir / "file" / "run").string(), "--out", "scan"); }),
+  EXPECT_THAT(InputErrorOf([&] { RunFolder run((dir / "file" / "run").string(), "--out", "scan"); }),
               HasSubstr("file is not a folder"));
   EXPECT_EQ(ReadText(dir / "mine" / "notes.txt"), "precious");
   EXPECT_EQ(ReadText(dir / "file"), "precious");
@@ -91,7 +81,7 @@ TEST(RunFolder, KeepsTheFinishedRunWhenTheFolderWasFilledMeanwhile) {
   run.Begin();
   WriteText(run.work_dir() / "report.json", "{}");
   WriteText(dir / "run" / "other.txt", "someone else's");
-  EXPECT_THAT(ErrorOf([&] { run.Commit(); }),
+  EXPECT_THAT(InputErrorOf([&] { run.Commit(); }),
               HasSubstr("was filled while the scan ran; the finished run is in " + run.work_dir().string()));
   EXPECT_EQ(ReadText(dir / "run" / "other.txt"), "someone else's");
   EXPECT_EQ(ReadText(run.work_dir() / "report.json"), "{}");

@@ -21,12 +21,7 @@ using testing::ScratchDir;
 
 // The InputError RunScan throws: "source: field: problem" ("" when none).
 std::string ScanError(const ScanJobOptions& o) {
-  try {
-    RunScan(o);
-  } catch (const InputError& e) {
-    return e.what();
-  }
-  return "";
+  return testing::InputErrorOf([&] { RunScan(o); });
 }
 
 TEST(ScanJob, RefusesBadOptionsBeforeAnyWork) {

@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 #include <opencv2/core.hpp>
 
+#include "romunect/sensor/errors.h"
 #include "romunect/sensor/pose.h"
 
 namespace romunect::testing {
@@ -43,6 +44,17 @@ CommandResult RunRomunect(const std::string& arguments);
 // Writes text to a file (for crafting malformed inputs).
 void WriteText(const std::filesystem::path& path, const std::string& text);
 std::string ReadText(const std::filesystem::path& path);
+
+// The message of the InputError that f() throws ("" when it throws none).
+template <typename F>
+std::string InputErrorOf(F f) {
+  try {
+    f();
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "";
+}
 
 }  // namespace romunect::testing
 
