@@ -1,0 +1,124 @@
+// The calibrate jobs in-process: the chain in the loop with the simulated rig at a reduced size,
+// the intrinsics step on rendered board images, and the hand-eye and depth steps on frame
+// directories rendered here, each checked against the truth it was made from.
+#include <filesystem>
+#include <string>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+
+#include "romunect/calib/calibration_file.h"
+#include "romunect/calib/intrinsics.h"
+#include "romunect/testing/test_support.h"
+#include "romunect/tools/jobs/calibrate.h"
+#include "synthetic.h"
+
+namespace romunect::jobs {
+namespace {
+namespace fs = std::filesystem;
+using romunect::testing::InputErrorOf;
+using romunect::testing::ScratchDir;
+using ::testing::HasSubstr;
+
+constexpr double kDeg = M_PI / 180.0;
+// Rendered, 4x supersampled images: corner detection is good to a few hundredths of a pixel.
+constexpr double kImageMappingPx = 0.25;
+// Rendered, supersampled board images: hand-eye within 0.05 deg and 0.3 mm of the truth.
+constexpr double kHandEyeAngleRad = 0.05 * kDeg;
+constexpr double kHandEyeTranslationM = 0.3e-3;
+constexpr double kDepthGoalM = 0.1e-3;  // the paper's single-scan accuracy
+
+TEST(CalibrateJob, InTheLoopWritesTheFileTheReportsAndTheGoals) {
+  ScratchDir dir("job_loop");
+  InTheLoopOptions o;
+  o.out = (dir / "run").string();
+  o.views = 8;  // reduced: the chain's goals are not the point here, its outputs are
+  o.stations = 8;
+  o.planes = 4;
+  o.board_samples = 1;
+  const InTheLoopSummary summary = CalibrateInTheLoop(o);
+  EXPECT_EQ(summary.calibration_file, fs::path(o.out) / "calibration.yaml");
+  const calib::Calibration calibration = calib::LoadCalibration(summary.calibration_file);
+  ASSERT_TRUE(calibration.depth.has_value());
+  EXPECT_GT(calibration.residuals.hand_eye_rms_px, 0.0);
+  EXPECT_THAT(summary.goals_table, HasSubstr("| whole chain, compute only"));
+  for (const char* name : {"report.json", "report.md", "depth_residual.png", "reprojection_errors.png"}) {
+    EXPECT_TRUE(fs::exists(fs::path(o.out) / name)) << name;
+  }
+  EXPECT_THAT(InTheLoopSummaryText(summary), HasSubstr(summary.calibration_file.string()));
+}
+
+TEST(CalibrateJob, InTheLoopRefusesTooFewViewsBeforeAnyWork) {
+  ScratchDir dir("job_loop_refused");
+  InTheLoopOptions o;
+  o.out = (dir / "run").string();
+  o.views = 3;
+  o.stations = 3;
+  o.board_samples = 1;
+  EXPECT_THAT(InputErrorOf([&] { CalibrateInTheLoop(o); }), HasSubstr("views = 3: need at least 4"));
+  EXPECT_FALSE(fs::exists(fs::path(o.out) / "calibration.yaml"));
+  EXPECT_FALSE(fs::exists(fs::path(o.out) / "report.json"));
+}
+
+TEST(CalibrateJob, IntrinsicsStepRecoversTheCameraFromAFolderOfImages) {
+  ScratchDir dir("job_intrinsics");
+  const fs::path images = dir / "images";
+  fs::create_directories(images);
+  CameraModel truth = calib::testing::TruthCamera();
+  truth.distortion = {};  // the board image renderer is a homography
+  const calib::BoardSpec board{9, 6, 0.025};
+  calib::ViewPlanOptions plan;
+  plan.view_count = 12;
+  plan.distance_m = 0.3;
+  int n = 0;
+  for (const Pose& T_K_C : calib::PlanViews(truth, board, plan)) {
+    const std::string name = "view" + std::to_string(10 + n++) + ".png";
+    cv::imwrite((images / name).string(), calib::testing::RenderBoardImage(truth, board, T_K_C.inverse()));
+  }
+  IntrinsicsStepOptions o;
+  o.images = images.string();
+  o.file.output = (dir / "calibration.yaml").string();
+  const calib::Calibration calibration = RunIntrinsicsStep(o);
+  EXPECT_LE(calib::FullImageMappingError(calibration.camera, truth).rms_px, kImageMappingPx);
+  EXPECT_LT(calibration.residuals.intrinsics_rms_px, 0.1);
+  EXPECT_EQ(calib::LoadCalibration(o.file.output).camera.fx, calibration.camera.fx);  // what it saved
+
+  o.images = (dir / "nothing").string();
+  o.file.output = (dir / "x.yaml").string();
+  EXPECT_THAT(InputErrorOf([&] { RunIntrinsicsStep(o); }), HasSubstr("not a folder"));
+  EXPECT_FALSE(fs::exists(o.file.output));
+}
+
+TEST(CalibrateJob, HandEyeThenDepthStepsRecoverTheTruth) {
+  ScratchDir dir("job_steps");
+  CameraModel camera = calib::testing::TruthCamera();
+  camera.distortion = {};  // the board image renderer is a homography
+  const calib::BoardSpec board{9, 6, 0.025};
+  const fs::path file = dir / "calibration.yaml";
+  calib::Calibration start;
+  start.camera = camera;
+  start.residuals.intrinsics_rms_px = 0.05;
+  calib::SaveCalibration(file, start);
+
+  const calib::testing::HandEyeRig rig = calib::testing::MakeHandEyeRig(camera, board, 12, 0.0, 0.5, 0.8, 3);
+  calib::testing::WriteBoardFrames(dir / "board", camera, board, rig);
+  HandEyeStepOptions hand_eye;
+  hand_eye.frames = (dir / "board").string();
+  hand_eye.file.output = file.string();
+  const calib::Calibration after_hand_eye = RunHandEyeStep(hand_eye);
+  EXPECT_TRUE(romunect::testing::PosesNear(after_hand_eye.T_H_C, rig.T_H_C, kHandEyeAngleRad, kHandEyeTranslationM));
+  EXPECT_EQ(calib::LoadCalibration(file).T_H_C.matrix(), after_hand_eye.T_H_C.matrix());  // what it saved
+
+  calib::testing::WritePlaneFrames(dir / "plane", camera, rig, 8, 5);
+  DepthStepOptions depth;
+  depth.frames = (dir / "plane").string();
+  depth.file.output = file.string();
+  const calib::Calibration done = RunDepthStep(depth);
+  ASSERT_TRUE(done.depth.has_value());
+  EXPECT_LE(done.residuals.depth_rms_m, kDepthGoalM);
+  EXPECT_EQ(done.T_H_C.matrix(), after_hand_eye.T_H_C.matrix());  // the earlier step is kept
+}
+
+}  // namespace
+}  // namespace romunect::jobs
