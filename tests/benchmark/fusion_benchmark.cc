@@ -392,7 +392,7 @@ __attribute__((target("avx512f,avx512bw"))) void ApplyBlocks(Vote* votes, const 
 }
 
 void BM_MaskedVoteBlock(benchmark::State& state) {
-  if (!CpuHasAvx512()) {
+  if (!CpuSupports(Isa::kAvx512)) {
     state.SkipWithError("needs AVX-512 (the kernel it measures)");
     return;
   }

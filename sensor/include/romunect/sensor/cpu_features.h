@@ -48,8 +48,4 @@ const Kernel* ResolveKernel(Isa requested, const Kernel (&table)[N]) {
   return nullptr;
 }
 
-// Kept for callers that only ask the CPU.
-inline bool CpuHasAvx2() { return CpuSupports(Isa::kAvx2); }
-inline bool CpuHasAvx512() { return CpuSupports(Isa::kAvx512); }
-
 }  // namespace romunect
