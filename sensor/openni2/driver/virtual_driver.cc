@@ -107,7 +107,9 @@ class VirtualStream : public oni::driver::StreamBase {
   int getRequiredFrameSize() override { return mode_.resolutionX * mode_.resolutionY * 2; }
 
   OniSensorType type() const { return type_; }
+  // Read and written with the device mutex held: the producer checks and waits under it.
   bool started() const { return started_; }
+  void set_started(bool started) { started_ = started; }
   const OniVideoMode& mode() const { return mode_; }
   void set_mode(const OniVideoMode& mode) { mode_ = mode; }
 
@@ -118,8 +120,12 @@ class VirtualStream : public oni::driver::StreamBase {
   VirtualDevice* device_;
   OniSensorType type_;
   OniVideoMode mode_{};
-  std::atomic<bool> started_{false};
+  bool started_ = false;
 };
+
+// A test hook (romunect_virtual_device_set_wait_hook): called by the producer with the device
+// mutex held, each time it is about to wait for a stream to start.
+std::atomic<void (*)()> g_before_wait_hook{nullptr};
 
 class VirtualDevice : public oni::driver::DeviceBase {
  public:
@@ -214,7 +220,13 @@ class VirtualDevice : public oni::driver::DeviceBase {
     return ONI_STATUS_OK;
   }
 
-  void StreamStateChanged() { wake_.notify_all(); }
+  // Under the mutex, so a start cannot land between the producer's check and its wait and be
+  // lost; a stop also waits out a delivery in progress, so none reaches OpenNI2 after it returns.
+  void SetStarted(VirtualStream* stream, bool started) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    stream->set_started(started);
+    if (started) wake_.notify_all();
+  }
 
   std::mutex& mutex() { return mutex_; }
   const CameraModel& camera() const { return content_.source->camera(); }
@@ -309,6 +321,7 @@ class VirtualDevice : public oni::driver::DeviceBase {
     while (!closing_) {
       if (!AnyStartedLocked() || !CanSendLocked() || !FetchLocked()) {
         running = false;
+        if (auto* hook = g_before_wait_hook.load()) hook();
         wake_.wait(lock);
         continue;
       }
@@ -347,16 +360,11 @@ class VirtualDevice : public oni::driver::DeviceBase {
 };
 
 OniStatus VirtualStream::start() {
-  started_ = true;
-  device_->StreamStateChanged();
+  device_->SetStarted(this, true);
   return ONI_STATUS_OK;
 }
 
-void VirtualStream::stop() {
-  if (!started_.exchange(false)) return;
-  // Wait out a delivery in progress, so none reaches OpenNI2 after stop() returns.
-  std::lock_guard<std::mutex> lock(device_->mutex());
-}
+void VirtualStream::stop() { device_->SetStarted(this, false); }
 
 void VirtualStream::Send(const cv::Mat& image16, int frame_index, uint64_t timestamp_us) {
   if (image16.cols != mode_.resolutionX || image16.rows != mode_.resolutionY || image16.type() != CV_16U) return;
@@ -593,6 +601,13 @@ class VirtualDriver : public oni::driver::DriverBase {
 }  // namespace romunect::openni2
 
 ONI_EXPORT_DRIVER(romunect::openni2::VirtualDriver)
+
+// Test hook: `hook` (nullptr to remove) runs on the producer thread with the device mutex held,
+// each time the producer is about to wait for a stream to start (the window a start must not
+// fall into unnoticed).
+extern "C" __attribute__((visibility("default"))) void romunect_virtual_device_set_wait_hook(void (*hook)()) {
+  romunect::openni2::g_before_wait_hook.store(hook);
+}
 
 // Copies why the last deviceOpen failed ("" after a success) into buffer (size bytes).
 extern "C" __attribute__((visibility("default"))) void romunect_virtual_device_last_error(char* buffer, int size) {

@@ -15,6 +15,8 @@ inline constexpr const char* kSimFeedScheme = "romunect-sim:";
 // void romunect_virtual_device_last_error(char* buffer, int size).
 inline constexpr const char* kVirtualDriverFile = "libRomunectVirtual.so.0";
 inline constexpr const char* kVirtualDeviceLastErrorSymbol = "romunect_virtual_device_last_error";
+// For tests: void romunect_virtual_device_set_wait_hook(void (*hook)()), see virtual_driver.cc.
+inline constexpr const char* kVirtualDeviceWaitHookSymbol = "romunect_virtual_device_set_wait_hook";
 
 struct ParsedVirtualDeviceUri {
   std::filesystem::path dir;  // a frame directory; empty for a feed
