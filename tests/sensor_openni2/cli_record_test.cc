@@ -1,5 +1,9 @@
 // `romunect record`, run as a user would: the virtual device to a frame directory and an .oni
 // file, the .oni back to a frame directory, a device that stops, and bad input.
+#include <sys/wait.h>
+
+#include <cstdio>
+
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
@@ -114,6 +118,60 @@ TEST(CliRecord, RawShiftsGoToTheFrameDirectorysRawImages) {
   }
   const auto doc = nlohmann::json::parse(testing::ReadText(out / "raw" / "frames.json"));
   EXPECT_EQ(doc["recording"]["depth_unit"], "raw shift9.2");
+}
+
+// Runs `romunect <arguments>` in `cwd` with ROMUNECT_VIRTUAL_DEVICE set to `device`.
+testing::CommandResult RunWithDeviceVariable(const std::filesystem::path& cwd, const std::string& device,
+                                             const std::string& arguments) {
+  const std::string command = "cd " + Quote(cwd.string()) + " && ROMUNECT_VIRTUAL_DEVICE=" + Quote(device) + " " +
+                              testing::RomunectBinary().string() + " " + arguments + " 2>&1";
+  testing::CommandResult result;
+  FILE* pipe = popen(command.c_str(), "r");
+  if (pipe == nullptr) return result;
+  char buffer[4096];
+  for (size_t n; (n = fread(buffer, 1, sizeof(buffer), pipe)) > 0;) result.output.append(buffer, n);
+  const int status = pclose(pipe);
+  result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return result;
+}
+
+// libOpenNI2 changes its working directory while the driver reads the variable: a relative
+// directory used to give no device at all ("no devices found").
+TEST(CliRecord, ARelativeDirectoryInTheDeviceVariableOrTheUriMeansTheWorkingDirectorys) {
+  ScratchDir work("work");
+  testing::WriteSampleFrameDirectory(work / "frames", testing::SmallCamera(), 3, 35);
+  for (const std::string device : {"frames", "romunect:frames?pace=step"}) {
+    SCOPED_TRACE(device);
+    const auto r = RunWithDeviceVariable(work.path(), device, "record oni:// out_" + std::to_string(device.size()));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    EXPECT_NE(r.output.find("romunect:" + (work / "frames").string()), std::string::npos) << r.output;
+    ExpectSameFrames(work / ("out_" + std::to_string(device.size())), work / "frames", 3);
+  }
+  const auto r = RunWithDeviceVariable(work.path(), "", "record 'romunect:frames?pace=step' direct");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  ExpectSameFrames(work / "direct", work / "frames", 3);
+}
+
+// What the driver knows about a refused device reaches the user, instead of "no detail from
+// OpenNI2".
+TEST(CliRecord, TheDriversReasonForRefusingADeviceIsPassedOn) {
+  ScratchDir work("work");
+  testing::WriteSampleFrameDirectory(work / "frames", testing::SmallCamera(), 2, 36);
+  auto r = RunWithDeviceVariable(work.path(), (work / "no_such_dir").string(), "record oni:// out");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("ROMUNECT_VIRTUAL_DEVICE=" + (work / "no_such_dir").string() +
+                          ": romunect:" + (work / "no_such_dir").string() + ": no frames.json in"),
+            std::string::npos)
+      << r.output;
+  // OpenNI2 keeps URIs of at most 255 characters.
+  std::filesystem::path deep = work / "deep";
+  while (deep.string().size() < 300) deep /= "nested_directory";
+  std::filesystem::create_directories(deep);
+  std::filesystem::copy(work / "frames", deep, std::filesystem::copy_options::recursive);
+  r = RunRomunect("record " + StepDevice(deep) + " " + (work / "out").string());
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("longer than OpenNI2's 255 characters"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("no detail"), std::string::npos) << r.output;
 }
 
 TEST(CliRecord, ADeviceThatStopsKeepsTheFramesSoFarAndFails) {

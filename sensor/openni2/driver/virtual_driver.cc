@@ -10,6 +10,7 @@
 #include <chrono>
 #include <cmath>
 #include <condition_variable>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <exception>
@@ -530,33 +531,24 @@ class VirtualDriver : public oni::driver::DriverBase {
                        oni::driver::DeviceDisconnectedCallback disconnected,
                        oni::driver::DeviceStateChangedCallback state_changed, void* cookie) override {
     const OniStatus status = DriverBase::initialize(connected, disconnected, state_changed, cookie);
-    // ROMUNECT_VIRTUAL_DEVICE lets any OpenNI2 program (NiViewer, ...) find a device at start-up.
-    if (const char* env = std::getenv("ROMUNECT_VIRTUAL_DEVICE"); env != nullptr && *env != '\0') {
-      std::string uri = env;
-      if (!IsVirtualDeviceUri(uri))
-        uri = kVirtualDeviceScheme + std::filesystem::absolute(uri).lexically_normal().string();
-      if (tryDevice(uri.c_str()) != ONI_STATUS_OK) {
-        getServices().errorLoggerAppend("ROMUNECT_VIRTUAL_DEVICE=%s: not a usable frame directory", env);
-      }
-    }
+    // ROMUNECT_VIRTUAL_DEVICE lets any OpenNI2 program (NiViewer2, ...) find a device at start-up.
+    if (const char* env = std::getenv(kVirtualDeviceEnv); env != nullptr && *env != '\0') AnnounceFromEnvironment(env);
     return status;
   }
 
   // Announces a device for a romunect: URI whose directory holds frames.json.
   OniStatus tryDevice(const char* uri) override {
+    if (!IsVirtualDeviceUri(uri)) return ONI_STATUS_ERROR;  // another driver's
     std::string problem;
     const auto parsed = ParseVirtualDeviceUri(uri, &problem);
-    if (!parsed) {
-      if (IsVirtualDeviceUri(uri)) getServices().errorLoggerAppend("%s: %s", uri, problem.c_str());
-      return ONI_STATUS_ERROR;
-    }
     std::error_code ec;
-    if (!parsed->feed && !std::filesystem::is_regular_file(parsed->dir / "frames.json", ec)) {
-      getServices().errorLoggerAppend("%s: no frames.json in %s", uri, parsed->dir.c_str());
-      return ONI_STATUS_ERROR;
+    if (parsed && !parsed->feed && !std::filesystem::is_regular_file(parsed->dir / "frames.json", ec)) {
+      problem = "no frames.json in " + parsed->dir.string();
+    } else if (parsed && std::strlen(uri) >= ONI_MAX_STR) {
+      problem = "the URI is longer than OpenNI2's " + std::to_string(ONI_MAX_STR - 1) + " characters";
     }
-    if (std::strlen(uri) >= ONI_MAX_STR) {
-      getServices().errorLoggerAppend("%s: URI longer than OpenNI2's %d characters", uri, ONI_MAX_STR - 1);
+    if (!problem.empty()) {
+      ReportOpenError(std::string(uri) + ": " + problem);
       return ONI_STATUS_ERROR;
     }
     std::lock_guard<std::mutex> lock(mutex_);
@@ -574,16 +566,14 @@ class VirtualDriver : public oni::driver::DriverBase {
     std::string problem;
     const auto parsed = ParseVirtualDeviceUri(uri, &problem);
     if (!parsed) {
-      SetLastOpenError(problem);
-      getServices().errorLoggerAppend("%s: %s", uri, problem.c_str());
+      ReportOpenError(problem);
       return nullptr;
     }
     try {
       SetLastOpenError("");
       return new VirtualDevice(*parsed, &getServices());
     } catch (const std::exception& e) {
-      SetLastOpenError(e.what());
-      getServices().errorLoggerAppend("%s", e.what());
+      ReportOpenError(e.what());
       return nullptr;
     }
   }
@@ -593,6 +583,38 @@ class VirtualDriver : public oni::driver::DriverBase {
   void shutdown() override {}
 
  private:
+  // OpenNI2 passes a driver's log on to no one: the reason is kept for OpenNI2Source
+  // (romunect_virtual_device_last_error) and logged.
+  void ReportOpenError(const std::string& message) {
+    SetLastOpenError(message);
+    getServices().errorLoggerAppend("%s", message.c_str());
+  }
+
+  void AnnounceFromEnvironment(const std::string& value) {
+    const std::string uri = IsVirtualDeviceUri(value) ? value : kVirtualDeviceScheme + value;
+    std::string problem;
+    const auto parsed = ParseVirtualDeviceUri(uri, &problem);
+    if (HasRelativeDirectory(value)) {
+      // The working directory is libOpenNI2's own while drivers load: a relative one means nothing
+      // here. romunect's programs resolve it before OpenNI2 starts; other programs must not guess.
+      // Said on stderr too: in another program nothing else would show it.
+      const std::string message = std::string(kVirtualDeviceEnv) + "=" + value +
+                                  ": a relative directory; OpenNI2 loads its drivers in another working "
+                                  "directory, so give an absolute path";
+      ReportOpenError(message);
+      std::fprintf(stderr, "romunect virtual device: %s\n", message.c_str());
+      return;
+    }
+    if (!parsed) {
+      ReportOpenError(std::string(kVirtualDeviceEnv) + "=" + value + ": " + problem);
+      return;
+    }
+    if (tryDevice(uri.c_str()) != ONI_STATUS_OK) {
+      std::lock_guard<std::mutex> lock(g_last_open_error_mutex);
+      g_last_open_error = std::string(kVirtualDeviceEnv) + "=" + value + ": " + g_last_open_error;
+    }
+  }
+
   std::mutex mutex_;
   std::set<std::string> announced_;
 };

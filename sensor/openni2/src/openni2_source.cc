@@ -5,6 +5,7 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <mutex>
 #include <sstream>
@@ -36,6 +37,12 @@ void EnsureOpenNI() {
   static bool initialized = false;
   std::lock_guard<std::mutex> lock(mutex);
   if (initialized) return;
+  // The driver reads this while libOpenNI2 has moved to another working directory: a relative
+  // directory is resolved here, where it still means what the user meant.
+  if (const char* env = std::getenv(kVirtualDeviceEnv); env != nullptr) {
+    const std::string absolute = AbsoluteVirtualDeviceUri(env);
+    if (absolute != env) setenv(kVirtualDeviceEnv, absolute.c_str(), 1);
+  }
   if (openni::OpenNI::initialize() != openni::STATUS_OK) {
     throw InputError("OpenNI2", "initialize", std::string("cannot start: ") + openni::OpenNI::getExtendedError());
   }
@@ -379,9 +386,10 @@ void OpenNI2Source::Impl::OpenDevice() {
   if (device.open(uri.empty() ? openni::ANY_DEVICE : uri.c_str()) != openni::STATUS_OK) {
     if (IsOniPath(uri)) throw InputError(name, "", "not a readable .oni recording: " + ExtendedError());
     if (uri.empty()) {
+      const std::string why = VirtualDeviceOpenError();  // ROMUNECT_VIRTUAL_DEVICE's problem, if any
       throw InputError("OpenNI2", "",
-                       "no device found (" + ExtendedError() + "); is the sensor plugged in and its driver in " +
-                           DriverDirectory().string() + "?");
+                       "no device found (" + (why.empty() ? ExtendedError() : why) +
+                           "); is the sensor plugged in and its driver in " + DriverDirectory().string() + "?");
     }
     if (IsVirtualDeviceUri(uri)) {
       const std::string why = VirtualDeviceOpenError();
@@ -557,7 +565,9 @@ void OpenNI2Source::Impl::StartStreams() {
   }
 }
 
-OpenNI2Source::OpenNI2Source(const OpenNI2SourceOptions& options) : impl_(std::make_unique<Impl>()) {
+OpenNI2Source::OpenNI2Source(const OpenNI2SourceOptions& given) : impl_(std::make_unique<Impl>()) {
+  OpenNI2SourceOptions options = given;
+  if (IsVirtualDeviceUri(options.uri)) options.uri = AbsoluteVirtualDeviceUri(options.uri);  // romunect:frames
   CheckBeforeOpening(options);
   Impl& s = *impl_;  // its destructor takes down whatever a throwing step leaves open
   s.options = options;

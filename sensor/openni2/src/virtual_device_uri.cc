@@ -63,6 +63,44 @@ bool IsVirtualDeviceUri(const std::string& uri) {
   return uri.rfind(kVirtualDeviceScheme, 0) == 0 || uri.rfind(kSimFeedScheme, 0) == 0;
 }
 
+namespace {
+
+// A romunect: URI or a plain directory split into scheme ("" for a plain one), directory and
+// "?query" (possibly empty).
+struct DirectoryUriParts {
+  std::string scheme;
+  std::filesystem::path dir;
+  std::string query;
+};
+
+DirectoryUriParts SplitDirectoryUri(const std::string& value) {
+  DirectoryUriParts parts;
+  std::string rest = value;
+  if (value.rfind(kVirtualDeviceScheme, 0) == 0) {
+    parts.scheme = kVirtualDeviceScheme;
+    rest = value.substr(parts.scheme.size());
+    if (rest.rfind("//", 0) == 0) rest = rest.substr(2);
+  }
+  const size_t q = rest.find('?');
+  parts.dir = rest.substr(0, q);
+  if (q != std::string::npos) parts.query = rest.substr(q);
+  return parts;
+}
+
+}  // namespace
+
+bool HasRelativeDirectory(const std::string& value) {
+  if (value.empty() || value.rfind(kSimFeedScheme, 0) == 0) return false;
+  const std::filesystem::path dir = SplitDirectoryUri(value).dir;
+  return !dir.empty() && dir.is_relative();
+}
+
+std::string AbsoluteVirtualDeviceUri(const std::string& value) {
+  if (!HasRelativeDirectory(value)) return value;
+  const DirectoryUriParts parts = SplitDirectoryUri(value);
+  return parts.scheme + std::filesystem::absolute(parts.dir).lexically_normal().string() + parts.query;
+}
+
 std::optional<ParsedVirtualDeviceUri> ParseVirtualDeviceUri(const std::string& uri, std::string* problem) {
   if (!IsVirtualDeviceUri(uri)) {
     *problem = std::string("does not start with ") + kVirtualDeviceScheme;

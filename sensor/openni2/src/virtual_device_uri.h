@@ -11,6 +11,8 @@ namespace romunect::openni2 {
 
 inline constexpr const char* kVirtualDeviceScheme = "romunect:";
 inline constexpr const char* kSimFeedScheme = "romunect-sim:";
+// The environment variable that names a device for any OpenNI2 program (virtual_device.h).
+inline constexpr const char* kVirtualDeviceEnv = "ROMUNECT_VIRTUAL_DEVICE";
 // The driver's file name and its C function that says why the last open failed:
 // void romunect_virtual_device_last_error(char* buffer, int size).
 inline constexpr const char* kVirtualDriverFile = "libRomunectVirtual.so.0";
@@ -28,6 +30,14 @@ struct ParsedVirtualDeviceUri {
 
 // True when `uri` uses one of the virtual device's schemes (whether or not it is valid).
 bool IsVirtualDeviceUri(const std::string& uri);
+
+// `value` (a romunect: URI or a plain frame directory, as ROMUNECT_VIRTUAL_DEVICE takes) with
+// a relative directory made absolute against the current working directory; anything else as
+// given. libOpenNI2 changes the working directory while it loads drivers, so only the caller,
+// before OpenNI2 starts, knows what a relative directory meant.
+std::string AbsoluteVirtualDeviceUri(const std::string& value);
+// True when `value` (as above) names a relative directory.
+bool HasRelativeDirectory(const std::string& value);
 
 // Parses a virtual-device URI; on failure returns nullopt and says why in *problem.
 std::optional<ParsedVirtualDeviceUri> ParseVirtualDeviceUri(const std::string& uri, std::string* problem);

@@ -2,7 +2,8 @@
 // project into <build>/lib/OpenNI2/Drivers) that presents a frame directory as a PS1080-like
 // device, so the real OpenNI2 code path runs end to end without a Kinect (docs/hardware.md).
 //
-// A device is named by a URI:  romunect:<absolute frame directory>[?key=value&...]
+// A device is named by a URI:  romunect:<frame directory>[?key=value&...]
+// (OpenNI2Source makes a relative directory absolute; OpenNI2 itself needs an absolute one)
 //   pace=realtime   frames at their frames.json times (default), like a real device
 //   pace=step       one frame set per step request (OpenNI2Source sends it before each frame),
 //                   so no frame can be dropped: deterministic tests and offline runs
@@ -15,7 +16,10 @@
 // The driver keys are read by the driver; every other key is handed to the feed.
 // Depth is offered as ONI_PIXEL_FORMAT_DEPTH_100_UM (default) and DEPTH_1_MM, IR as GRAY16, both
 // at the directory's resolution. Any OpenNI2 program opens the device named by the environment
-// variable ROMUNECT_VIRTUAL_DEVICE (a URI or a plain directory) as its first device.
+// variable ROMUNECT_VIRTUAL_DEVICE (a URI or a plain directory) as its first device. romunect's
+// programs resolve a relative directory there against their working directory; in other programs
+// the driver refuses it (libOpenNI2 reads drivers in a working directory of its own) and says so
+// on stderr.
 #pragma once
 
 #include <filesystem>
