@@ -120,11 +120,9 @@ TEST(CliRecord, RawShiftsGoToTheFrameDirectorysRawImages) {
   EXPECT_EQ(doc["recording"]["depth_unit"], "raw shift9.2");
 }
 
-// Runs `romunect <arguments>` in `cwd` with ROMUNECT_VIRTUAL_DEVICE set to `device`.
-testing::CommandResult RunWithDeviceVariable(const std::filesystem::path& cwd, const std::string& device,
-                                             const std::string& arguments) {
-  const std::string command = "cd " + Quote(cwd.string()) + " && ROMUNECT_VIRTUAL_DEVICE=" + Quote(device) + " " +
-                              testing::RomunectBinary().string() + " " + arguments + " 2>&1";
+// Runs a shell command line, output and errors together.
+testing::CommandResult RunShell(const std::string& command_line) {
+  const std::string command = "(" + command_line + ") 2>&1";
   testing::CommandResult result;
   FILE* pipe = popen(command.c_str(), "r");
   if (pipe == nullptr) return result;
@@ -133,6 +131,13 @@ testing::CommandResult RunWithDeviceVariable(const std::filesystem::path& cwd, c
   const int status = pclose(pipe);
   result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   return result;
+}
+
+// Runs `romunect <arguments>` in `cwd` with ROMUNECT_VIRTUAL_DEVICE set to `device`.
+testing::CommandResult RunWithDeviceVariable(const std::filesystem::path& cwd, const std::string& device,
+                                             const std::string& arguments) {
+  return RunShell("cd " + Quote(cwd.string()) + " && ROMUNECT_VIRTUAL_DEVICE=" + Quote(device) + " " +
+                  testing::RomunectBinary().string() + " " + arguments);
 }
 
 // libOpenNI2 changes its working directory while the driver reads the variable: a relative
@@ -172,6 +177,40 @@ TEST(CliRecord, TheDriversReasonForRefusingADeviceIsPassedOn) {
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_NE(r.output.find("longer than OpenNI2's 255 characters"), std::string::npos) << r.output;
   EXPECT_EQ(r.output.find("no detail"), std::string::npos) << r.output;
+}
+
+// A recorder killed mid-run leaves an .oni without its frame count; libOpenNI2 still plays it,
+// and so must `record` (and `fuse`, through the same source): every frame until the end.
+TEST(CliRecord, ARecordingWhoseRecorderWasKilledPlaysToItsEnd) {
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  constexpr int kDirectoryFrames = 4;
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), kDirectoryFrames, 37);
+  VirtualDeviceOptions looped;
+  looped.loop = true;
+  const std::string oni = (out / "killed.oni").string();
+  // Killed once the file holds several 80 x 60 frame sets (depth and IR: 19.2 kB and headers).
+  const auto killed = RunShell(testing::RomunectBinary().string() + " record " +
+                               Quote(VirtualDeviceUri(dir.path(), looped)) + " " + (out / "live").string() + " --oni " +
+                               Quote(oni) + " >/dev/null & pid=$!; " + "for i in $(seq 1 200); do [ $(stat -c %s " +
+                               Quote(oni) +
+                               " 2>/dev/null || echo 0) -gt 150000 ] && break; sleep 0.05; done; kill -9 $pid");
+  ASSERT_GT(std::filesystem::file_size(oni), 150000u) << killed.output;
+  ASSERT_FALSE(std::filesystem::exists(out / "live" / "frames.json"));
+  const auto r = RunRomunect("record " + Quote(oni) + " " + (out / "back").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  FrameDirectorySource back(out / "back"), truth(dir.path());
+  const size_t played = back.manifest().frames.size();
+  // Every complete frame set in the file plays: at most ~0.5 kB of headers each, the last one cut.
+  const size_t complete_sets = std::filesystem::file_size(oni) / (2 * 80 * 60 * 2 + 512) - 1;
+  EXPECT_GE(played, complete_sets) << r.output;
+  // The looped device repeats the directory: frame i is the directory's frame i mod 4.
+  for (size_t i = 0; i < played; ++i) {
+    const Frame a = LoadFrame(out / "back", back.manifest(), i);
+    const Frame b = LoadFrame(dir.path(), truth.manifest(), i % kDirectoryFrames);
+    EXPECT_EQ(a.index, static_cast<int>(i));
+    EXPECT_TRUE(ImagesBitEqual(a.ir, b.ir)) << i;
+  }
 }
 
 TEST(CliRecord, ADeviceThatStopsKeepsTheFramesSoFarAndFails) {

@@ -2,6 +2,7 @@
 
 #include <dlfcn.h>
 
+#include <algorithm>
 #include <array>
 #include <chrono>
 #include <cmath>
@@ -31,6 +32,10 @@ constexpr std::chrono::milliseconds kRecorderStartPause{300};
 // How long a recording's player thread is given to settle before its device closes, counted
 // from the open and from the last wait for a frame (OpenNI2Source::Impl::~Impl says why).
 constexpr std::chrono::milliseconds kPlayerSettlePause{50};
+
+// A recording plays each frame on demand from a local file within milliseconds: without a frame
+// count, a wait this long for the next one means its frames have run out.
+constexpr double kUnfinishedRecordingEndWaitS = 1.0;
 
 void EnsureOpenNI() {
   static std::mutex mutex;
@@ -200,6 +205,9 @@ struct OpenNI2Source::Impl {
   DepthUnit unit = DepthUnit::k100um;
   openni::VideoMode mode;
   int total_frames = 0;  // frames the stream will send; 0 = unknown (live device)
+  // A recording whose recorder was killed: no frame count, so it plays until its frames run out.
+  bool unfinished_recording = false;
+  bool ended = false;  // an unfinished recording's frames have run out
   int primary_read = 0;
   int first_index = -1, last_index = 0;
   uint64_t first_timestamp_us = 0;
@@ -265,12 +273,20 @@ struct OpenNI2Source::Impl {
     }
   }
 
-  void Read(openni::VideoStream& stream, const char* what, openni::VideoFrameRef* ref) {
+  // Waits for a frame of `stream`. False (nothing read) at the end of a recording without a
+  // frame count; throws InputError when a device stalls or OpenNI2 fails.
+  bool Read(openni::VideoStream& stream, const char* what, openni::VideoFrameRef* ref) {
     openni::VideoStream* streams[] = {&stream};
     int ready = -1;
-    const int timeout_ms = static_cast<int>(std::ceil(options.timeout_s * 1000.0));
+    const double wait_s = unfinished_recording ? std::min(options.timeout_s, kUnfinishedRecordingEndWaitS)
+                                               : options.timeout_s;
+    const int timeout_ms = static_cast<int>(std::ceil(wait_s * 1000.0));
     const openni::Status waited = openni::OpenNI::waitForAnyStream(streams, 1, &ready, timeout_ms);
     player_settled = SteadyClock::now() + kPlayerSettlePause;
+    if (waited != openni::STATUS_OK && unfinished_recording) {
+      if (stats.frames == 0) throw InputError(name, "", "not a readable .oni recording: its streams hold no frames");
+      return false;
+    }
     if (waited != openni::STATUS_OK) {
       std::ostringstream s;
       s << "no frame for " << options.timeout_s << " s (device unplugged or stalled); " << stats.frames
@@ -281,6 +297,7 @@ struct OpenNI2Source::Impl {
     if (stream.readFrame(ref) != openni::STATUS_OK) {
       throw InputError(name, std::string(what) + " stream", "reading a frame failed: " + ExtendedError());
     }
+    return true;
   }
 
   void SetUp(openni::VideoStream& stream, openni::SensorType type, const char* what) {
@@ -536,7 +553,11 @@ void OpenNI2Source::Impl::ReadChip() {
 void OpenNI2Source::Impl::ReadLength() {
   if (file) {
     total_frames = device.getPlaybackControl()->getNumberOfFrames(primary());
-    if (total_frames <= 0) throw InputError(name, "", "not a readable .oni recording: its streams hold no frames");
+    // A recorder that did not close its file (killed, out of power) leaves no count (-1).
+    if (total_frames <= 0) {
+      total_frames = 0;
+      unfinished_recording = true;
+    }
   } else if (auto n = ReadProperty<int>(primary(), ONI_STREAM_PROPERTY_NUMBER_OF_FRAMES)) {
     total_frames = *n;  // a finite (virtual) device announces its length
   }
@@ -619,29 +640,33 @@ std::string OpenNI2Source::Describe() const {
 FrameStatus OpenNI2Source::Next(Frame* frame, std::string* error) {
   ROMUNECT_CHECK(frame != nullptr && error != nullptr);
   Impl& s = *impl_;
-  // Sources that announce a length (recordings, finite virtual devices) number frames 1..N.
+  // Recordings and sources that announce a length (finite virtual devices) number frames 1..N.
   if ((s.options.max_frames > 0 && s.stats.frames >= s.options.max_frames) ||
-      (s.total_frames > 0 && (s.primary_read >= s.total_frames || s.last_index >= s.total_frames))) {
+      (s.total_frames > 0 && (s.primary_read >= s.total_frames || s.last_index >= s.total_frames)) || s.ended) {
     s.StopPlayback();
     return FrameStatus::kEndOfStream;
   }
   if (s.step) s.device.invoke(kVirtualDeviceStepCommand, nullptr, 0);
 
   openni::VideoFrameRef primary;
-  s.Read(s.primary(), s.options.depth ? "depth" : "IR", &primary);
+  if (!s.Read(s.primary(), s.options.depth ? "depth" : "IR", &primary)) {
+    s.ended = true;
+    s.StopPlayback();
+    return FrameStatus::kEndOfStream;
+  }
   ++s.primary_read;
   const int index = primary.getFrameIndex();
   if (s.first_index < 0) {
     s.first_index = index;
     s.first_timestamp_us = primary.getTimestamp();
-    if (s.total_frames > 0 && index > 1) s.stats.dropped_frames += index - 1;
+    if ((s.file || s.total_frames > 0) && index > 1) s.stats.dropped_frames += index - 1;
   } else if (index > s.last_index + 1) {
     s.stats.dropped_frames += index - s.last_index - 1;
   }
   s.last_index = index;
 
   *frame = Frame();
-  frame->index = s.total_frames > 0 ? index - 1 : index - s.first_index;
+  frame->index = s.file || s.total_frames > 0 ? index - 1 : index - s.first_index;
   frame->time_s = static_cast<double>(static_cast<int64_t>(primary.getTimestamp() - s.first_timestamp_us)) * 1e-6;
   const int w = s.camera.width, h = s.camera.height;
   auto check_size = [&](const openni::VideoFrameRef& ref, const char* what) {
@@ -677,7 +702,11 @@ FrameStatus OpenNI2Source::Next(Frame* frame, std::string* error) {
     if (s.options.ir) {
       // Pair by frame number: older IR frames are skipped, a newer one waits for its depth.
       for (int tries = 0; tries < 8; ++tries) {
-        if (!s.pending_ir.isValid()) s.Read(s.ir, "IR", &s.pending_ir);
+        if (!s.pending_ir.isValid() && !s.Read(s.ir, "IR", &s.pending_ir)) {
+          s.ended = true;  // the recording ends inside this frame: its IR was never written
+          s.StopPlayback();
+          return FrameStatus::kEndOfStream;
+        }
         if (s.pending_ir.getFrameIndex() >= index) break;
         s.pending_ir.release();
         ++s.stats.unpaired_ir;
