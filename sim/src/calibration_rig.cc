@@ -23,7 +23,13 @@ constexpr int kSceneId = 1000;
 // Plate margins around the board (m): room for tilted views and the reference area's
 // footprint (6.3 x 4.7 cm at 210 mm, more when tilted).
 constexpr double kPlateMarginM = 0.03;
-constexpr double kReferenceHalfM = 0.05;
+// The romunect calibration that CalibrationRigOptionsFor scales (CalibrationRigOptions' defaults).
+constexpr double kRomunectWorkingDistanceM = 0.2;
+constexpr double kRomunectFocalPx = 2133.0;
+// The reference area's centre from the board's: both where the arm reaches; the area overlaps
+// the board's edge, which the depth planes' views (~1 m wide) barely see.
+constexpr double kLongRangeReferenceOffsetM = 0.7;
+constexpr double kDepthPlaneSpan = 0.15;  // depth planes within +-15 % of the working distance
 constexpr IrMaterial kWhite{0.8f, 0.0f, 50.0f};
 constexpr IrMaterial kBlack{0.04f, 0.0f, 50.0f};
 
@@ -39,8 +45,9 @@ void AddQuad(TriangleMesh* mesh, double x0, double y0, double x1, double y1) {
 
 // The plate in K: board squares (i, j) for i in [-1, cols], j in [-1, rows], square (-1, -1)
 // black; white everywhere else out to the margins and the reference area along +x.
-void MakePlate(const calib::BoardSpec& board, bool print_board, double reference_offset_m, TriangleMesh* white,
-               TriangleMesh* black) {
+void MakePlate(const calib::BoardSpec& board, bool print_board, double reference_offset_m, double reference_half_m,
+               TriangleMesh* white, TriangleMesh* black) {
+  const double kReferenceHalfM = reference_half_m;
   const double s = board.square_m;
   const double bx0 = -s, by0 = -s, bx1 = board.cols * s, by1 = board.rows * s;
   const double cx = board.CentreK().x(), cy = board.CentreK().y();
@@ -91,8 +98,11 @@ std::string CalibrationRigOptions::Problem() const {
     s << "threads = " << threads << ": must be 1..256";
   } else if (!(lamp_e_per_s > 0)) {
     s << "lamp_e_per_s = " << lamp_e_per_s << ": must be positive";
-  } else if (!(reference_offset_m > 0)) {
-    s << "reference_offset_m = " << reference_offset_m << ": must be positive";
+  } else if (!(reference_offset_m > 0) || !(reference_half_m > 0)) {
+    s << "reference_offset_m, reference_half_m = " << reference_offset_m << ", " << reference_half_m
+      << ": must be positive";
+  } else if (!(working_distance_m >= 0)) {
+    s << "working_distance_m = " << working_distance_m << ": must be >= 0 (0 = the focus distance)";
   } else if (!(mount_error_rad >= 0 && mount_error_m >= 0 && plate_error_rad >= 0 && plate_error_m >= 0 &&
                projector_error_rad >= 0 && projector_error_m >= 0 && focal_error >= 0 && focal_error < 0.5 &&
                principal_error_px >= 0)) {
@@ -101,6 +111,39 @@ std::string CalibrationRigOptions::Problem() const {
     s << "plate_origin_W, plate_yaw_rad: must be finite";
   }
   return s.str();
+}
+
+CalibrationRigOptions CalibrationRigOptionsFor(const Rig& rig) {
+  CalibrationRigOptions o;
+  o.rig = rig;
+  const DepthRange range = MeasurableDepthRange(rig, 0.7);
+  // A long range is calibrated at its near end: the arm (shoulder 0.4 m above the table, reach
+  // ~0.9 m) holds a camera there over the table.
+  const double working_m = std::min(0.5 * (range.near_m + range.far_m), range.near_m);
+  // Lengths in the image stay the romunect's: scale by (distance / focal length).
+  const double k = (working_m / rig.camera.fx) / (kRomunectWorkingDistanceM / kRomunectFocalPx);
+  if (std::abs(k - 1.0) < 0.1) return o;  // the romunect's own calibration
+  o.working_distance_m = working_m;
+  o.board.square_m = std::max(0.001, std::round(o.board.square_m * k * 1e3) * 1e-3);
+  // The reference area fills the view at the far depth plane, tilted; it lies beside the board.
+  const double far_m = CalibrationDepthRange(o).far_m;
+  o.reference_half_m = 0.6 * far_m * rig.camera.width / rig.camera.fx;
+  // Beside the robot, where the arm holds the camera ~0.9 m above the table: the board centred
+  // at (0.22, 0.3) in W, the reference area towards -x, clear of the bin (x > 0.38). The plate
+  // is yawed as the romunect's (K's x along -W's x, K's y along W's y), so the board's centre
+  // (cx, cy in K) lies at (-cx, +cy) from K's origin.
+  o.reference_offset_m = kLongRangeReferenceOffsetM;
+  const Eigen::Vector2d board_centre_W(0.22, 0.25);
+  const Eigen::Vector3d centre_K = o.board.CentreK();
+  o.plate_origin_W = Eigen::Vector3d(board_centre_W.x() + centre_K.x(), board_centre_W.y() - centre_K.y(), 0.001);
+  return o;
+}
+
+DepthRange CalibrationDepthRange(const CalibrationRigOptions& options) {
+  const DepthRange range = MeasurableDepthRange(options.rig, 0.7);
+  const double working_m = options.WorkingDistanceM();
+  return {std::max(range.near_m, (1.0 - kDepthPlaneSpan) * working_m),
+          std::min(range.far_m, (1.0 + kDepthPlaneSpan) * working_m)};
 }
 
 struct SimulatedCalibrationRig::Impl {
@@ -181,7 +224,7 @@ SimulatedCalibrationRig::SimulatedCalibrationRig(const CalibrationRigOptions& op
                                 Eigen::Vector3d(1, -1, -1).asDiagonal();
   s.T_W_K = MakePose(R_W_K, options.plate_origin_W);
   TriangleMesh white, black;
-  MakePlate(options.board, options.print_board, options.reference_offset_m, &white, &black);
+  MakePlate(options.board, options.print_board, options.reference_offset_m, options.reference_half_m, &white, &black);
   s.scene.AddStatic(white, s.T_W_K, kWhite, kPlateId);
   if (!black.triangles.empty()) s.scene.AddStatic(black, s.T_W_K, kBlack, kPlateId);
   // the scene's fixed geoms (table, bin) around it; the arm stays behind the camera
@@ -229,6 +272,7 @@ int SimulatedCalibrationRig::captures() const { return impl_->captures; }
 int SimulatedCalibrationRig::moves() const { return impl_->moves; }
 const cv::Mat& SimulatedCalibrationRig::last_truth_depth_m() const { return impl_->truth_depth; }
 const Rig& SimulatedCalibrationRig::TruthRig() const { return impl_->options.rig; }
+double SimulatedCalibrationRig::working_distance_m() const { return impl_->options.WorkingDistanceM(); }
 Pose SimulatedCalibrationRig::TruthT_H_C() const { return impl_->world->T_H_C(); }
 Pose SimulatedCalibrationRig::TruthT_B_K() const { return impl_->world->T_W_B().inverse() * impl_->T_W_K; }
 
@@ -357,7 +401,7 @@ ChainTruthErrors CompareWithTruth(SimulatedCalibrationRig* rig, const calib::Cha
   e.line_of_sight_rms_rad = std::sqrt(sum2 / n);
   e.homography_px = rig->TrueHomographyResidualPx(c.H_P_rec, result.homography_pattern, result.homography_target,
                                                   &e.homography_points);
-  const double focus_m = rig->TruthRig().optics.focus_distance_m;
+  const double focus_m = rig->working_distance_m();
   double exact2 = 0.0, affine2 = 0.0;
   for (const auto& [distance_m, tilt_rad] : {std::pair{focus_m - 0.005, 0.0}, std::pair{focus_m, 0.0},
                                              std::pair{focus_m + 0.005, 0.0}, std::pair{focus_m, 0.1}}) {

@@ -302,6 +302,9 @@ std::string ReportMarkdown(const Measured& m, const std::string& table, const st
   return md;
 }
 
+// The views' largest tilt for a rig calibrated far out (CalibrationRigOptions::working_distance_m).
+constexpr double kLongRangeMaxTiltRad = 0.35;
+
 // The chain with the simulated rig, then its comparison with the rig's ground truth.
 Measured RunChain(const InTheLoopOptions& o, const sim::CalibrationRigOptions& rig_options,
                   const ChainOptions& options) {
@@ -331,8 +334,7 @@ InTheLoopSummary CalibrateInTheLoop(const InTheLoopOptions& o) {
   CheckFolderCanBeCreated(s.out, "--out");
   s.calibration_file = s.out / "calibration.yaml";
   CheckExistingFile(s.calibration_file, o.overwrite_worse);
-  sim::CalibrationRigOptions rig_options;
-  rig_options.rig = LoadRigArgument(o.rig);
+  sim::CalibrationRigOptions rig_options = sim::CalibrationRigOptionsFor(LoadRigArgument(o.rig));
   rig_options.seed = o.seed;
   rig_options.threads = o.threads;
   rig_options.board_samples = o.board_samples;
@@ -341,7 +343,11 @@ InTheLoopSummary CalibrateInTheLoop(const InTheLoopOptions& o) {
   options.stations = o.stations;
   options.depth_planes = o.planes;
   options.seed = o.seed;
-  const sim::DepthRange range = sim::MeasurableDepthRange(rig_options.rig, 0.7);
+  // Board views, the homography's plane and the depth planes at the rig's working distance.
+  options.view_distance_m = options.homography_distance_m = rig_options.WorkingDistanceM();
+  // At a long rig's ~0.8 m a 0.5 rad tilt moves the camera 0.4 m sideways, beyond the arm.
+  if (rig_options.working_distance_m > 0.0) options.max_tilt_rad = kLongRangeMaxTiltRad;
+  const sim::DepthRange range = sim::CalibrationDepthRange(rig_options);
   options.depth_near_m = range.near_m;
   options.depth_far_m = range.far_m;
   if (const std::string p = options.Problem(); !p.empty()) throw InputError("calibrate", "options", p);

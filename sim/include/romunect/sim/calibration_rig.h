@@ -25,6 +25,7 @@
 #include "romunect/calib/chain.h"
 #include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/rig.h"
+#include "romunect/sim/scanner.h"
 
 namespace romunect::sim {
 
@@ -36,6 +37,10 @@ struct CalibrationRigOptions {
   Eigen::Vector3d plate_origin_W{0.40, 0.2, 0.001};
   double plate_yaw_rad = M_PI;        // K x towards the robot: the reference area nearer the base
   double reference_offset_m = 0.075;  // reference area's centre: this far along K's x from the board's
+  double reference_half_m = 0.05;     // the reference area: a square of twice this side
+  // Where the rig is calibrated: the distance of the board views, the homography's plane and
+  // the evaluation planes of CompareWithTruth (its value +-5 mm and tilted). 0: the focus distance.
+  double working_distance_m = 0.0;
   // Nominal errors: each pose perturbed by exactly this angle (random axis) and distance
   // (random direction); focal lengths scaled by 1 +- focal_error, principal point moved.
   double mount_error_rad = 0.005, mount_error_m = 0.001;           // T_H_C, CAD of the bracket
@@ -47,7 +52,20 @@ struct CalibrationRigOptions {
   int threads = 2;              // render, IR synthesis and depth engine threads
   uint64_t seed = 1;            // nominal errors and image noise
   std::string Problem() const;  // "" when valid: "field = value: rule"
+  double WorkingDistanceM() const { return working_distance_m > 0 ? working_distance_m : rig.optics.focus_distance_m; }
 };
+
+// The calibration sized for `rig` (the other options at their defaults). The romunect sensor is
+// calibrated at its 0.2 m focus on a board of 3 mm squares. A rig that measures farther (the
+// stock Kinect: 0.5-4 m) is calibrated at the near end of its measurable range (0.79 m for the
+// Kinect; the arm holds a camera at most ~0.86 m above the table), on a board whose squares look
+// as large in its image as the romunect's do (43 mm for the Kinect), with a reference area that
+// fills its view at the far depth plane, laid out beside the robot, clear of the bin.
+CalibrationRigOptions CalibrationRigOptionsFor(const Rig& rig);
+
+// The depth step's plane distances for a calibration: the rig's measurable range within +-15 %
+// of the working distance (the romunect's whole 194-206 mm range; 0.79-0.90 m for the Kinect).
+DepthRange CalibrationDepthRange(const CalibrationRigOptions& options);
 
 // Depth after correction against the renderer's ground truth on one plane.
 struct PlaneDepthError {
@@ -70,8 +88,9 @@ class SimulatedCalibrationRig : public calib::CalibrationHardware {
   cv::Mat CaptureProjectedIr(const PatternSpec& pattern, const Eigen::Matrix3d& H) override;
   cv::Mat CaptureRaw(const Eigen::Matrix3d& H) override;
 
-  int captures() const;  // images taken so far
-  int moves() const;     // MoveHand calls that moved
+  int captures() const;               // images taken so far
+  double working_distance_m() const;  // CalibrationRigOptions::WorkingDistanceM()
+  int moves() const;                  // MoveHand calls that moved
   // Ground truth depth (CV_32F metres, 0 = none) of the last capture.
   const cv::Mat& last_truth_depth_m() const;
 
