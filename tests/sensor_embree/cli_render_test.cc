@@ -2,6 +2,7 @@
 // pictures, and bad input that must end with a clear message and a non-zero exit.
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <string>
 #include <vector>
@@ -67,6 +68,53 @@ TEST(CliRenderTest, RendersBothPresetsIntoFrameDirectoriesWithPictures) {
 
 // The adaptive quality mode refines the pixels at the step's edge and its shadow, not the flat
 // parts: the stats line counts them.
+// The stock preset through the whole render path (Embree, IR synthesis, the chip's depth) on a
+// plane around 1 m shows the published Kinect figures that the fidelity tests hold the depth
+// engine to (F2, F3): Nguyen et al.'s axial noise 1.2 + 1.9 (z - 0.4)^2 mm (1.9 mm at 1 m),
+// almost no gross outliers, and depth on the 11-bit raw's levels (steps of ~3.1 mm at 1 m).
+TEST(CliRenderTest, StockPresetOnAPlaneAt1mHasTheKinectsNoiseAndQuantization) {
+  constexpr double kNoiseRelTolerance = 0.30;  // as F3
+  constexpr double kMaxGrossFraction = 0.01;   // as F3: beyond 5 % of the depth
+  constexpr double kStepRelTolerance = 0.10;   // as F2
+  ScratchDir dir("render_kinect_noise");
+  const fs::path out = dir / "plane";
+  const auto result = RunRomunect("render " + out.string() + " --rig kinect-v1 --target tilted-plane --distance 1.0");
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  const FrameDirectoryManifest manifest = ReadFrameDirectoryManifest(out);
+  const Frame frame = LoadFrame(out, manifest, 0);
+  double n = 0, normalized2 = 0, gross = 0;
+  std::vector<float> levels_near_1m;
+  for (int v = 0; v < frame.depth_m.rows; ++v) {
+    for (int u = 0; u < frame.depth_m.cols; ++u) {
+      const double z = frame.depth_m.at<float>(v, u), truth = frame.gt_depth_m.at<float>(v, u);
+      if (z <= 0 || truth <= 0) continue;
+      const double e = z - truth;
+      if (std::abs(e) > 0.05 * truth) {
+        ++gross;
+        continue;
+      }
+      const double sigma = 1.2e-3 + 1.9e-3 * (truth - 0.4) * (truth - 0.4);
+      normalized2 += (e / sigma) * (e / sigma);
+      ++n;
+      if (std::abs(z - 1.0) < 0.01) levels_near_1m.push_back(static_cast<float>(z));
+    }
+  }
+  ASSERT_GT(n, 0.5 * frame.depth_m.total());
+  EXPECT_NEAR(std::sqrt(normalized2 / n), 1.0, kNoiseRelTolerance) << "noise relative to Nguyen's";
+  EXPECT_LT(gross / (n + gross), kMaxGrossFraction);
+  // Depth takes discrete levels: the gaps between neighbouring levels within 1 cm of 1 m.
+  std::sort(levels_near_1m.begin(), levels_near_1m.end());
+  levels_near_1m.erase(std::unique(levels_near_1m.begin(), levels_near_1m.end()), levels_near_1m.end());
+  ASSERT_GE(levels_near_1m.size(), 3u);
+  constexpr double kPublishedStepAt1mM = 3.1e-3;
+  for (size_t i = 1; i < levels_near_1m.size(); ++i) {
+    EXPECT_NEAR(levels_near_1m[i] - levels_near_1m[i - 1], kPublishedStepAt1mM,
+                kPublishedStepAt1mM * kStepRelTolerance);
+  }
+  std::printf("kinect-v1 render at ~1 m: noise %.2f x Nguyen's, gross %.2f %%, %zu levels within 1 cm of 1 m\n",
+              std::sqrt(normalized2 / n), 100 * gross / (n + gross), levels_near_1m.size());
+}
+
 TEST(CliRenderTest, AdaptiveSamplesRefineOnlyEdgePixels) {
   ScratchDir dir("adaptive");
   const fs::path out = dir / "step";
