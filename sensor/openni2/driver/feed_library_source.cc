@@ -8,13 +8,12 @@
 namespace romunect::openni2 {
 namespace {
 
-// The simulator's feed library: libRomunectSimFeed.so in <build>/lib, two folders above the
-// driver folder this plug-in was loaded from (CMake builds both there).
+// The simulator's feed library: libRomunectSimFeed.so in <build>/lib, beside the virtual device's
+// backend this code is part of (CMake builds both there).
 std::string DefaultFeedLibrary() {
   Dl_info info{};
   if (dladdr(reinterpret_cast<void*>(&DefaultFeedLibrary), &info) == 0 || info.dli_fname == nullptr) return "";
-  const std::filesystem::path drivers = std::filesystem::path(info.dli_fname).parent_path();
-  return (drivers.parent_path().parent_path() / "libRomunectSimFeed.so").string();
+  return (std::filesystem::path(info.dli_fname).parent_path() / "libRomunectSimFeed.so").string();
 }
 
 }  // namespace

@@ -13,9 +13,9 @@ namespace romunect::openni2 {
 
 class FeedLibrarySource : public FrameSource {
  public:
-  // Loads `library` (empty: the simulator's, libRomunectSimFeed.so two folders above the driver
-  // folder) and creates its feed from `query`. Throws std::runtime_error naming the library when
-  // it does not load, lacks the ABI's functions, refuses the query or announces an unusable feed.
+  // Loads `library` (empty: the simulator's, libRomunectSimFeed.so beside the backend, two
+  // folders above the driver folder) and creates its feed from `query`. Throws std::runtime_error naming the library
+  // when it does not load, lacks the ABI's functions, refuses the query or announces an unusable feed.
   FeedLibrarySource(const std::string& library, const std::string& query);
   ~FeedLibrarySource() override;
   FeedLibrarySource(const FeedLibrarySource&) = delete;

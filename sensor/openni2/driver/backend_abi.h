@@ -1,0 +1,24 @@
+// The driver plug-in (libRomunectVirtual.so.0, virtual_driver.cc) and the backend it loads when a
+// device opens (libRomunectVirtualBackend.so, virtual_device_backend.cc): both are built by this
+// project with the same compiler, so C++ objects (a DeviceBase) cross between them.
+#pragma once
+
+#define XN_NEW(type, ...) new type(__VA_ARGS__)
+#define XN_DELETE(p) delete (p)
+#include <Driver/OniDriverAPI.h>
+
+namespace romunect::openni2 {
+
+// The backend's file: in <lib>, two folders above the driver folder <lib>/OpenNI2/Drivers.
+inline constexpr const char* kVirtualBackendFile = "libRomunectVirtualBackend.so";
+
+// oni::driver::DeviceBase* romunect_virtual_backend_open(uri, services, error, error_size):
+// the device for a virtual-device URI, or nullptr with why in error.
+inline constexpr const char* kVirtualBackendOpenSymbol = "romunect_virtual_backend_open";
+using VirtualBackendOpenFn = oni::driver::DeviceBase* (*)(const char*, oni::driver::DriverServices*, char*, int);
+
+// void romunect_virtual_backend_set_wait_hook(void (*hook)()): the producer's test hook.
+inline constexpr const char* kVirtualBackendWaitHookSymbol = "romunect_virtual_backend_set_wait_hook";
+using VirtualBackendWaitHookFn = void (*)(void (*)());
+
+}  // namespace romunect::openni2

@@ -1,0 +1,535 @@
+// libRomunectVirtualBackend.so: the virtual device's devices and streams, which present a
+// FrameSource as a PS1080-like device: a frame directory, or the frames of a feed library
+// (feed_abi.h, e.g. the live simulator) (device_content.h; romunect/sensor/openni2/virtual_device.h
+// documents URIs and behaviour). The driver plug-in (virtual_driver.cc) loads it only when a
+// device opens (backend_abi.h), so OpenNI2 programs that never open one map none of its
+// libraries (OpenCV and what it pulls in).
+//
+// Threads: OpenNI2 calls in from the application's threads; in realtime pace one producer thread
+// per device sends frames. One mutex per device guards the streams and the frame cursor and is
+// held while a frame is handed to OpenNI2, so a stream is never destroyed mid-delivery.
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <condition_variable>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <exception>
+#include <filesystem>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <set>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "backend_abi.h"  // OpenNI2's driver API first: its XN_NEW/XN_DELETE
+
+#include <PS1080.h>
+
+#include "device_content.h"
+#include "romunect/sensor/clock.h"
+#include "romunect/sensor/depth_engine.h"
+#include "romunect/sensor/openni2/depth_units.h"
+#include "romunect/sensor/openni2/virtual_device.h"
+#include "romunect/sensor/rig.h"
+#include "virtual_device_uri.h"
+
+namespace romunect::openni2 {
+namespace {
+
+// The PS1080 geometry the chip reports, in its own units. Defaults follow the twin's stock chip
+// (RigPreset("kinect-v1")): ZPD is the PS1080's fixed 120 mm, ZPPS the pixel size there for the
+// chip's 1280-px sensor (ZPD / 2 f at 640 px), LDDIS the baseline. A frames.json may override
+// any of them with a top-level "ps1080" object of the same keys (docs/hardware.md).
+struct ChipParameters {
+  uint64_t zero_plane_distance_mm = 120;
+  double zero_plane_pixel_size_mm = 0.1042;
+  double emitter_dcmos_distance_cm = 7.5;
+  double dcmos_rcmos_distance_cm = 2.4;
+  uint64_t const_shift = 200;
+  uint64_t param_coeff = 4;
+  uint64_t shift_scale = 10;
+  uint64_t max_shift = 2047;
+  uint64_t pixel_size_factor = 1;
+};
+
+ChipParameters StockChipParameters() {
+  ChipParameters p;
+  const romunect::ChipGeometry chip = RigPreset("kinect-v1").depth_engine.chip;
+  p.zero_plane_pixel_size_mm = static_cast<double>(p.zero_plane_distance_mm) / (2.0 * chip.camera.fx);
+  p.emitter_dcmos_distance_cm = chip.baseline_m * 100.0;
+  return p;
+}
+
+ChipParameters ReadChipParameters(const std::string& extra_json) {
+  ChipParameters p = StockChipParameters();
+  const nlohmann::json extra = nlohmann::json::parse(extra_json, nullptr, false);
+  if (!extra.is_object() || !extra.contains("ps1080") || !extra["ps1080"].is_object()) return p;
+  const nlohmann::json& j = extra["ps1080"];
+  auto get = [&j](const char* key, auto* value) {
+    if (j.contains(key) && j[key].is_number()) *value = j[key].get<std::remove_pointer_t<decltype(value)>>();
+  };
+  get("zero_plane_distance_mm", &p.zero_plane_distance_mm);
+  get("zero_plane_pixel_size_mm", &p.zero_plane_pixel_size_mm);
+  get("emitter_dcmos_distance_cm", &p.emitter_dcmos_distance_cm);
+  get("dcmos_rcmos_distance_cm", &p.dcmos_rcmos_distance_cm);
+  get("const_shift", &p.const_shift);
+  get("param_coeff", &p.param_coeff);
+  get("shift_scale", &p.shift_scale);
+  get("max_shift", &p.max_shift);
+  get("pixel_size_factor", &p.pixel_size_factor);
+  return p;
+}
+
+template <typename T>
+OniStatus Answer(const T& value, void* data, int* size) {
+  if (*size != static_cast<int>(sizeof(T))) return ONI_STATUS_BAD_PARAMETER;
+  std::memcpy(data, &value, sizeof(T));
+  return ONI_STATUS_OK;
+}
+
+class VirtualDevice;
+
+class VirtualStream : public oni::driver::StreamBase {
+ public:
+  VirtualStream(VirtualDevice* device, OniSensorType type) : device_(device), type_(type) {}
+
+  OniStatus start() override;
+  void stop() override;
+  OniStatus setProperty(int id, const void* data, int size) override;
+  OniStatus getProperty(int id, void* data, int* size) override;
+  OniBool isPropertySupported(int id) override;
+  void notifyAllProperties() override;
+  int getRequiredFrameSize() override { return mode_.resolutionX * mode_.resolutionY * 2; }
+
+  OniSensorType type() const { return type_; }
+  // Read and written with the device mutex held: the producer checks and waits under it.
+  bool started() const { return started_; }
+  void set_started(bool started) { started_ = started; }
+  const OniVideoMode& mode() const { return mode_; }
+  void set_mode(const OniVideoMode& mode) { mode_ = mode; }
+
+  // Hands one frame (CV_16U, the mode's size) to OpenNI2. Called with the device mutex held.
+  void Send(const cv::Mat& image16, int frame_index, uint64_t timestamp_us);
+
+ private:
+  VirtualDevice* device_;
+  OniSensorType type_;
+  OniVideoMode mode_{};
+  bool started_ = false;
+};
+
+// A test hook (romunect_virtual_device_set_wait_hook): called by the producer with the device
+// mutex held, each time it is about to wait for a stream to start.
+std::atomic<void (*)()> g_before_wait_hook{nullptr};
+
+class VirtualDevice : public oni::driver::DeviceBase {
+ public:
+  VirtualDevice(const ParsedVirtualDeviceUri& parsed, oni::driver::DriverServices* services)
+      : options_(parsed.options), services_(services), content_(OpenDeviceContent(parsed)) {  // throws
+    chip_ = ReadChipParameters(content_.extra_json);
+    has_ir_ = content_.has_ir;
+    fps_ = static_cast<int>(std::lround(options_.fps > 0.0 ? options_.fps : content_.fps));
+    if (fps_ <= 0) fps_ = 30;
+    const int w = camera().width, h = camera().height;
+    // Metric depth in two units when frames hold depth; the chip's raw shifts (the PS1080's
+    // SHIFT_9_2: 11 bits, 2047 = none) when they hold raw.
+    if (content_.has_depth) {
+      depth_modes_ = {{ONI_PIXEL_FORMAT_DEPTH_100_UM, w, h, fps_}, {ONI_PIXEL_FORMAT_DEPTH_1_MM, w, h, fps_}};
+    }
+    if (content_.has_raw) depth_modes_.push_back({ONI_PIXEL_FORMAT_SHIFT_9_2, w, h, fps_});
+    has_depth_ = !depth_modes_.empty();
+    ir_modes_ = {{ONI_PIXEL_FORMAT_GRAY16, w, h, fps_}};
+    if (has_depth_) sensors_.push_back({ONI_SENSOR_DEPTH, static_cast<int>(depth_modes_.size()), depth_modes_.data()});
+    if (has_ir_) sensors_.push_back({ONI_SENSOR_IR, static_cast<int>(ir_modes_.size()), ir_modes_.data()});
+    if (options_.pace == VirtualDeviceOptions::Pace::kRealtime) producer_ = std::thread([this] { Produce(); });
+  }
+
+  ~VirtualDevice() override {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      closing_ = true;
+    }
+    wake_.notify_all();
+    if (producer_.joinable()) producer_.join();
+  }
+
+  OniStatus getSensorInfoList(OniSensorInfo** infos, int* count) override {
+    *infos = sensors_.data();
+    *count = static_cast<int>(sensors_.size());
+    return ONI_STATUS_OK;
+  }
+
+  oni::driver::StreamBase* createStream(OniSensorType type) override {
+    if ((type == ONI_SENSOR_DEPTH && !has_depth_) || (type == ONI_SENSOR_IR && !has_ir_) ||
+        (type != ONI_SENSOR_DEPTH && type != ONI_SENSOR_IR)) {
+      return nullptr;
+    }
+    auto* stream = new VirtualStream(this, type);
+    stream->set_mode(type == ONI_SENSOR_DEPTH ? depth_modes_[0] : ir_modes_[0]);
+    std::lock_guard<std::mutex> lock(mutex_);
+    streams_.insert(stream);
+    return stream;
+  }
+
+  void destroyStream(oni::driver::StreamBase* stream) override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    streams_.erase(static_cast<VirtualStream*>(stream));
+    delete stream;
+  }
+
+  OniStatus getProperty(int id, void* data, int* size) override {
+    switch (id) {
+      case ONI_DEVICE_PROPERTY_IMAGE_REGISTRATION: return Answer(ONI_IMAGE_REGISTRATION_OFF, data, size);
+      case ONI_DEVICE_PROPERTY_DRIVER_VERSION: return Answer(OniVersion{0, 1, 0, 0}, data, size);
+      case ONI_DEVICE_PROPERTY_SERIAL_NUMBER: {
+        const char serial[] = "romunect-virtual";
+        if (*size < static_cast<int>(sizeof(serial))) return ONI_STATUS_BAD_PARAMETER;
+        std::memcpy(data, serial, sizeof(serial));
+        *size = sizeof(serial);
+        return ONI_STATUS_OK;
+      }
+      default: return ONI_STATUS_NOT_SUPPORTED;
+    }
+  }
+  OniStatus setProperty(int id, const void* data, int size) override {
+    if (id == ONI_DEVICE_PROPERTY_IMAGE_REGISTRATION && size == sizeof(OniImageRegistrationMode)) {
+      return *static_cast<const OniImageRegistrationMode*>(data) == ONI_IMAGE_REGISTRATION_OFF
+                 ? ONI_STATUS_OK
+                 : ONI_STATUS_NOT_SUPPORTED;
+    }
+    return ONI_STATUS_NOT_SUPPORTED;
+  }
+  OniBool isPropertySupported(int id) override {
+    return id == ONI_DEVICE_PROPERTY_IMAGE_REGISTRATION || id == ONI_DEVICE_PROPERTY_DRIVER_VERSION ||
+           id == ONI_DEVICE_PROPERTY_SERIAL_NUMBER;
+  }
+
+  OniBool isCommandSupported(int id) override {
+    return id == kVirtualDeviceStepCommand && options_.pace == VirtualDeviceOptions::Pace::kStep;
+  }
+  // Step pace: sends the next frame set synchronously, so it is queued before the caller reads.
+  OniStatus invoke(int id, void* /*data*/, int /*size*/) override {
+    if (!isCommandSupported(id)) return ONI_STATUS_NOT_SUPPORTED;
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (CanSendLocked() && FetchLocked()) SendPendingLocked();
+    return ONI_STATUS_OK;
+  }
+
+  // Under the mutex, so a start cannot land between the producer's check and its wait and be
+  // lost; a stop also waits out a delivery in progress, so none reaches OpenNI2 after it returns.
+  void SetStarted(VirtualStream* stream, bool started) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    stream->set_started(started);
+    if (started) wake_.notify_all();
+  }
+
+  std::mutex& mutex() { return mutex_; }
+  const CameraModel& camera() const { return content_.source->camera(); }
+  const ChipParameters& chip() const { return chip_; }
+  int total_frames() const {
+    // A finite device says how many frames it will send, as OpenNI2's file player does.
+    return content_.frame_count;
+  }
+  bool IsOffered(OniSensorType type, const OniVideoMode& mode) const {
+    for (const OniVideoMode& m : type == ONI_SENSOR_DEPTH ? depth_modes_ : ir_modes_) {
+      if (m.pixelFormat == mode.pixelFormat && m.resolutionX == mode.resolutionX && m.resolutionY == mode.resolutionY &&
+          m.fps == mode.fps) {
+        return true;
+      }
+    }
+    return false;
+  }
+
+ private:
+  bool AnyStartedLocked() const {
+    return std::any_of(streams_.begin(), streams_.end(), [](const VirtualStream* s) { return s->started(); });
+  }
+  bool CanSendLocked() const {
+    if (options_.stop_after >= 0 && sent_ >= options_.stop_after) return false;
+    return !ended_;
+  }
+
+  // The source's next frame. A source that can no longer deliver (it throws) ends the device's
+  // stream, as a sensor whose cable was pulled: OpenNI2 has no way to pass an error on.
+  FrameStatus NextFromSource(Frame* frame, std::string* error) {
+    try {
+      return content_.source->Next(frame, error);
+    } catch (const std::exception& e) {
+      services_->errorLoggerAppend("romunect virtual device: %s", e.what());
+      return FrameStatus::kEndOfStream;
+    }
+  }
+
+  // Takes the next frame from the source into pending_ (unless one waits there). Mutex held.
+  // False at the source's end.
+  bool FetchLocked() {
+    if (pending_) return true;
+    Frame frame;
+    std::string error;
+    for (;;) {
+      const FrameStatus status = NextFromSource(&frame, &error);
+      if (status == FrameStatus::kEndOfStream) {
+        ended_ = true;
+        return false;
+      }
+      if (status == FrameStatus::kOk) break;
+      services_->errorLoggerAppend("romunect virtual device: %s", error.c_str());
+      ++sent_;  // the lost frame's number is skipped, as a device that drops one
+    }
+    frame.time_s -= content_.time_origin_s;
+    pending_ = std::move(frame);
+    return true;
+  }
+
+  // Hands the pending frame to every started stream. Mutex held.
+  void SendPendingLocked() {
+    const Frame frame = std::move(*pending_);
+    pending_.reset();
+    const int frame_index = ++sent_;  // 1-based, as the PS1080 and .oni files count
+    const uint64_t timestamp_us = static_cast<uint64_t>(std::llround(frame.time_s * 1e6));
+    for (VirtualStream* s : streams_) {
+      if (!s->started()) continue;
+      if (s->type() == ONI_SENSOR_IR) {
+        s->Send(frame.ir, frame_index, timestamp_us);
+      } else if (s->mode().pixelFormat == ONI_PIXEL_FORMAT_SHIFT_9_2) {
+        s->Send(frame.raw, frame_index, timestamp_us);
+      } else {
+        const DepthUnit unit = s->mode().pixelFormat == ONI_PIXEL_FORMAT_DEPTH_1_MM ? DepthUnit::k1mm
+                                                                                    : DepthUnit::k100um;
+        cv::Mat counts(frame.depth_m.size(), CV_16U);
+        for (int v = 0; v < counts.rows; ++v) {
+          const float* in = frame.depth_m.ptr<float>(v);
+          uint16_t* out = counts.ptr<uint16_t>(v);
+          for (int u = 0; u < counts.cols; ++u) out[u] = QuantizeDepth(in[u], unit);
+        }
+        s->Send(counts, frame_index, timestamp_us);
+      }
+    }
+  }
+
+  // Realtime pace: sends frames at their times while any stream runs.
+  void Produce() {
+    std::unique_lock<std::mutex> lock(mutex_);
+    bool running = false;
+    SteadyClock::time_point start;
+    double start_t_s = 0.0;
+    while (!closing_) {
+      if (!AnyStartedLocked() || !CanSendLocked() || !FetchLocked()) {
+        running = false;
+        if (auto* hook = g_before_wait_hook.load()) hook();
+        wake_.wait(lock);
+        continue;
+      }
+      const double t_s = pending_->time_s;
+      if (!running) {
+        // Let every stream the application starts together see the first frame.
+        running = true;
+        start = SteadyClock::now() + std::chrono::milliseconds(50);
+        start_t_s = t_s;
+      }
+      const auto due = start + std::chrono::duration_cast<SteadyClock::duration>(
+                                   std::chrono::duration<double>(t_s - start_t_s));
+      if (wake_.wait_until(lock, due, [this] { return closing_; })) break;
+      if (SteadyClock::now() < due) continue;
+      if (AnyStartedLocked() && CanSendLocked()) SendPendingLocked();
+    }
+  }
+
+  VirtualDeviceOptions options_;
+  oni::driver::DriverServices* services_;
+  DeviceContent content_;
+  ChipParameters chip_;
+  bool has_depth_ = false, has_ir_ = false;
+  int fps_ = 30;
+  std::vector<OniVideoMode> depth_modes_, ir_modes_;
+  std::vector<OniSensorInfo> sensors_;
+
+  std::mutex mutex_;
+  std::condition_variable wake_;
+  std::set<VirtualStream*> streams_;
+  std::optional<Frame> pending_;  // fetched from the source, not yet sent
+  int sent_ = 0;                  // frame numbers used so far
+  bool ended_ = false;            // the source has no more frames
+  bool closing_ = false;
+  std::thread producer_;
+};
+
+OniStatus VirtualStream::start() {
+  device_->SetStarted(this, true);
+  return ONI_STATUS_OK;
+}
+
+void VirtualStream::stop() { device_->SetStarted(this, false); }
+
+void VirtualStream::Send(const cv::Mat& image16, int frame_index, uint64_t timestamp_us) {
+  if (image16.cols != mode_.resolutionX || image16.rows != mode_.resolutionY || image16.type() != CV_16U) return;
+  OniFrame* frame = getServices().acquireFrame();
+  if (frame == nullptr) return;
+  const int row_bytes = mode_.resolutionX * 2;
+  frame->dataSize = row_bytes * mode_.resolutionY;
+  for (int v = 0; v < image16.rows; ++v) {
+    std::memcpy(static_cast<uint8_t*>(frame->data) + static_cast<size_t>(v) * row_bytes, image16.ptr(v), row_bytes);
+  }
+  frame->sensorType = type_;
+  frame->timestamp = timestamp_us;
+  frame->frameIndex = frame_index;
+  frame->width = mode_.resolutionX;
+  frame->height = mode_.resolutionY;
+  frame->videoMode = mode_;
+  frame->croppingEnabled = FALSE;
+  frame->cropOriginX = 0;
+  frame->cropOriginY = 0;
+  frame->stride = row_bytes;
+  raiseNewFrame(frame);
+  getServices().releaseFrame(frame);
+}
+
+OniStatus VirtualStream::setProperty(int id, const void* data, int size) {
+  switch (id) {
+    case ONI_STREAM_PROPERTY_VIDEO_MODE: {
+      if (size != sizeof(OniVideoMode)) return ONI_STATUS_BAD_PARAMETER;
+      const OniVideoMode& mode = *static_cast<const OniVideoMode*>(data);
+      if (!device_->IsOffered(type_, mode)) return ONI_STATUS_NOT_SUPPORTED;
+      std::lock_guard<std::mutex> lock(device_->mutex());
+      mode_ = mode;
+      return ONI_STATUS_OK;
+    }
+    case ONI_STREAM_PROPERTY_MIRRORING:
+      if (size != sizeof(OniBool)) return ONI_STATUS_BAD_PARAMETER;
+      return *static_cast<const OniBool*>(data) ? ONI_STATUS_NOT_SUPPORTED : ONI_STATUS_OK;
+    case ONI_STREAM_PROPERTY_CROPPING:
+      if (size != sizeof(OniCropping)) return ONI_STATUS_BAD_PARAMETER;
+      return static_cast<const OniCropping*>(data)->enabled ? ONI_STATUS_NOT_SUPPORTED : ONI_STATUS_OK;
+    default: return ONI_STATUS_NOT_SUPPORTED;
+  }
+}
+
+OniStatus VirtualStream::getProperty(int id, void* data, int* size) {
+  const CameraModel& c = device_->camera();
+  const ChipParameters& chip = device_->chip();
+  const bool depth = type_ == ONI_SENSOR_DEPTH;
+  switch (id) {
+    case ONI_STREAM_PROPERTY_VIDEO_MODE: return Answer(mode_, data, size);
+    case ONI_STREAM_PROPERTY_CROPPING:
+      return Answer(OniCropping{FALSE, 0, 0, mode_.resolutionX, mode_.resolutionY}, data, size);
+    case ONI_STREAM_PROPERTY_HORIZONTAL_FOV:
+      return Answer(static_cast<float>(2.0 * std::atan(c.width / (2.0 * c.fx))), data, size);
+    case ONI_STREAM_PROPERTY_VERTICAL_FOV:
+      return Answer(static_cast<float>(2.0 * std::atan(c.height / (2.0 * c.fy))), data, size);
+    case ONI_STREAM_PROPERTY_MAX_VALUE:
+      if (depth && mode_.pixelFormat == ONI_PIXEL_FORMAT_SHIFT_9_2)
+        return Answer(static_cast<int>(kRawInvalid), data, size);
+      return Answer(depth ? (mode_.pixelFormat == ONI_PIXEL_FORMAT_DEPTH_1_MM ? 10000 : 65535) : 1023, data, size);
+    case ONI_STREAM_PROPERTY_MIN_VALUE: return Answer(0, data, size);
+    case ONI_STREAM_PROPERTY_STRIDE: return Answer(mode_.resolutionX * 2, data, size);
+    case ONI_STREAM_PROPERTY_MIRRORING: return Answer(OniBool{FALSE}, data, size);
+    case ONI_STREAM_PROPERTY_NUMBER_OF_FRAMES:
+      if (device_->total_frames() == 0) return ONI_STATUS_NOT_SUPPORTED;
+      return Answer(device_->total_frames(), data, size);
+    default: break;
+  }
+  if (!depth) return ONI_STATUS_NOT_SUPPORTED;
+  switch (id) {
+    case XN_STREAM_PROPERTY_ZERO_PLANE_DISTANCE: return Answer(chip.zero_plane_distance_mm, data, size);
+    case XN_STREAM_PROPERTY_ZERO_PLANE_PIXEL_SIZE: return Answer(chip.zero_plane_pixel_size_mm, data, size);
+    case XN_STREAM_PROPERTY_EMITTER_DCMOS_DISTANCE: return Answer(chip.emitter_dcmos_distance_cm, data, size);
+    case XN_STREAM_PROPERTY_DCMOS_RCMOS_DISTANCE: return Answer(chip.dcmos_rcmos_distance_cm, data, size);
+    case XN_STREAM_PROPERTY_CONST_SHIFT: return Answer(chip.const_shift, data, size);
+    case XN_STREAM_PROPERTY_PARAM_COEFF: return Answer(chip.param_coeff, data, size);
+    case XN_STREAM_PROPERTY_SHIFT_SCALE: return Answer(chip.shift_scale, data, size);
+    case XN_STREAM_PROPERTY_MAX_SHIFT: return Answer(chip.max_shift, data, size);
+    case XN_STREAM_PROPERTY_PIXEL_SIZE_FACTOR: return Answer(chip.pixel_size_factor, data, size);
+    default: return ONI_STATUS_NOT_SUPPORTED;
+  }
+}
+
+OniBool VirtualStream::isPropertySupported(int id) {
+  switch (id) {
+    case ONI_STREAM_PROPERTY_VIDEO_MODE:
+    case ONI_STREAM_PROPERTY_CROPPING:
+    case ONI_STREAM_PROPERTY_HORIZONTAL_FOV:
+    case ONI_STREAM_PROPERTY_VERTICAL_FOV:
+    case ONI_STREAM_PROPERTY_MAX_VALUE:
+    case ONI_STREAM_PROPERTY_MIN_VALUE:
+    case ONI_STREAM_PROPERTY_STRIDE:
+    case ONI_STREAM_PROPERTY_MIRRORING: return TRUE;
+    case ONI_STREAM_PROPERTY_NUMBER_OF_FRAMES: return device_->total_frames() > 0;
+    case XN_STREAM_PROPERTY_ZERO_PLANE_DISTANCE:
+    case XN_STREAM_PROPERTY_ZERO_PLANE_PIXEL_SIZE:
+    case XN_STREAM_PROPERTY_EMITTER_DCMOS_DISTANCE:
+    case XN_STREAM_PROPERTY_DCMOS_RCMOS_DISTANCE:
+    case XN_STREAM_PROPERTY_CONST_SHIFT:
+    case XN_STREAM_PROPERTY_PARAM_COEFF:
+    case XN_STREAM_PROPERTY_SHIFT_SCALE:
+    case XN_STREAM_PROPERTY_MAX_SHIFT:
+    case XN_STREAM_PROPERTY_PIXEL_SIZE_FACTOR: return type_ == ONI_SENSOR_DEPTH;
+    default: return FALSE;
+  }
+}
+
+// Raised when a recorder attaches, so .oni files carry the mode, fields of view and chip geometry
+// (a stream without CROPPING records but plays back no frames).
+void VirtualStream::notifyAllProperties() {
+  static const int kIds[] = {ONI_STREAM_PROPERTY_VIDEO_MODE,
+                             ONI_STREAM_PROPERTY_CROPPING,
+                             ONI_STREAM_PROPERTY_HORIZONTAL_FOV,
+                             ONI_STREAM_PROPERTY_VERTICAL_FOV,
+                             ONI_STREAM_PROPERTY_MAX_VALUE,
+                             ONI_STREAM_PROPERTY_STRIDE,
+                             ONI_STREAM_PROPERTY_MIRRORING,
+                             XN_STREAM_PROPERTY_ZERO_PLANE_DISTANCE,
+                             XN_STREAM_PROPERTY_ZERO_PLANE_PIXEL_SIZE,
+                             XN_STREAM_PROPERTY_EMITTER_DCMOS_DISTANCE,
+                             XN_STREAM_PROPERTY_DCMOS_RCMOS_DISTANCE,
+                             XN_STREAM_PROPERTY_CONST_SHIFT,
+                             XN_STREAM_PROPERTY_PARAM_COEFF,
+                             XN_STREAM_PROPERTY_SHIFT_SCALE,
+                             XN_STREAM_PROPERTY_MAX_SHIFT,
+                             XN_STREAM_PROPERTY_PIXEL_SIZE_FACTOR};
+  for (int id : kIds) {
+    if (!isPropertySupported(id)) continue;
+    alignas(8) unsigned char buffer[sizeof(OniVideoMode) + sizeof(OniCropping)];
+    int size = 0;
+    switch (id) {
+      case ONI_STREAM_PROPERTY_VIDEO_MODE: size = sizeof(OniVideoMode); break;
+      case ONI_STREAM_PROPERTY_CROPPING: size = sizeof(OniCropping); break;
+      case ONI_STREAM_PROPERTY_HORIZONTAL_FOV:
+      case ONI_STREAM_PROPERTY_VERTICAL_FOV: size = sizeof(float); break;
+      case ONI_STREAM_PROPERTY_MAX_VALUE:
+      case ONI_STREAM_PROPERTY_STRIDE: size = sizeof(int); break;
+      case ONI_STREAM_PROPERTY_MIRRORING: size = sizeof(OniBool); break;
+      case XN_STREAM_PROPERTY_ZERO_PLANE_PIXEL_SIZE:
+      case XN_STREAM_PROPERTY_EMITTER_DCMOS_DISTANCE:
+      case XN_STREAM_PROPERTY_DCMOS_RCMOS_DISTANCE: size = sizeof(double); break;
+      default: size = sizeof(uint64_t); break;
+    }
+    if (getProperty(id, buffer, &size) == ONI_STATUS_OK) raisePropertyChanged(id, buffer, size);
+  }
+}
+
+}  // namespace
+}  // namespace romunect::openni2
+
+extern "C" __attribute__((visibility("default"))) oni::driver::DeviceBase* romunect_virtual_backend_open(
+    const char* uri, oni::driver::DriverServices* services, char* error, int error_size) {
+  std::string problem;
+  const auto parsed = romunect::openni2::ParseVirtualDeviceUri(uri, &problem);
+  try {
+    if (parsed) return new romunect::openni2::VirtualDevice(*parsed, services);
+  } catch (const std::exception& e) {
+    problem = e.what();
+  }
+  std::snprintf(error, static_cast<size_t>(error_size), "%s", problem.c_str());
+  return nullptr;
+}
+
+extern "C" __attribute__((visibility("default"))) void romunect_virtual_backend_set_wait_hook(void (*hook)()) {
+  romunect::openni2::g_before_wait_hook.store(hook);
+}
