@@ -1,14 +1,18 @@
 // The virtual device as any OpenNI2 program sees it, through OpenNI2's own C++ API: stream
-// start and stop against the realtime producer thread.
+// start and stop against the realtime producer thread, what it announces, and the PS1080's
+// stream properties (mirroring, cropping).
 #include <dlfcn.h>
 
 #include <atomic>
 #include <chrono>
 #include <thread>
+#include <vector>
 
 #include <OpenNI.h>
 #include <gtest/gtest.h>
 
+#include "romunect/sensor/frame_io.h"
+#include "romunect/sensor/openni2/depth_units.h"
 #include "romunect/sensor/openni2/openni2_source.h"
 #include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/testing/test_support.h"
@@ -82,6 +86,83 @@ TEST(VirtualDeviceThreads, AStartInsideTheProducersCheckIsNotLost) {
   set_hook(nullptr);
   ir.stop();
   ir.destroy();
+  depth.destroy();
+  device.close();
+}
+
+VirtualDeviceOptions StepPace() {
+  VirtualDeviceOptions o;
+  o.pace = VirtualDeviceOptions::Pace::kStep;
+  return o;
+}
+
+TEST(VirtualDeviceAnnounces, PrimeSensesVendorNameAndUsbIdsWhenImpersonatingAPs1080) {
+  ScratchDir dir("frames");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 2, 42);
+  ASSERT_EQ(openni::OpenNI::initialize(), openni::STATUS_OK);
+  VirtualDeviceOptions impersonating = StepPace();
+  impersonating.impersonate_ps1080 = true;
+  openni::Device device;
+  ASSERT_EQ(device.open(VirtualDeviceUri(dir.path(), impersonating).c_str()), openni::STATUS_OK);
+  const openni::DeviceInfo& info = device.getDeviceInfo();
+  EXPECT_STREQ(info.getVendor(), "PrimeSense");
+  EXPECT_STREQ(info.getName(), "PS1080");
+  EXPECT_EQ(info.getUsbVendorId(), 0x1d27);
+  EXPECT_EQ(info.getUsbProductId(), 0x0600);
+  device.close();
+  ASSERT_EQ(device.open(VirtualDeviceUri(dir.path(), StepPace()).c_str()), openni::STATUS_OK);
+  EXPECT_STREQ(device.getDeviceInfo().getVendor(), "romunect");
+  device.close();
+}
+
+// Mirroring flips each row; cropping then sends a sub-rectangle of the flipped image, as the
+// PS1080 does. Compared pixel by pixel with the frame directory's depth on the wire (100 um).
+TEST(VirtualDeviceStreams, MirroringAndCroppingAsAPs1080) {
+  ScratchDir dir("frames");
+  const CameraModel camera = testing::SmallCamera();
+  testing::WriteSampleFrameDirectory(dir.path(), camera, 2, 43);
+  ASSERT_EQ(openni::OpenNI::initialize(), openni::STATUS_OK);
+  openni::Device device;
+  ASSERT_EQ(device.open(VirtualDeviceUri(dir.path(), StepPace()).c_str()), openni::STATUS_OK);
+  openni::VideoStream depth;
+  ASSERT_EQ(depth.create(device, openni::SENSOR_DEPTH), openni::STATUS_OK);
+  openni::VideoMode mode = depth.getVideoMode();
+  mode.setPixelFormat(openni::PIXEL_FORMAT_DEPTH_100_UM);
+  ASSERT_EQ(depth.setVideoMode(mode), openni::STATUS_OK);
+  ASSERT_TRUE(depth.isPropertySupported(ONI_STREAM_PROPERTY_MIRRORING));
+  ASSERT_EQ(depth.setMirroringEnabled(true), openni::STATUS_OK);
+  EXPECT_TRUE(depth.getMirroringEnabled());
+  constexpr int kX0 = 10, kY0 = 5, kW = 30, kH = 20;
+  EXPECT_NE(depth.setCropping(70, 0, 20, 10), openni::STATUS_OK);  // beyond the 80-px image
+  ASSERT_EQ(depth.setCropping(kX0, kY0, kW, kH), openni::STATUS_OK);
+  int x0 = 0, y0 = 0, w = 0, h = 0;
+  ASSERT_TRUE(depth.getCropping(&x0, &y0, &w, &h));
+  EXPECT_EQ(std::vector<int>({x0, y0, w, h}), std::vector<int>({kX0, kY0, kW, kH}));
+  ASSERT_EQ(depth.start(), openni::STATUS_OK);
+  ASSERT_EQ(device.invoke(kVirtualDeviceStepCommand, nullptr, 0), openni::STATUS_OK);
+  openni::VideoStream* streams[] = {&depth};
+  int ready = -1;
+  ASSERT_EQ(openni::OpenNI::waitForAnyStream(streams, 1, &ready, kFrameWaitMs), openni::STATUS_OK);
+  openni::VideoFrameRef frame;
+  ASSERT_EQ(depth.readFrame(&frame), openni::STATUS_OK);
+  ASSERT_EQ(frame.getWidth(), kW);
+  ASSERT_EQ(frame.getHeight(), kH);
+  EXPECT_TRUE(frame.getCroppingEnabled());
+  EXPECT_EQ(frame.getCropOriginX(), kX0);
+  EXPECT_EQ(frame.getCropOriginY(), kY0);
+  FrameDirectorySource truth(dir.path());
+  const Frame expected = LoadFrame(dir.path(), truth.manifest(), 0);
+  const auto* data = static_cast<const uint8_t*>(frame.getData());
+  int mismatches = 0;
+  for (int v = 0; v < kH; ++v) {
+    const auto* row = reinterpret_cast<const uint16_t*>(data + static_cast<size_t>(v) * frame.getStrideInBytes());
+    for (int u = 0; u < kW; ++u) {
+      const float d = expected.depth_m.at<float>(kY0 + v, camera.width - 1 - (kX0 + u));
+      if (row[u] != QuantizeDepth(d, DepthUnit::k100um)) ++mismatches;
+    }
+  }
+  EXPECT_EQ(mismatches, 0);
+  depth.stop();
   depth.destroy();
   device.close();
 }

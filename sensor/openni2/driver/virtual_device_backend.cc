@@ -122,6 +122,9 @@ class VirtualStream : public oni::driver::StreamBase {
   VirtualDevice* device_;
   OniSensorType type_;
   OniVideoMode mode_{};
+  // As the PS1080's: a horizontal flip, then a sub-rectangle of the flipped image. Device mutex.
+  bool mirror_ = false;
+  OniCropping crop_{FALSE, 0, 0, 0, 0};
   bool started_ = false;
 };
 
@@ -372,20 +375,29 @@ void VirtualStream::Send(const cv::Mat& image16, int frame_index, uint64_t times
   if (image16.cols != mode_.resolutionX || image16.rows != mode_.resolutionY || image16.type() != CV_16U) return;
   OniFrame* frame = getServices().acquireFrame();
   if (frame == nullptr) return;
-  const int row_bytes = mode_.resolutionX * 2;
-  frame->dataSize = row_bytes * mode_.resolutionY;
-  for (int v = 0; v < image16.rows; ++v) {
-    std::memcpy(static_cast<uint8_t*>(frame->data) + static_cast<size_t>(v) * row_bytes, image16.ptr(v), row_bytes);
+  const bool cropped = crop_.enabled;
+  const int x0 = cropped ? crop_.originX : 0, y0 = cropped ? crop_.originY : 0;
+  const int w = cropped ? crop_.width : mode_.resolutionX, h = cropped ? crop_.height : mode_.resolutionY;
+  const int row_bytes = w * 2;
+  frame->dataSize = row_bytes * h;
+  for (int v = 0; v < h; ++v) {
+    const uint16_t* in = image16.ptr<uint16_t>(y0 + v);
+    auto* out = reinterpret_cast<uint16_t*>(static_cast<uint8_t*>(frame->data) + static_cast<size_t>(v) * row_bytes);
+    if (!mirror_) {
+      std::memcpy(out, in + x0, row_bytes);
+      continue;
+    }
+    for (int u = 0; u < w; ++u) out[u] = in[image16.cols - 1 - (x0 + u)];
   }
   frame->sensorType = type_;
   frame->timestamp = timestamp_us;
   frame->frameIndex = frame_index;
-  frame->width = mode_.resolutionX;
-  frame->height = mode_.resolutionY;
+  frame->width = w;
+  frame->height = h;
   frame->videoMode = mode_;
-  frame->croppingEnabled = FALSE;
-  frame->cropOriginX = 0;
-  frame->cropOriginY = 0;
+  frame->croppingEnabled = cropped ? TRUE : FALSE;
+  frame->cropOriginX = x0;
+  frame->cropOriginY = y0;
   frame->stride = row_bytes;
   raiseNewFrame(frame);
   getServices().releaseFrame(frame);
@@ -399,14 +411,27 @@ OniStatus VirtualStream::setProperty(int id, const void* data, int size) {
       if (!device_->IsOffered(type_, mode)) return ONI_STATUS_NOT_SUPPORTED;
       std::lock_guard<std::mutex> lock(device_->mutex());
       mode_ = mode;
+      crop_.enabled = FALSE;  // a crop is of the old mode's image
       return ONI_STATUS_OK;
     }
-    case ONI_STREAM_PROPERTY_MIRRORING:
+    case ONI_STREAM_PROPERTY_MIRRORING: {
       if (size != sizeof(OniBool)) return ONI_STATUS_BAD_PARAMETER;
-      return *static_cast<const OniBool*>(data) ? ONI_STATUS_NOT_SUPPORTED : ONI_STATUS_OK;
-    case ONI_STREAM_PROPERTY_CROPPING:
+      std::lock_guard<std::mutex> lock(device_->mutex());
+      mirror_ = *static_cast<const OniBool*>(data) != FALSE;
+      return ONI_STATUS_OK;
+    }
+    case ONI_STREAM_PROPERTY_CROPPING: {
       if (size != sizeof(OniCropping)) return ONI_STATUS_BAD_PARAMETER;
-      return static_cast<const OniCropping*>(data)->enabled ? ONI_STATUS_NOT_SUPPORTED : ONI_STATUS_OK;
+      const OniCropping& c = *static_cast<const OniCropping*>(data);
+      std::lock_guard<std::mutex> lock(device_->mutex());
+      if (c.enabled && !(c.originX >= 0 && c.originY >= 0 && c.width > 0 && c.height > 0 &&
+                         c.originX + c.width <= mode_.resolutionX && c.originY + c.height <= mode_.resolutionY)) {
+        return ONI_STATUS_BAD_PARAMETER;  // not inside the mode's image
+      }
+      crop_ = c;
+      crop_.enabled = c.enabled ? TRUE : FALSE;
+      return ONI_STATUS_OK;
+    }
     default: return ONI_STATUS_NOT_SUPPORTED;
   }
 }
@@ -418,7 +443,7 @@ OniStatus VirtualStream::getProperty(int id, void* data, int* size) {
   switch (id) {
     case ONI_STREAM_PROPERTY_VIDEO_MODE: return Answer(mode_, data, size);
     case ONI_STREAM_PROPERTY_CROPPING:
-      return Answer(OniCropping{FALSE, 0, 0, mode_.resolutionX, mode_.resolutionY}, data, size);
+      return Answer(crop_.enabled ? crop_ : OniCropping{FALSE, 0, 0, mode_.resolutionX, mode_.resolutionY}, data, size);
     case ONI_STREAM_PROPERTY_HORIZONTAL_FOV:
       return Answer(static_cast<float>(2.0 * std::atan(c.width / (2.0 * c.fx))), data, size);
     case ONI_STREAM_PROPERTY_VERTICAL_FOV:
@@ -429,7 +454,7 @@ OniStatus VirtualStream::getProperty(int id, void* data, int* size) {
       return Answer(depth ? (mode_.pixelFormat == ONI_PIXEL_FORMAT_DEPTH_1_MM ? 10000 : 65535) : 1023, data, size);
     case ONI_STREAM_PROPERTY_MIN_VALUE: return Answer(0, data, size);
     case ONI_STREAM_PROPERTY_STRIDE: return Answer(mode_.resolutionX * 2, data, size);
-    case ONI_STREAM_PROPERTY_MIRRORING: return Answer(OniBool{FALSE}, data, size);
+    case ONI_STREAM_PROPERTY_MIRRORING: return Answer(OniBool{mirror_ ? TRUE : FALSE}, data, size);
     case ONI_STREAM_PROPERTY_NUMBER_OF_FRAMES:
       if (device_->total_frames() == 0) return ONI_STATUS_NOT_SUPPORTED;
       return Answer(device_->total_frames(), data, size);

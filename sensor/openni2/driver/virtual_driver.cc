@@ -19,6 +19,10 @@
 namespace romunect::openni2 {
 namespace {
 
+// PrimeSense's USB vendor id and the PS1080 reference design's product id.
+constexpr uint16_t kPrimeSenseUsbVendorId = 0x1d27;
+constexpr uint16_t kPs1080UsbProductId = 0x0600;
+
 // The backend, loaded once and never unloaded (its devices' threads may outlive a close).
 // Empty with why in *error when it cannot load.
 void* LoadBackend(std::string* error) {
@@ -81,8 +85,15 @@ class VirtualDriver : public oni::driver::DriverBase {
     if (announced_.insert(uri).second) {
       OniDeviceInfo info{};
       std::snprintf(info.uri, sizeof(info.uri), "%s", uri);
-      std::snprintf(info.vendor, sizeof(info.vendor), "romunect");
-      std::snprintf(info.name, sizeof(info.name), parsed->feed ? "romunect live feed" : "romunect virtual sensor");
+      if (parsed->options.impersonate_ps1080) {
+        std::snprintf(info.vendor, sizeof(info.vendor), "PrimeSense");
+        std::snprintf(info.name, sizeof(info.name), "PS1080");
+        info.usbVendorId = kPrimeSenseUsbVendorId;
+        info.usbProductId = kPs1080UsbProductId;
+      } else {
+        std::snprintf(info.vendor, sizeof(info.vendor), "romunect");
+        std::snprintf(info.name, sizeof(info.name), parsed->feed ? "romunect live feed" : "romunect virtual sensor");
+      }
       deviceConnected(&info);
     }
     return ONI_STATUS_OK;

@@ -34,6 +34,7 @@ std::string WithOptions(const std::string& uri_path, const VirtualDeviceOptions&
   if (options.pace == VirtualDeviceOptions::Pace::kStep) add("pace", "step");
   if (options.stop_after >= 0) add("stop_after", std::to_string(options.stop_after));
   if (options.loop) add("loop", "1");
+  if (options.impersonate_ps1080) add("impersonate", "ps1080");
   if (options.fps > 0.0) {
     std::ostringstream fps;
     fps.precision(17);
@@ -142,6 +143,8 @@ std::optional<ParsedVirtualDeviceUri> ParseVirtualDeviceUri(const std::string& u
           return std::nullopt;
         }
         parsed.options.stop_after = static_cast<int>(n);
+      } else if (key == "impersonate" && value == "ps1080") {
+        parsed.options.impersonate_ps1080 = true;
       } else if (key == "loop" && (value == "0" || value == "1")) {
         parsed.options.loop = value == "1";
       } else if (key == "fps" && !value.empty()) {
@@ -156,7 +159,7 @@ std::optional<ParsedVirtualDeviceUri> ParseVirtualDeviceUri(const std::string& u
         parsed.feed_query += (parsed.feed_query.empty() ? "" : "&") + item;  // the feed's own key
       } else {
         *problem = "unknown or malformed parameter '" + item +
-                   "' (expected pace=realtime|step, stop_after=N, loop=0|1, fps=F)";
+                   "' (expected pace=realtime|step, stop_after=N, loop=0|1, fps=F, impersonate=ps1080)";
         return std::nullopt;
       }
     }

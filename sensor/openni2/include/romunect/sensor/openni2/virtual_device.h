@@ -10,6 +10,8 @@
 //   stop_after=N    the device stops sending after N frames, like an unplugged sensor
 //   loop=1          start again at the first frame after the last (realtime only; viewers)
 //   fps=F           the frame rate it announces (default: from the frame times, else 30)
+//   impersonate=ps1080  announce the device as PrimeSense's PS1080 (vendor "PrimeSense", name
+//                   "PS1080", USB ids 1d27:0600), for programs that look for one
 // The same device also presents live frames from a feed library (feed_abi.h), by default the
 // simulator's (sim/openni2_feed, libRomunectSimFeed.so beside the driver folder):
 //   romunect-sim:?[driver keys above except loop][&feed=/abs/libX.so][&the feed's own keys]
@@ -33,6 +35,7 @@ struct VirtualDeviceOptions {
   int stop_after = -1;  // frames sent before the device goes silent; -1 = never
   bool loop = false;    // repeat the directory forever (realtime pace only)
   double fps = 0.0;     // announced frame rate (Hz); 0 = from the frame times
+  bool impersonate_ps1080 = false;  // announce PrimeSense's vendor, name and USB ids
 
   // Why the options are unusable, or "" when they are valid.
   std::string Problem() const;
