@@ -463,13 +463,16 @@ TEST(OpenNI2SourceErrors, UnsupportedModeListsTheOfferedModes) {
   options.height = 1024;
   options.fps = 30;
   const std::string m = OpenError(options);
+  // As a PS1080: 1 mm and 100 um at half size (its QVGA, the default) and full size (VGA).
   EXPECT_NE(m.find("video mode: depth 1280x1024 @30 Hz in 100um or 1mm is not offered; the device offers: "
-                   "depth 80x60 @30 Hz 100um, depth 80x60 @30 Hz 1mm, depth 80x60 @30 Hz shift9.2"),
+                   "depth 40x30 @30 Hz 1mm, depth 40x30 @30 Hz 100um, depth 80x60 @30 Hz 1mm, "
+                   "depth 80x60 @30 Hz 100um, depth 80x60 @30 Hz shift9.2"),
             std::string::npos)
       << m;
   const auto modes = ListVideoModes(options.uri);
-  ASSERT_EQ(modes.size(), 4u);
-  EXPECT_EQ(modes[3], "ir 80x60 @30 Hz gray16");
+  ASSERT_EQ(modes.size(), 7u);
+  EXPECT_EQ(modes[5], "ir 40x30 @30 Hz gray16");
+  EXPECT_EQ(modes[6], "ir 80x60 @30 Hz gray16");
 }
 
 TEST(OpenNI2SourceErrors, InvalidOptionsNameTheField) {

@@ -128,6 +128,7 @@ TEST(VirtualDeviceStreams, MirroringAndCroppingAsAPs1080) {
   ASSERT_EQ(depth.create(device, openni::SENSOR_DEPTH), openni::STATUS_OK);
   openni::VideoMode mode = depth.getVideoMode();
   mode.setPixelFormat(openni::PIXEL_FORMAT_DEPTH_100_UM);
+  mode.setResolution(camera.width, camera.height);
   ASSERT_EQ(depth.setVideoMode(mode), openni::STATUS_OK);
   ASSERT_TRUE(depth.isPropertySupported(ONI_STREAM_PROPERTY_MIRRORING));
   ASSERT_EQ(depth.setMirroringEnabled(true), openni::STATUS_OK);
@@ -164,6 +165,63 @@ TEST(VirtualDeviceStreams, MirroringAndCroppingAsAPs1080) {
   EXPECT_EQ(mismatches, 0);
   depth.stop();
   depth.destroy();
+  device.close();
+}
+
+// A fresh stream starts in the PS1080's default mode: depth in 1 mm at half the frames' size
+// (QVGA of VGA frames), every 2nd depth pixel of every 2nd row; IR at half size is 2 x 2 binned.
+TEST(VirtualDeviceStreams, DefaultModesAreThePs1080s1mmQvgaWithDecimatedDepthAndBinnedIr) {
+  ScratchDir dir("frames");
+  const CameraModel camera = testing::SmallCamera();
+  testing::WriteSampleFrameDirectory(dir.path(), camera, 2, 44);
+  ASSERT_EQ(openni::OpenNI::initialize(), openni::STATUS_OK);
+  openni::Device device;
+  ASSERT_EQ(device.open(VirtualDeviceUri(dir.path(), StepPace()).c_str()), openni::STATUS_OK);
+  openni::VideoStream depth, ir;
+  ASSERT_EQ(depth.create(device, openni::SENSOR_DEPTH), openni::STATUS_OK);
+  ASSERT_EQ(ir.create(device, openni::SENSOR_IR), openni::STATUS_OK);
+  const openni::VideoMode mode = depth.getVideoMode();
+  EXPECT_EQ(mode.getPixelFormat(), openni::PIXEL_FORMAT_DEPTH_1_MM);
+  EXPECT_EQ(mode.getResolutionX(), camera.width / 2);
+  EXPECT_EQ(mode.getResolutionY(), camera.height / 2);
+  EXPECT_EQ(mode.getFps(), 30);
+  EXPECT_EQ(ir.getVideoMode().getResolutionX(), camera.width / 2);
+  ASSERT_EQ(depth.start(), openni::STATUS_OK);
+  ASSERT_EQ(ir.start(), openni::STATUS_OK);
+  ASSERT_EQ(device.invoke(kVirtualDeviceStepCommand, nullptr, 0), openni::STATUS_OK);
+  FrameDirectorySource truth(dir.path());
+  const Frame expected = LoadFrame(dir.path(), truth.manifest(), 0);
+  for (openni::VideoStream* stream : {&depth, &ir}) {
+    openni::VideoStream* streams[] = {stream};
+    int ready = -1;
+    ASSERT_EQ(openni::OpenNI::waitForAnyStream(streams, 1, &ready, kFrameWaitMs), openni::STATUS_OK);
+    openni::VideoFrameRef frame;
+    ASSERT_EQ(stream->readFrame(&frame), openni::STATUS_OK);
+    ASSERT_EQ(frame.getWidth(), camera.width / 2);
+    ASSERT_EQ(frame.getHeight(), camera.height / 2);
+    int mismatches = 0;
+    for (int v = 0; v < frame.getHeight(); ++v) {
+      const auto* row = reinterpret_cast<const uint16_t*>(static_cast<const uint8_t*>(frame.getData()) +
+                                                          static_cast<size_t>(v) * frame.getStrideInBytes());
+      for (int u = 0; u < frame.getWidth(); ++u) {
+        uint16_t want = 0;
+        if (stream == &depth) {
+          want = QuantizeDepth(expected.depth_m.at<float>(2 * v, 2 * u), DepthUnit::k1mm);
+        } else {
+          const cv::Mat& i = expected.ir;
+          want = static_cast<uint16_t>((i.at<uint16_t>(2 * v, 2 * u) + i.at<uint16_t>(2 * v, 2 * u + 1) +
+                                        i.at<uint16_t>(2 * v + 1, 2 * u) + i.at<uint16_t>(2 * v + 1, 2 * u + 1) + 2) /
+                                       4);
+        }
+        if (row[u] != want) ++mismatches;
+      }
+    }
+    EXPECT_EQ(mismatches, 0) << (stream == &depth ? "depth" : "IR");
+  }
+  depth.stop();
+  ir.stop();
+  depth.destroy();
+  ir.destroy();
   device.close();
 }
 

@@ -115,8 +115,12 @@ class VirtualStream : public oni::driver::StreamBase {
   const OniVideoMode& mode() const { return mode_; }
   void set_mode(const OniVideoMode& mode) { mode_ = mode; }
 
-  // Hands one frame (CV_16U, the mode's size) to OpenNI2. Called with the device mutex held.
-  void Send(const cv::Mat& image16, int frame_index, uint64_t timestamp_us);
+  // How a frame becomes a half-size (QVGA) one: depth keeps every 2nd pixel of every 2nd row (a
+  // mean would invent depths across edges), IR averages 2 x 2 pixels (binning).
+  enum class HalfSize { kEvery2nd, kMean };
+  // Hands one frame (CV_16U, the frames' size; halved for a half-size mode) to OpenNI2. Called
+  // with the device mutex held.
+  void Send(const cv::Mat& image16, int frame_index, uint64_t timestamp_us, HalfSize half);
 
  private:
   VirtualDevice* device_;
@@ -141,14 +145,22 @@ class VirtualDevice : public oni::driver::DeviceBase {
     fps_ = static_cast<int>(std::lround(options_.fps > 0.0 ? options_.fps : content_.fps));
     if (fps_ <= 0) fps_ = 30;
     const int w = camera().width, h = camera().height;
-    // Metric depth in two units when frames hold depth; the chip's raw shifts (the PS1080's
-    // SHIFT_9_2: 11 bits, 2047 = none) when they hold raw.
-    if (content_.has_depth) {
-      depth_modes_ = {{ONI_PIXEL_FORMAT_DEPTH_100_UM, w, h, fps_}, {ONI_PIXEL_FORMAT_DEPTH_1_MM, w, h, fps_}};
+    // As the PS1080: depth in 1 mm and 100 um and IR at the frames' size (VGA) and at half of it
+    // (QVGA), the first of each list being the stream's default (1 mm QVGA, as the PS1080's);
+    // the chip's raw shifts (SHIFT_9_2: 11 bits, 2047 = none) at the frames' size when they hold
+    // raw.
+    std::vector<std::pair<int, int>> sizes;
+    if (w % 2 == 0 && h % 2 == 0) sizes.emplace_back(w / 2, h / 2);
+    sizes.emplace_back(w, h);
+    for (const auto& [mw, mh] : sizes) {
+      if (content_.has_depth) {
+        depth_modes_.push_back({ONI_PIXEL_FORMAT_DEPTH_1_MM, mw, mh, fps_});
+        depth_modes_.push_back({ONI_PIXEL_FORMAT_DEPTH_100_UM, mw, mh, fps_});
+      }
+      ir_modes_.push_back({ONI_PIXEL_FORMAT_GRAY16, mw, mh, fps_});
     }
     if (content_.has_raw) depth_modes_.push_back({ONI_PIXEL_FORMAT_SHIFT_9_2, w, h, fps_});
     has_depth_ = !depth_modes_.empty();
-    ir_modes_ = {{ONI_PIXEL_FORMAT_GRAY16, w, h, fps_}};
     if (has_depth_) sensors_.push_back({ONI_SENSOR_DEPTH, static_cast<int>(depth_modes_.size()), depth_modes_.data()});
     if (has_ir_) sensors_.push_back({ONI_SENSOR_IR, static_cast<int>(ir_modes_.size()), ir_modes_.data()});
     if (options_.pace == VirtualDeviceOptions::Pace::kRealtime) producer_ = std::thread([this] { Produce(); });
@@ -300,9 +312,9 @@ class VirtualDevice : public oni::driver::DeviceBase {
     for (VirtualStream* s : streams_) {
       if (!s->started()) continue;
       if (s->type() == ONI_SENSOR_IR) {
-        s->Send(frame.ir, frame_index, timestamp_us);
+        s->Send(frame.ir, frame_index, timestamp_us, VirtualStream::HalfSize::kMean);
       } else if (s->mode().pixelFormat == ONI_PIXEL_FORMAT_SHIFT_9_2) {
-        s->Send(frame.raw, frame_index, timestamp_us);
+        s->Send(frame.raw, frame_index, timestamp_us, VirtualStream::HalfSize::kEvery2nd);
       } else {
         const DepthUnit unit = s->mode().pixelFormat == ONI_PIXEL_FORMAT_DEPTH_1_MM ? DepthUnit::k1mm
                                                                                     : DepthUnit::k100um;
@@ -312,7 +324,7 @@ class VirtualDevice : public oni::driver::DeviceBase {
           uint16_t* out = counts.ptr<uint16_t>(v);
           for (int u = 0; u < counts.cols; ++u) out[u] = QuantizeDepth(in[u], unit);
         }
-        s->Send(counts, frame_index, timestamp_us);
+        s->Send(counts, frame_index, timestamp_us, VirtualStream::HalfSize::kEvery2nd);
       }
     }
   }
@@ -371,7 +383,25 @@ OniStatus VirtualStream::start() {
 
 void VirtualStream::stop() { device_->SetStarted(this, false); }
 
-void VirtualStream::Send(const cv::Mat& image16, int frame_index, uint64_t timestamp_us) {
+// The half-size image of a CV_16U image with even sides.
+cv::Mat Halved(const cv::Mat& full, VirtualStream::HalfSize half) {
+  cv::Mat out(full.rows / 2, full.cols / 2, CV_16U);
+  for (int v = 0; v < out.rows; ++v) {
+    const uint16_t* a = full.ptr<uint16_t>(2 * v);
+    const uint16_t* b = full.ptr<uint16_t>(2 * v + 1);
+    uint16_t* o = out.ptr<uint16_t>(v);
+    for (int u = 0; u < out.cols; ++u) {
+      o[u] = half == VirtualStream::HalfSize::kEvery2nd
+                 ? a[2 * u]
+                 : static_cast<uint16_t>((a[2 * u] + a[2 * u + 1] + b[2 * u] + b[2 * u + 1] + 2) / 4);
+    }
+  }
+  return out;
+}
+
+void VirtualStream::Send(const cv::Mat& full16, int frame_index, uint64_t timestamp_us, HalfSize half) {
+  const bool halve = full16.cols == 2 * mode_.resolutionX && full16.rows == 2 * mode_.resolutionY;
+  const cv::Mat image16 = halve ? Halved(full16, half) : full16;
   if (image16.cols != mode_.resolutionX || image16.rows != mode_.resolutionY || image16.type() != CV_16U) return;
   OniFrame* frame = getServices().acquireFrame();
   if (frame == nullptr) return;

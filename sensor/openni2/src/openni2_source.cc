@@ -312,7 +312,7 @@ struct OpenNI2Source::Impl {
   }
 
   // The mode to ask for: the options' size and rate (or 640 x 480 @ 30 when offered, else the
-  // current one) and, for depth, the unit.
+  // largest offered in the wanted formats, else the current one) and, for depth, the unit.
   openni::VideoMode ChooseMode(openni::VideoStream& stream, openni::SensorType type, int w, int h, int fps) {
     const auto& modes = stream.getSensorInfo().getSupportedVideoModes();
     const openni::VideoMode current = stream.getVideoMode();
@@ -341,6 +341,17 @@ struct OpenNI2Source::Impl {
       sizes.push_back({w, h, fps});
     } else {
       sizes.push_back({640, 480, fps > 0 ? fps : 30});
+      int largest = -1;
+      for (int i = 0; i < modes.getSize(); ++i) {
+        const bool wanted = std::find(formats.begin(), formats.end(), modes[i].getPixelFormat()) != formats.end();
+        const int pixels = modes[i].getResolutionX() * modes[i].getResolutionY();
+        if (wanted && (fps == 0 || modes[i].getFps() == fps) &&
+            (largest < 0 || pixels > modes[largest].getResolutionX() * modes[largest].getResolutionY())) {
+          largest = i;
+        }
+      }
+      if (largest >= 0)
+        sizes.push_back({modes[largest].getResolutionX(), modes[largest].getResolutionY(), modes[largest].getFps()});
       sizes.push_back({current.getResolutionX(), current.getResolutionY(), fps > 0 ? fps : current.getFps()});
     }
     for (const auto& size : sizes) {
