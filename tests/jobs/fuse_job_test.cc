@@ -187,6 +187,17 @@ TEST(FuseJob, WritesTheMapAndItsReport) {
   }
 }
 
+// A 1 mm recording fused at 0.25 mm voxels rounds depths to 4 voxels: fuse says so; 100 um
+// (less than half a voxel) is fine, and 1 mm at 2 mm voxels too.
+TEST(FuseJob, WarnsWhenTheDepthUnitIsCoarseForTheVoxel) {
+  const auto coarse = DepthUnitWarning(1e-3, 0.25e-3);
+  ASSERT_TRUE(coarse.has_value());
+  EXPECT_THAT(*coarse, HasSubstr("1 mm steps, coarser than half the 0.25 mm voxel"));
+  EXPECT_FALSE(DepthUnitWarning(1e-4, 0.25e-3).has_value());
+  EXPECT_FALSE(DepthUnitWarning(1e-3, 2e-3).has_value());
+  EXPECT_TRUE(DepthUnitWarning(1e-4, 0.1e-3).has_value());
+}
+
 TEST(FuseJob, NamesTheOptionAtFaultAndWritesNothing) {
   ScratchDir dir("fuse_job");
   const AnalyticBin bin = SmallBin(2);

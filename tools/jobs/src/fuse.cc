@@ -382,6 +382,12 @@ FuseJobSummary RunFuse(const FuseOptions& o) {
   std::fprintf(stderr, "fuse: %s, box %s, grid %d x %d x %d at %.3g mm (%.1f MB), %d thread(s)\n",
                opened.source->Describe().c_str(), box_text.c_str(), grid.nx(), grid.ny(), grid.nz(),
                grid.voxel_m() * 1e3, grid_mb, o.threads);
+  if (const openni2::OpenNI2Source* d = openni2::FindOpenNI2Source(opened.source.get());
+      d != nullptr && !opened.depth_model) {  // metric depth on the wire, not raw shifts
+    s.depth_unit_warning = DepthUnitWarning(d->depth_unit() == openni2::DepthUnit::k1mm ? 1e-3 : 1e-4, grid.voxel_m());
+    if (s.depth_unit_warning)
+      std::fprintf(stderr, "romunect: warning: %s: %s\n", o.source.c_str(), s.depth_unit_warning->c_str());
+  }
   FuseHooks hooks(o, opened, directory);
   FusionSummary fused = FuseFrames(*opened.source, opened.source->camera(), grid, o.threads, hooks);
   std::fprintf(stderr, "\n");
@@ -432,6 +438,14 @@ std::string FuseSummaryText(const FuseJobSummary& s) {
                  fusion::Quantile(r.insert_ms, 0.5), r.extract_ms, r.peak_rss_mb, r.skipped_pixels, r.bad_frames,
                  s.dropped_frames);
   return text + r.stats.BriefReport() + "\n";
+}
+
+std::optional<std::string> DepthUnitWarning(double depth_unit_m, double voxel_m) {
+  if (depth_unit_m <= 0.5 * voxel_m) return std::nullopt;
+  std::ostringstream s;
+  s << "depth arrives in " << (depth_unit_m >= 1e-3 ? "1 mm" : "100 um") << " steps, coarser than half the "
+    << voxel_m * 1e3 << " mm voxel: the map rounds depths to it (record in 100 um: `record --depth-unit 100um`)";
+  return s.str();
 }
 
 void CheckSourceEnded(const FuseJobSummary& s, const FuseOptions& o) {

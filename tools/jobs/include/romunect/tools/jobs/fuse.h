@@ -32,8 +32,9 @@ struct FuseJobSummary {
   std::filesystem::path out;
   fusion::FusionReport report;
   std::string depth_from, box_from;
-  int dropped_frames = 0;              // gaps in a device's frame numbers
-  std::optional<std::string> stopped;  // why the source stopped before its end
+  int dropped_frames = 0;                         // gaps in a device's frame numbers
+  std::optional<std::string> depth_unit_warning;  // an OpenNI2 source's depth unit is coarse for the voxel
+  std::optional<std::string> stopped;             // why the source stopped before its end
 };
 
 // Validates the options (InputError naming the option, file or field, before any file is read),
@@ -43,6 +44,11 @@ FuseJobSummary RunFuse(const FuseOptions& options);
 
 // The lines for the terminal: frames, completeness, errors against ground truth, timings.
 std::string FuseSummaryText(const FuseJobSummary& summary);
+
+// The warning for an OpenNI2 source whose depth unit (the wire's step, 1e-3 or 1e-4 m) is coarser than half the
+// voxel: depths arrive rounded to it, so cells a finer voxel would tell apart merge (a 1 mm
+// recording at 0.25 mm voxels). nullopt when the unit is fine enough.
+std::optional<std::string> DepthUnitWarning(double depth_unit_m, double voxel_m);
 
 // Throws InputError when the source stopped early (after the outputs were written).
 void CheckSourceEnded(const FuseJobSummary& summary, const FuseOptions& options);
