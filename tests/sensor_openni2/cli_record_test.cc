@@ -213,6 +213,28 @@ TEST(CliRecord, ARecordingWhoseRecorderWasKilledPlaysToItsEnd) {
   }
 }
 
+// A frame directory opens as one device at a time, as a USB sensor: a second process is refused
+// while the first holds it, and gets it once the first has ended.
+TEST(CliRecord, ASecondProcessCannotOpenADeviceInUse) {
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 3, 38);
+  VirtualDeviceOptions looped;
+  looped.loop = true;
+  const std::string first = out / "first";
+  // The first records an endless device; the second tries once the first has written a frame.
+  const std::string binary = testing::RomunectBinary().string();
+  const auto r = RunShell(binary + " record " + Quote(VirtualDeviceUri(dir.path(), looped)) + " " + first +
+                          " >/dev/null 2>&1 & pid=$!; for i in $(seq 1 200); do ls " + Quote(first + "/depth") +
+                          " 2>/dev/null | grep -q . && break; sleep 0.05; done; " + binary + " record " +
+                          StepDevice(dir.path()) + " " + (out / "second").string() + "; echo exit=$?; kill -9 $pid");
+  EXPECT_NE(r.output.find("is open in another process: a device opens once, as a USB sensor"), std::string::npos)
+      << r.output;
+  EXPECT_NE(r.output.find("exit=2"), std::string::npos) << r.output;
+  const auto after = RunRomunect("record " + StepDevice(dir.path()) + " " + (out / "third").string());
+  EXPECT_EQ(after.exit_code, 0) << after.output;
+}
+
 TEST(CliRecord, ADeviceThatStopsKeepsTheFramesSoFarAndFails) {
   ScratchDir dir("frames");
   ScratchDir out("out");

@@ -24,7 +24,12 @@
 #include <set>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
+
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
 
 #include <nlohmann/json.hpp>
 
@@ -94,6 +99,33 @@ OniStatus Answer(const T& value, void* data, int* size) {
   return ONI_STATUS_OK;
 }
 
+// A file descriptor closed when it goes out of scope (-1: none).
+class UniqueFd {
+ public:
+  explicit UniqueFd(int fd = -1) : fd_(fd) {}
+  UniqueFd(UniqueFd&& other) noexcept : fd_(std::exchange(other.fd_, -1)) {}
+  UniqueFd& operator=(UniqueFd&&) = delete;
+  ~UniqueFd() {
+    if (fd_ >= 0) close(fd_);
+  }
+
+ private:
+  int fd_;
+};
+
+// Opens a frame directory exclusively, as a USB sensor opens once: an flock on the directory,
+// which the kernel drops when the process ends, however it ends. Throws when another process
+// holds it.
+UniqueFd LockDirectory(const std::filesystem::path& dir) {
+  const int raw = open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (raw < 0) return UniqueFd();  // no directory: the frame directory's own check says so
+  UniqueFd locked(raw);
+  if (flock(raw, LOCK_EX | LOCK_NB) != 0) {
+    throw std::runtime_error(dir.string() + " is open in another process: a device opens once, as a USB sensor");
+  }
+  return locked;
+}
+
 class VirtualDevice;
 
 class VirtualStream : public oni::driver::StreamBase {
@@ -139,7 +171,10 @@ std::atomic<void (*)()> g_before_wait_hook{nullptr};
 class VirtualDevice : public oni::driver::DeviceBase {
  public:
   VirtualDevice(const ParsedVirtualDeviceUri& parsed, oni::driver::DriverServices* services)
-      : options_(parsed.options), services_(services), content_(OpenDeviceContent(parsed)) {  // throws
+      : options_(parsed.options),
+        services_(services),
+        lock_(parsed.feed ? UniqueFd() : LockDirectory(parsed.dir)),  // throws
+        content_(OpenDeviceContent(parsed)) {                         // throws
     chip_ = ReadChipParameters(content_.extra_json);
     has_ir_ = content_.has_ir;
     fps_ = static_cast<int>(std::lround(options_.fps > 0.0 ? options_.fps : content_.fps));
@@ -359,6 +394,7 @@ class VirtualDevice : public oni::driver::DeviceBase {
 
   VirtualDeviceOptions options_;
   oni::driver::DriverServices* services_;
+  UniqueFd lock_;  // the frame directory's exclusive lock while the device is open
   DeviceContent content_;
   ChipParameters chip_;
   bool has_depth_ = false, has_ir_ = false;
