@@ -16,8 +16,10 @@
 // simulator's (sim/openni2_feed, libRomunectSimFeed.so beside the driver folder):
 //   romunect-sim:?[driver keys above except loop][&feed=/abs/libX.so][&the feed's own keys]
 // The driver keys are read by the driver; every other key is handed to the feed.
-// Depth is offered as ONI_PIXEL_FORMAT_DEPTH_100_UM (default) and DEPTH_1_MM, IR as GRAY16, both
-// at the directory's resolution. Any OpenNI2 program opens the device named by the environment
+// As a PS1080: depth in ONI_PIXEL_FORMAT_DEPTH_1_MM and DEPTH_100_UM and IR in GRAY16, each at
+// half the directory's resolution (the default, 1 mm: the PS1080's QVGA) and at it; mirroring
+// and cropping as stream properties; a frame directory opens in one process at a time
+// (docs/hardware.md). Any OpenNI2 program opens the device named by the environment
 // variable ROMUNECT_VIRTUAL_DEVICE (a URI or a plain directory) as its first device. romunect's
 // programs resolve a relative directory there against their working directory; in other programs
 // the driver refuses it (libOpenNI2 reads drivers in a working directory of its own) and says so
