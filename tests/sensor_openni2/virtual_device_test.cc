@@ -90,6 +90,42 @@ TEST(VirtualDeviceThreads, AStartInsideTheProducersCheckIsNotLost) {
   device.close();
 }
 
+// The device's clock runs while its streams are stopped, as a PS1080's: after a pause the next
+// frame's timestamp has moved on by the pause (it used to move on by one frame period).
+TEST(VirtualDeviceThreads, TheClockKeepsRunningWhileStreamsAreStopped) {
+  constexpr int kPauseMs = 600;
+  // At least the pause less scheduling slack on a loaded machine; frames at 30 Hz.
+  constexpr double kMinAdvanceS = 0.4;
+  ScratchDir dir("frames");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 5, 45);
+  VirtualDeviceOptions looped;
+  looped.loop = true;
+  ASSERT_EQ(openni::OpenNI::initialize(), openni::STATUS_OK);
+  openni::Device device;
+  ASSERT_EQ(device.open(VirtualDeviceUri(dir.path(), looped).c_str()), openni::STATUS_OK);
+  openni::VideoStream depth;
+  ASSERT_EQ(depth.create(device, openni::SENSOR_DEPTH), openni::STATUS_OK);
+  auto read = [&depth](openni::VideoFrameRef* frame) {
+    openni::VideoStream* streams[] = {&depth};
+    int ready = -1;
+    return openni::OpenNI::waitForAnyStream(streams, 1, &ready, kFrameWaitMs) == openni::STATUS_OK &&
+           depth.readFrame(frame) == openni::STATUS_OK;
+  };
+  ASSERT_EQ(depth.start(), openni::STATUS_OK);
+  openni::VideoFrameRef before, after;
+  ASSERT_TRUE(read(&before));
+  depth.stop();
+  std::this_thread::sleep_for(std::chrono::milliseconds(kPauseMs));
+  ASSERT_EQ(depth.start(), openni::STATUS_OK);
+  ASSERT_TRUE(read(&after));
+  const double advance_s = (static_cast<double>(after.getTimestamp()) - static_cast<double>(before.getTimestamp())) *
+                           1e-6;
+  EXPECT_GE(advance_s, kMinAdvanceS);
+  depth.stop();
+  depth.destroy();
+  device.close();
+}
+
 VirtualDeviceOptions StepPace() {
   VirtualDeviceOptions o;
   o.pace = VirtualDeviceOptions::Pace::kStep;

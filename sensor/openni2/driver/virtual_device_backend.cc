@@ -343,7 +343,7 @@ class VirtualDevice : public oni::driver::DeviceBase {
     const Frame frame = std::move(*pending_);
     pending_.reset();
     const int frame_index = ++sent_;  // 1-based, as the PS1080 and .oni files count
-    const uint64_t timestamp_us = static_cast<uint64_t>(std::llround(frame.time_s * 1e6));
+    const uint64_t timestamp_us = static_cast<uint64_t>(std::llround((frame.time_s + time_shift_s_) * 1e6));
     for (VirtualStream* s : streams_) {
       if (!s->started()) continue;
       if (s->type() == ONI_SENSOR_IR) {
@@ -364,10 +364,14 @@ class VirtualDevice : public oni::driver::DeviceBase {
     }
   }
 
-  // Realtime pace: sends frames at their times while any stream runs.
+  // Realtime pace: sends frames at their times while any stream runs. The device's clock starts
+  // with the first stream and keeps running while streams are stopped, as a PS1080's does: frames
+  // after a restart carry the time since the first start (time_shift_s_), not the source's time.
   void Produce() {
     std::unique_lock<std::mutex> lock(mutex_);
     bool running = false;
+    std::optional<SteadyClock::time_point> first_start;
+    double first_t_s = 0.0;
     SteadyClock::time_point start;
     double start_t_s = 0.0;
     while (!closing_) {
@@ -383,6 +387,11 @@ class VirtualDevice : public oni::driver::DeviceBase {
         running = true;
         start = SteadyClock::now() + std::chrono::milliseconds(50);
         start_t_s = t_s;
+        if (!first_start) {
+          first_start = start;
+          first_t_s = t_s;
+        }
+        time_shift_s_ = std::chrono::duration<double>(start - *first_start).count() + first_t_s - start_t_s;
       }
       const auto due = start + std::chrono::duration_cast<SteadyClock::duration>(
                                    std::chrono::duration<double>(t_s - start_t_s));
@@ -407,6 +416,7 @@ class VirtualDevice : public oni::driver::DeviceBase {
   std::set<VirtualStream*> streams_;
   std::optional<Frame> pending_;  // fetched from the source, not yet sent
   int sent_ = 0;                  // frame numbers used so far
+  double time_shift_s_ = 0.0;     // device time - source time (realtime pace, after a restart)
   bool ended_ = false;            // the source has no more frames
   bool closing_ = false;
   std::thread producer_;
