@@ -7,7 +7,7 @@ packages=(
   build-essential cmake ninja-build pkg-config git
   libeigen3-dev libopencv-dev libceres-dev libgoogle-glog-dev
   libembree-dev libmujoco-dev libopenexr-dev libopenni2-dev
-  nlohmann-json3-dev libcli11-dev zlib1g-dev
+  nlohmann-json3-dev libcli11-dev zlib1g-dev libpng-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   # Packaging traps: MuJoCo's CMake target needs qhull and GL; OpenEXR's Imath config
   # needs python3-imath.
