@@ -190,22 +190,23 @@ Frame LoadFrame(const fs::path& dir, const FrameDirectoryManifest& manifest, siz
   frame.time_s = record.time_s;
   frame.T_W_C = record.T_W_C;
   frame.T_B_H = record.T_B_H;
+  const cv::Size size(manifest.camera.width, manifest.camera.height);  // refused from the header, before decoding
   if (!record.depth.empty()) {
-    frame.depth_m = ReadDepthExr(dir / record.depth);
+    frame.depth_m = ReadDepthExr(dir / record.depth, size);
     CheckImage(frame.depth_m, manifest.camera, CV_32F, dir / record.depth);
     CheckDepthValues(&frame.depth_m, dir / record.depth, policy, skipped_pixels);
   }
   if (!record.gt_depth.empty()) {
-    frame.gt_depth_m = ReadDepthExr(dir / record.gt_depth);
+    frame.gt_depth_m = ReadDepthExr(dir / record.gt_depth, size);
     CheckImage(frame.gt_depth_m, manifest.camera, CV_32F, dir / record.gt_depth);
     CheckDepthValues(&frame.gt_depth_m, dir / record.gt_depth, policy, skipped_pixels);
   }
   if (!record.ir.empty()) {
-    frame.ir = ReadPng16(dir / record.ir);
+    frame.ir = ReadPng16(dir / record.ir, size);
     CheckImage(frame.ir, manifest.camera, CV_16U, dir / record.ir);
   }
   if (!record.raw.empty()) {
-    frame.raw = ReadPng16(dir / record.raw);
+    frame.raw = ReadPng16(dir / record.raw, size);
     CheckImage(frame.raw, manifest.camera, CV_16U, dir / record.raw);
   }
   return frame;

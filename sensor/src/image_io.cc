@@ -9,16 +9,20 @@
 #include <cstring>
 #include <fstream>
 #include <memory>
+#include <sstream>
 #include <string>
+#include <string_view>
 
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <Iex.h>
 #include <ImfChannelList.h>
 #include <ImfCompression.h>
 #include <ImfDoubleAttribute.h>
 #include <ImfFrameBuffer.h>
 #include <ImfHeader.h>
+#include <ImfIO.h>
 #include <ImfInputFile.h>
 #include <ImfOutputFile.h>
 #include <ImfVecAttribute.h>
@@ -27,6 +31,7 @@
 
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/errors.h"
+#include "romunect/sensor/input_limits.h"
 
 namespace romunect {
 namespace fs = std::filesystem;
@@ -245,24 +250,97 @@ void WriteFrameFileAtomically(const fs::path& path, const std::string& bytes) {
 
 }  // namespace
 
-cv::Mat ReadDepthExr(const fs::path& path) {
-  if (!fs::exists(path)) throw InputError(path.string(), "", "file not found");
+namespace {
+
+// An OpenEXR input stream over bytes in memory; reading past the end throws as a short file does.
+class MemoryIStream : public Imf::IStream {
+ public:
+  MemoryIStream(std::string_view bytes, const std::string& name) : Imf::IStream(name.c_str()), bytes_(bytes) {}
+  bool read(char c[], int n) override {
+    if (n < 0 || pos_ > bytes_.size() || static_cast<size_t>(n) > bytes_.size() - pos_) {
+      throw Iex::InputExc("unexpected end of file");
+    }
+    std::memcpy(c, bytes_.data() + pos_, static_cast<size_t>(n));
+    pos_ += static_cast<size_t>(n);
+    return pos_ < bytes_.size();
+  }
+  uint64_t tellg() override { return pos_; }
+  void seekg(uint64_t pos) override { pos_ = pos; }
+
+ private:
+  std::string_view bytes_;
+  uint64_t pos_ = 0;
+};
+
+uint32_t Le32(std::string_view b, size_t at) {
+  uint32_t v = 0;
+  for (int i = 3; i >= 0; --i) v = (v << 8) | static_cast<unsigned char>(b[at + i]);
+  return v;
+}
+uint32_t Be32(std::string_view b, size_t at) {
+  uint32_t v = 0;
+  for (int i = 0; i < 4; ++i) v = (v << 8) | static_cast<unsigned char>(b[at + i]);
+  return v;
+}
+
+// The data window's size from the first header of an OpenEXR file, read by hand so that nothing is
+// allocated by what the file claims: attributes are "name\0type\0" + int32 size + value.
+cv::Size2l ExrHeaderSize(std::string_view b, const std::string& source) {
+  const auto fail = [&](const std::string& why) -> cv::Size2l {
+    throw InputError(source, "", "not a readable OpenEXR file: " + why);
+  };
+  if (b.size() < 8 || Le32(b, 0) != 20000630) return fail("no OpenEXR magic number");
+  size_t at = 8;
+  while (at < b.size() && b[at] != '\0') {
+    const size_t name_end = b.find('\0', at);
+    const size_t type_end = name_end == std::string_view::npos ? name_end : b.find('\0', name_end + 1);
+    if (type_end == std::string_view::npos || type_end + 4 > b.size()) break;
+    const std::string_view name = b.substr(at, name_end - at);
+    const uint32_t size = Le32(b, type_end + 1);
+    const size_t value = type_end + 5;
+    if (size > b.size() - value) break;
+    if (name == "dataWindow") {
+      if (size != 16) return fail("dataWindow is not a box2i");
+      const auto at_i = [&](int k) { return static_cast<int64_t>(static_cast<int32_t>(Le32(b, value + 4 * k))); };
+      return {at_i(2) - at_i(0) + 1, at_i(3) - at_i(1) + 1};
+    }
+    at = value + size;
+  }
+  return fail("truncated header or no dataWindow");
+}
+
+// Refuses an image whose header size is out of bounds or not the expected one, before decoding.
+void CheckHeaderSize(cv::Size2l size, const std::optional<cv::Size>& expected, const std::string& source) {
+  CheckImageDimensions(size.width, size.height, source);
+  if (expected && (size.width != expected->width || size.height != expected->height)) {
+    std::ostringstream s;
+    s << "expected " << expected->width << " x " << expected->height << ", found " << size.width << " x "
+      << size.height;
+    throw InputError(source, "image size", s.str());
+  }
+}
+
+}  // namespace
+
+cv::Mat DecodeDepthExr(std::string_view bytes, const std::string& source, const std::optional<cv::Size>& expected) {
+  CheckHeaderSize(ExrHeaderSize(bytes, source), expected, source);
   try {
-    Imf::InputFile file(path.c_str());
+    MemoryIStream stream(bytes, source);
+    Imf::InputFile file(stream);
     const Imath::Box2i window = file.header().dataWindow();
     const int width = window.max.x - window.min.x + 1;
     const int height = window.max.y - window.min.y + 1;
+    CheckHeaderSize({width, height}, expected, source);  // OpenEXR's own reading of the header agrees
     const Imf::Channel* channel = file.header().channels().findChannel("Z");
     if (channel == nullptr) {
       std::string names;
       for (auto it = file.header().channels().begin(); it != file.header().channels().end(); ++it) {
         names += std::string(names.empty() ? "" : ", ") + it.name();
       }
-      throw InputError(path.string(), "channel Z",
-                       "missing (expected one float32 channel named Z; found: " + names + ")");
+      throw InputError(source, "channel Z", "missing (expected one float32 channel named Z; found: " + names + ")");
     }
     if (channel->type != Imf::FLOAT) {
-      throw InputError(path.string(), "channel Z", "must be float32 (found half or uint)");
+      throw InputError(source, "channel Z", "must be float32 (found half or uint)");
     }
     cv::Mat depth(height, width, CV_32F);
     Imf::FrameBuffer buffer;
@@ -277,8 +355,12 @@ cv::Mat ReadDepthExr(const fs::path& path) {
   } catch (const InputError&) {
     throw;
   } catch (const std::exception& e) {
-    throw InputError(path.string(), "", std::string("not a readable OpenEXR file: ") + e.what());
+    throw InputError(source, "", std::string("not a readable OpenEXR file: ") + e.what());
   }
+}
+
+cv::Mat ReadDepthExr(const fs::path& path, const std::optional<cv::Size>& expected) {
+  return DecodeDepthExr(ReadInputFile(path, kMaxImageFileBytes, "OpenEXR file"), path.string(), expected);
 }
 
 namespace {
@@ -335,9 +417,12 @@ void WriteHeightMapExr(const fs::path& path, const cv::Mat& height_m, const Heig
 }
 
 std::optional<HeightMapGeometry> ReadHeightMapGeometry(const fs::path& path) {
-  if (!fs::exists(path)) throw InputError(path.string(), "", "file not found");
+  const std::string source = path.string();
+  const std::string bytes = ReadInputFile(path, kMaxImageFileBytes, "OpenEXR file");
+  CheckHeaderSize(ExrHeaderSize(bytes, source), std::nullopt, source);
   try {
-    Imf::InputFile file(path.c_str());
+    MemoryIStream stream(bytes, source);
+    Imf::InputFile file(stream);
     const Imf::Header& header = file.header();
     const auto* min = header.findTypedAttribute<Imf::V3dAttribute>(kMinAttribute);
     const auto* voxel = header.findTypedAttribute<Imf::DoubleAttribute>(kVoxelAttribute);
@@ -352,24 +437,41 @@ std::optional<HeightMapGeometry> ReadHeightMapGeometry(const fs::path& path) {
     g.ny = window.max.y - window.min.y + 1;
     return g;
   } catch (const std::exception& e) {
-    throw InputError(path.string(), "", std::string("not a readable OpenEXR file: ") + e.what());
+    throw InputError(source, "", std::string("not a readable OpenEXR file: ") + e.what());
   }
 }
 
-cv::Mat ReadPng16(const fs::path& path) {
-  if (!fs::exists(path)) throw InputError(path.string(), "", "file not found");
+cv::Mat DecodePng16(std::string_view bytes, const std::string& source, const std::optional<cv::Size>& expected) {
+  // The signature, then IHDR first (the PNG standard's order): width, height, bit depth, colour type.
+  static constexpr char kSignature[] = "\x89PNG\r\n\x1a\n";
+  if (bytes.size() < 33 || bytes.compare(0, 8, kSignature) != 0 || bytes.compare(12, 4, "IHDR") != 0) {
+    throw InputError(source, "", "not a readable PNG image (no PNG signature and header)");
+  }
+  CheckHeaderSize({static_cast<int64_t>(Be32(bytes, 16)), static_cast<int64_t>(Be32(bytes, 20))}, expected, source);
+  const int bit_depth = static_cast<unsigned char>(bytes[24]);
+  const int colour_type = static_cast<unsigned char>(bytes[25]);
+  if (bit_depth != 16 || colour_type != 0) {
+    throw InputError(source, "pixel type",
+                     "expected a 16-bit single-channel PNG, found bit depth " + std::to_string(bit_depth) +
+                         " and colour type " + std::to_string(colour_type));
+  }
   cv::Mat image;
   try {
-    image = cv::imread(path.string(), cv::IMREAD_UNCHANGED);
+    const cv::Mat buffer(1, static_cast<int>(bytes.size()), CV_8U, const_cast<char*>(bytes.data()));
+    image = cv::imdecode(buffer, cv::IMREAD_UNCHANGED);
   } catch (const cv::Exception& e) {
-    throw InputError(path.string(), "", std::string("cannot be decoded: ") + e.what());
+    throw InputError(source, "", std::string("cannot be decoded: ") + e.what());
   }
-  if (image.empty()) throw InputError(path.string(), "", "not a readable PNG image");
+  if (image.empty()) throw InputError(source, "", "not a readable PNG image");
   if (image.type() != CV_16UC1) {
-    throw InputError(path.string(), "pixel type",
+    throw InputError(source, "pixel type",
                      "expected a 16-bit single-channel PNG, found " + cv::typeToString(image.type()));
   }
   return image;
+}
+
+cv::Mat ReadPng16(const fs::path& path, const std::optional<cv::Size>& expected) {
+  return DecodePng16(ReadInputFile(path, kMaxImageFileBytes, "PNG file"), path.string(), expected);
 }
 
 namespace {

@@ -5,13 +5,13 @@
 #include <array>
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <sstream>
 #include <string>
 
 #include <nlohmann/json.hpp>
 
 #include "romunect/sensor/errors.h"
+#include "romunect/sensor/input_limits.h"
 
 namespace romunect::json_fields {
 
@@ -19,16 +19,14 @@ using nlohmann::json;
 
 inline const char* TypeName(const json& j) { return j.type_name(); }
 
-// Parses a whole file; malformed or truncated JSON names the byte where parsing stopped.
+// Parses a whole file; malformed or truncated JSON names the byte where parsing stopped. Only a
+// regular file of at most kMaxTextFileBytes is read, and nesting past kMaxJsonDepth is refused
+// before nlohmann::json (whose copies recurse) sees it.
 inline json ParseFile(const std::filesystem::path& path) {
-  std::error_code ec;
-  if (std::filesystem::is_directory(path, ec)) throw InputError(path.string(), "", "is a folder, not a JSON file");
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw InputError(path.string(), "", "file not found or not readable");
-  std::stringstream text;
-  text << in.rdbuf();
+  const std::string text = ReadInputFile(path, kMaxTextFileBytes, "JSON file");
+  CheckJsonNesting(text, path.string());
   try {
-    return json::parse(text.str());
+    return json::parse(text);
   } catch (const json::exception& e) {  // syntax, and numbers out of a double's range (1e999)
     throw InputError(path.string(), "", std::string("malformed JSON (") + e.what() + ")");
   }

@@ -2,6 +2,8 @@
 
 #include <limits>
 
+#include <sys/stat.h>
+
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -252,6 +254,22 @@ TEST_F(BadFrameDirectory, DepthOfWrongType) {
   doc_["frames"][0]["depth"] = "depth/not_exr.png";
   Rewrite();
   ExpectFrameError(0, {"depth/not_exr.png", "OpenEXR"});
+}
+
+// An unknown key nested 80,000 levels deep overflowed the stack in the copy of unknown keys.
+TEST_F(BadFrameDirectory, UnknownKeyNestedTooDeep) {
+  std::string text = testing::ReadText(dir_ / "frames.json");
+  const std::string deep = std::string(80000, '[') + std::string(80000, ']');
+  text.insert(text.find('{') + 1, "\"deep\": " + deep + ",");
+  testing::WriteText(dir_ / "frames.json", text);
+  ExpectManifestError({"frames.json", "nests arrays and objects deeper than 64"});
+}
+
+// A FIFO named as an image is refused at once; opening it to read used to wait for a writer.
+TEST_F(BadFrameDirectory, ImageThatIsAFifo) {
+  fs::remove(dir_ / "ir/000000.png");
+  ASSERT_EQ(mkfifo((dir_ / "ir/000000.png").c_str(), 0600), 0);
+  ExpectFrameError(0, {"ir/000000.png", "not a regular file"});
 }
 
 TEST_F(BadFrameDirectory, IrOfWrongType) {
