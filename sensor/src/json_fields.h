@@ -80,6 +80,10 @@ class Field {
     if (!value_.is_number_integer()) {
       Fail(std::string("expected an integer, found ") + (value_.is_number() ? value_.dump() : TypeName(value_)));
     }
+    // An unsigned value above 2^63 (2^64 - 1) would wrap to a negative long long: checked as unsigned.
+    if (value_.is_number_unsigned() && value_.get<unsigned long long>() > 2147483647ULL) {
+      Fail("integer out of range: " + value_.dump());
+    }
     const auto x = value_.get<long long>();
     if (x < -2147483647LL || x > 2147483647LL) Fail("integer out of range: " + value_.dump());
     return static_cast<int>(x);
@@ -87,7 +91,10 @@ class Field {
 
   std::string String() const {
     if (!value_.is_string()) Fail(std::string("expected a string, found ") + TypeName(value_));
-    return value_.get<std::string>();
+    std::string text = value_.get<std::string>();
+    // "\u0000" would cut a path or name short where C strings take over.
+    if (text.find('\0') != std::string::npos) Fail("a string may not hold a NUL character (\\u0000)");
+    return text;
   }
 
   bool Bool() const {

@@ -272,6 +272,32 @@ TEST_F(BadFrameDirectory, ImageThatIsAFifo) {
   ExpectFrameError(0, {"ir/000000.png", "not a regular file"});
 }
 
+// Paths may not leave the directory: a symbolic link out of it was followed.
+TEST_F(BadFrameDirectory, SymlinkOutOfTheDirectory) {
+  ScratchDir elsewhere("frames_elsewhere");
+  fs::rename(dir_ / "depth/000000.exr", elsewhere / "000000.exr");
+  fs::create_symlink(elsewhere / "000000.exr", dir_ / "depth/000000.exr");
+  ExpectFrameError(0, {"depth/000000.exr", "leads out of the frame directory through a symbolic link"});
+  // A link that stays inside is followed.
+  fs::remove(dir_ / "depth/000000.exr");
+  fs::create_symlink("000001.exr", dir_ / "depth/000000.exr");
+  const FrameDirectoryManifest manifest = ReadFrameDirectoryManifest(dir_.path());
+  EXPECT_NO_THROW(LoadFrame(dir_.path(), manifest, 0));
+}
+
+// "\u0000" in a path was cut at the NUL; 2^64 - 1 as an index read as "index -1".
+TEST_F(BadFrameDirectory, NulInAPathAndAnIndexBeyondInt) {
+  std::string text = testing::ReadText(dir_ / "frames.json");
+  const std::string depth = "\"depth/000000.exr\"";
+  ASSERT_NE(text.find(depth), std::string::npos);
+  testing::WriteText(dir_ / "frames.json",
+                     std::string(text).replace(text.find(depth), depth.size(), "\"depth/000000.exr\\u0000.txt\""));
+  ExpectManifestError({"frames.json", "frames[0].depth", "NUL character"});
+  doc_["frames"][0]["index"] = 18446744073709551615ULL;
+  Rewrite();
+  ExpectManifestError({"frames.json", "frames[0].index", "integer out of range: 18446744073709551615"});
+}
+
 TEST_F(BadFrameDirectory, IrOfWrongType) {
   cv::imwrite((dir_ / "ir/000000.png").string(), cv::Mat(60, 80, CV_8U, cv::Scalar(20)));
   ExpectFrameError(0, {"ir/000000.png", "16-bit"});
