@@ -37,6 +37,7 @@ cv::Mat PoseToMat(const Pose& T) {
 cv::Mat ReadMat(const cv::FileNode& root, const std::string& key, int rows, int cols, const std::string& source) {
   const cv::FileNode node = root[key];
   if (node.empty()) throw InputError(source, key, "missing");
+  CheckMatrixNode(node, rows, cols, source, key);
   cv::Mat m;
   try {
     node >> m;
@@ -305,12 +306,21 @@ Calibration ReadWholeCalibration(const cv::FileNode& root, const fs::path& path)
 
 }  // namespace
 
-Calibration LoadCalibration(const fs::path& path) {
-  const cv::FileStorage fs = OpenCalibrationFile(path);
-  return ReadWholeCalibration(fs.root(), path);
+namespace {
+
+// OpenCV throws when a node is of another kind than asked for (a list where a map is read).
+template <typename Read>
+Calibration WithOpenCvErrorsAsInputErrors(const fs::path& path, Read read) {
+  try {
+    return read();
+  } catch (const InputError&) {
+    throw;
+  } catch (const std::exception& e) {
+    throw InputError(path.string(), "", std::string("not a valid calibration file: ") + e.what());
+  }
 }
 
-Calibration LoadDeviceCalibration(const fs::path& path) {
+Calibration ReadDeviceCalibration(const fs::path& path) {
   const std::string source = path.string();
   const cv::FileStorage fs = OpenCalibrationFile(path);
   const cv::FileNode root = fs.root();
@@ -327,6 +337,17 @@ Calibration LoadDeviceCalibration(const fs::path& path) {
   c.camera = CameraModel::Read(root, source);
   c.T_H_C = ReadPose(root, "T_H_C", source);
   return c;
+}
+
+}  // namespace
+
+Calibration LoadCalibration(const fs::path& path) {
+  return WithOpenCvErrorsAsInputErrors(path,
+                                       [&] { return ReadWholeCalibration(OpenCalibrationFile(path).root(), path); });
+}
+
+Calibration LoadDeviceCalibration(const fs::path& path) {
+  return WithOpenCvErrorsAsInputErrors(path, [&] { return ReadDeviceCalibration(path); });
 }
 
 std::string HandEyeWarning(const Calibration& calibration, const std::string& path) {

@@ -187,6 +187,8 @@ CameraModel CameraModel::Read(const cv::FileNode& node, const std::string& sourc
   camera.width = static_cast<int>(width);
   camera.height = static_cast<int>(height);
   cv::Mat K, d;
+  CheckMatrixNode(node["camera_matrix"], 3, 3, source, "camera_matrix");
+  CheckMatrixNode(node["distortion_coefficients"], 14, 14, source, "distortion_coefficients");
   try {
     node["camera_matrix"] >> K;
     node["distortion_coefficients"] >> d;
@@ -229,7 +231,13 @@ void CameraModel::Save(const std::filesystem::path& path) const {
 
 CameraModel CameraModel::Load(const std::filesystem::path& path) {
   const cv::FileStorage fs = OpenFileStorage(path, "YAML/JSON/XML camera file");
-  return Read(fs.root(), path.string());
+  try {
+    return Read(fs.root(), path.string());
+  } catch (const InputError&) {
+    throw;
+  } catch (const std::exception& e) {  // OpenCV's: a node of another kind than asked for (a list for a map)
+    throw InputError(path.string(), "", std::string("not a valid camera file: ") + e.what());
+  }
 }
 
 }  // namespace romunect

@@ -177,12 +177,26 @@ void WriteAtomically(const fs::path& path, const std::function<void(const fs::pa
 }
 
 namespace {
-// Writes text to file (no temporary); errors name `path`.
+// Writes text to file (no temporary); errors name `path` and say why (a full disk: "No space left
+// on device").
 void WritePlain(const fs::path& file, const std::string& text, const fs::path& path) {
-  std::ofstream out(file, std::ios::binary);
-  out << text;
-  out.close();
-  if (!out) throw InputError(path.string(), "", "cannot write file");
+  const int fd = ::open(file.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) throw InputError(path.string(), "", std::string("cannot write file: ") + std::strerror(errno));
+  const char* data = text.data();
+  size_t left = text.size();
+  int error = 0;
+  while (left > 0 && error == 0) {
+    const ssize_t n = ::write(fd, data, left);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      error = n < 0 ? errno : EIO;
+    } else {
+      data += n;
+      left -= static_cast<size_t>(n);
+    }
+  }
+  if (::close(fd) != 0 && error == 0) error = errno;
+  if (error != 0) throw InputError(path.string(), "", std::string("cannot write file: ") + std::strerror(error));
 }
 }  // namespace
 
@@ -283,30 +297,82 @@ uint32_t Be32(std::string_view b, size_t at) {
   return v;
 }
 
-// The data window's size from the first header of an OpenEXR file, read by hand so that nothing is
-// allocated by what the file claims: attributes are "name\0type\0" + int32 size + value.
+// OpenEXR reads an attribute of a known type by its content, not its declared size: a value whose
+// content does not end where its size says would leave the reader elsewhere than this scan.
+// Returns why a value does not match its type, or "".
+std::string ExrAttributeProblem(std::string_view value, std::string_view type, size_t max_name) {
+  static const std::pair<std::string_view, size_t> kFixed[] = {
+      {"box2i", 16},      {"box2f", 16},   {"chromaticities", 32},
+      {"compression", 1}, {"double", 8},   {"envmap", 1},
+      {"float", 4},       {"int", 4},      {"keycode", 28},
+      {"lineOrder", 1},   {"m33f", 36},    {"m33d", 72},
+      {"m44f", 64},       {"m44d", 128},   {"rational", 8},
+      {"tiledesc", 9},    {"timecode", 8}, {"v2i", 8},
+      {"v2f", 8},         {"v2d", 16},     {"v3i", 12},
+      {"v3f", 12},        {"v3d", 24},     {"deepImageState", 1}};
+  for (const auto& [name, size] : kFixed) {
+    if (type == name) return value.size() == size ? "" : "a " + std::string(type) + " of the wrong size";
+  }
+  if (type == "chlist") {  // names with 16 bytes each, then an empty name: exactly the value
+    size_t at = 0;
+    while (at < value.size() && value[at] != '\0') {
+      const size_t end = value.find('\0', at);
+      if (end == std::string_view::npos || end - at > max_name || value.size() - end - 1 < 16)
+        return "bad channel list";
+      at = end + 1 + 16;
+    }
+    return at + 1 == value.size() ? "" : "bad channel list";
+  }
+  if (type == "preview") {  // width, height, then 4 bytes per pixel
+    if (value.size() < 8) return "bad preview";
+    const uint64_t pixels = static_cast<uint64_t>(Le32(value, 0)) * Le32(value, 4);
+    return value.size() - 8 == 4 * pixels ? "" : "bad preview";
+  }
+  return "";  // strings, vectors and unknown types are read by their size
+}
+
+// The data window's size from the header of an OpenEXR file, read by hand so that nothing is
+// allocated by what the file claims: attributes are "name\0type\0" + int32 size + value. Every
+// attribute must lie inside the file (OpenEXR allocates the size an unknown one claims). Only
+// single-part scanline or tiled files are read, as romunect writes and OpenCV reads.
 cv::Size2l ExrHeaderSize(std::string_view b, const std::string& source) {
   const auto fail = [&](const std::string& why) -> cv::Size2l {
     throw InputError(source, "", "not a readable OpenEXR file: " + why);
   };
   if (b.size() < 8 || Le32(b, 0) != 20000630) return fail("no OpenEXR magic number");
+  if (Le32(b, 4) & (0x800 | 0x1000)) return fail("deep or multi-part files are not read");
+  // Names and types as OpenEXR reads them: at most 31 characters, 255 with the long-names flag.
+  const size_t max_name = (Le32(b, 4) & 0x400) ? 255 : 31;
+  std::optional<cv::Size2l> size;
   size_t at = 8;
-  while (at < b.size() && b[at] != '\0') {
+  while (true) {
+    if (at >= b.size()) return fail("truncated header");
+    if (b[at] == '\0') break;  // end of the header
     const size_t name_end = b.find('\0', at);
     const size_t type_end = name_end == std::string_view::npos ? name_end : b.find('\0', name_end + 1);
-    if (type_end == std::string_view::npos || type_end + 4 > b.size()) break;
+    if (type_end == std::string_view::npos || b.size() - type_end < 5) return fail("truncated header");
+    if (name_end - at > max_name || type_end - name_end - 1 > max_name) return fail("an attribute name is too long");
     const std::string_view name = b.substr(at, name_end - at);
-    const uint32_t size = Le32(b, type_end + 1);
+    const uint32_t length = Le32(b, type_end + 1);
     const size_t value = type_end + 5;
-    if (size > b.size() - value) break;
-    if (name == "dataWindow") {
-      if (size != 16) return fail("dataWindow is not a box2i");
-      const auto at_i = [&](int k) { return static_cast<int64_t>(static_cast<int32_t>(Le32(b, value + 4 * k))); };
-      return {at_i(2) - at_i(0) + 1, at_i(3) - at_i(1) + 1};
+    if (length > b.size() - value) {
+      return fail("attribute " + std::string(name) + " claims " + std::to_string(length) +
+                  " bytes, past the file's end");
     }
-    at = value + size;
+    if (const std::string why = ExrAttributeProblem(b.substr(value, length),
+                                                    b.substr(name_end + 1, type_end - name_end - 1), max_name);
+        !why.empty()) {
+      return fail("attribute " + std::string(name) + ": " + why);
+    }
+    if (name == "dataWindow") {
+      if (length != 16) return fail("dataWindow is not a box2i");
+      const auto at_i = [&](int k) { return static_cast<int64_t>(static_cast<int32_t>(Le32(b, value + 4 * k))); };
+      size = cv::Size2l(at_i(2) - at_i(0) + 1, at_i(3) - at_i(1) + 1);
+    }
+    at = value + length;
   }
-  return fail("truncated header or no dataWindow");
+  if (!size) return fail("no dataWindow");
+  return *size;
 }
 
 // Refuses an image whose header size is out of bounds or not the expected one, before decoding.

@@ -213,10 +213,28 @@ cv::FileStorage OpenFileStorage(const std::filesystem::path& path, const std::st
     if (!fs.open(text, cv::FileStorage::READ | cv::FileStorage::MEMORY | format)) {
       throw InputError(source, "", "cannot be read by cv::FileStorage");
     }
-  } catch (const cv::Exception& e) {
+  } catch (const InputError&) {
+    throw;
+  } catch (const std::exception& e) {  // cv::Exception, and what OpenCV's parser lets escape (length_error)
     throw InputError(source, "", "not a valid OpenCV " + what + ": " + e.what());
   }
   return fs;
+}
+
+void CheckMatrixNode(const cv::FileNode& node, int max_rows, int max_cols, const std::string& source,
+                     const std::string& field) {
+  const auto fail = [&](const std::string& why) {
+    throw InputError(source, field,
+                     "not an OpenCV matrix of at most " + std::to_string(max_rows) + " x " + std::to_string(max_cols) +
+                         " (opencv-matrix with rows, cols, dt, data): " + why);
+  };
+  if (!node.isMap()) fail("not a map");
+  const cv::FileNode rows = node["rows"], cols = node["cols"];
+  if (!rows.isInt() || !cols.isInt()) fail("rows and cols must be integers");
+  const int r = static_cast<int>(rows), c = static_cast<int>(cols);
+  if (r < 0 || c < 0 || r > max_rows || c > max_cols) {
+    fail("found " + std::to_string(r) + " x " + std::to_string(c));
+  }
 }
 
 void CheckImageDimensions(int64_t width, int64_t height, const std::string& source) {

@@ -161,6 +161,8 @@ TEST(CalibrationFileTest, MissingOrMalformedFieldsNameTheField) {
   ExpectLoadFails("version: [^\\n]*", "version: 1.0e+300", "version");
   // A map that claims 100000 rows is refused before OpenCV allocates it.
   ExpectLoadFails("(a: !!opencv-matrix\\n\\s*rows: )48\\n(\\s*cols: )64", "$01100000\n$02100000", "depth_model.a");
+  // A pose matrix that claims 2e9 rows: OpenCV allocated 64 GB for them (found by the fuzz target).
+  ExpectLoadFails("(T_H_C: !!opencv-matrix\\n\\s*rows: )4", "$012000000000", "T_H_C");
 }
 
 // One key of 50,000 nested sequences overflowed the stack inside cv::FileStorage.

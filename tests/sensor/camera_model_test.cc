@@ -160,6 +160,13 @@ TEST(CameraModel, RejectsBadModelsAndFiles) {
       },
       InputError);
   EXPECT_THROW(CameraModel::Load(dir / "missing.yaml"), InputError);
+  // A list where a map is expected made OpenCV throw its own exception (found by the fuzz target).
+  testing::WriteText(dir / "list.yaml", "%YAML:1.0\n---\n- 1\n- 2\n");
+  EXPECT_THROW(CameraModel::Load(dir / "list.yaml"), InputError);
+  testing::WriteText(dir / "huge.yaml", "%YAML:1.0\n---\nimage_width: 640\nimage_height: 480\n"
+                                        "camera_matrix: !!opencv-matrix\n   rows: 2000000000\n   cols: 3\n   dt: d\n"
+                                        "   data: [ 1. ]\n");
+  EXPECT_THROW(CameraModel::Load(dir / "huge.yaml"), InputError);
 }
 
 // Values no camera has are refused with the field named: they used to pass (fx = 1e308, k1 = 1e10,

@@ -48,6 +48,11 @@ void CheckYamlNesting(std::string_view text, const std::string& source);
 // nesting check of its format; OpenCV then parses the bytes read, from memory.
 cv::FileStorage OpenFileStorage(const std::filesystem::path& path, const std::string& what);
 
+// Throws InputError(source, field) unless `node` is an OpenCV matrix (a map with integer rows and
+// cols) of at most max_rows x max_cols: OpenCV allocates rows x cols before it reads the data.
+void CheckMatrixNode(const cv::FileNode& node, int max_rows, int max_cols, const std::string& source,
+                     const std::string& field);
+
 // Throws InputError(source, "image size") unless 1 <= width, height <= kMaxImageSidePx and
 // width * height <= kMaxImagePixels. Takes 64-bit sizes so that any header's values fit.
 void CheckImageDimensions(int64_t width, int64_t height, const std::string& source);
