@@ -170,5 +170,46 @@ TEST(RunFolder, KeepsTheFinishedRunWhenTheFolderWasFilledMeanwhile) {
   EXPECT_EQ(ReadText(run.work_dir() / "report.json"), "{}");
 }
 
+// Runs that write into a folder in place (calibrate, record, render) hold <folder>.lock: a second
+// one is refused, naming the first; the lock file goes with the lock; a killed run's file is taken.
+TEST(FolderLock, ASecondRunIsRefusedUntilTheFirstEnds) {
+  ScratchDir dir("folder_lock");
+  {
+    const FolderLock first(dir / "out", "--out", "calibrate");
+    EXPECT_EQ(first.path(), fs::path((dir / "out").string() + ".lock"));
+    EXPECT_THAT(InputErrorOf([&] { FolderLock second(dir / "out/", "--out", "calibrate"); }),
+                HasSubstr("out: another run is writing into it (made by romunect calibrate (pid "));
+    EXPECT_EQ(InputErrorOf([&] { FolderLock other(dir / "other", "--out", "calibrate"); }), "");
+  }
+  EXPECT_FALSE(fs::exists(dir / "out.lock"));
+  WriteText(dir / "out.lock", "made by romunect record (pid 1)\n");  // a killed run's, unlocked
+  EXPECT_EQ(InputErrorOf([&] { FolderLock again(dir / "out", "--out", "calibrate"); }), "");
+  EXPECT_FALSE(fs::exists(dir / "out.lock"));
+}
+
+// Many runs at once on one folder: at every moment at most one holds the lock.
+TEST(FolderLock, AtMostOneHolderAtOnce) {
+  ScratchDir dir("folder_lock");
+  std::atomic<int> holders{0}, most{0}, taken{0};
+  auto runs = [&] {
+    for (int i = 0; i < 200; ++i) {
+      try {
+        const FolderLock lock(dir / "out", "--out", "record");
+        most = std::max(most.load(), ++holders);
+        taken++;
+        holders--;
+      } catch (const InputError&) {
+      }
+    }
+  };
+  std::thread a(runs), b(runs), c(runs);
+  a.join();
+  b.join();
+  c.join();
+  EXPECT_EQ(most, 1);
+  EXPECT_GT(taken, 0);
+  EXPECT_FALSE(fs::exists(dir / "out.lock"));
+}
+
 }  // namespace
 }  // namespace romunect::jobs

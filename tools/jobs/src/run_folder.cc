@@ -65,8 +65,10 @@ bool RunFolder::TryCreate() {
   // The folder is made under a private name with its marker locked inside, then renamed into
   // place without replacing anything: no other run ever sees it without the marker.
   static std::atomic<int> counter{0};
-  const fs::path staging = work_dir_.parent_path() / ("." + work_dir_.filename().string() + ".new-" +
-                                                      std::to_string(::getpid()) + "-" + std::to_string(counter++));
+  std::string name = ".";  // built by appends: GCC 12 warns falsely (-Wrestrict) on "." + string
+  name += work_dir_.filename().string();
+  name += ".new-" + std::to_string(::getpid()) + "-" + std::to_string(counter++);
+  const fs::path staging = work_dir_.parent_path() / name;
   if (::mkdir(staging.c_str(), 0777) != 0) {
     throw InputError(work_dir_.string(), "", "cannot be created: " + Errno());
   }
@@ -156,6 +158,42 @@ void RunFolder::Commit() {
   done_ = true;
   Unlock();
   fs::remove(dir_ / kRunMarker);
+}
+
+FolderLock::FolderLock(const fs::path& folder, const std::string& option, const std::string& job)
+    : path_(fs::path(WithoutTrailingSeparators(folder).string() + ".lock")) {
+  std::error_code ec;
+  fs::create_directories(path_.parent_path().empty() ? fs::path(".") : path_.parent_path(), ec);
+  for (int attempt = 0; attempt < 4; ++attempt) {
+    const int fd = ::open(path_.c_str(), O_RDWR | O_CREAT | O_CLOEXEC | O_NOFOLLOW, 0644);
+    if (fd < 0) throw InputError(option, "", path_.string() + ": cannot be created: " + Errno());
+    if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+      const std::string holder = MarkerText(fd);
+      ::close(fd);
+      throw InputError(option, "",
+                       WithoutTrailingSeparators(folder).string() + ": another run is writing into it (" + holder +
+                           "; " + path_.string() + "); wait for it or choose another " + option);
+    }
+    // The file may have been released and removed between open and lock: lock the one at the path.
+    struct stat locked {
+    }, now{};
+    if (::fstat(fd, &locked) == 0 && ::stat(path_.c_str(), &now) == 0 && locked.st_ino == now.st_ino &&
+        locked.st_dev == now.st_dev) {
+      const std::string text = "made by romunect " + job + " (pid " + std::to_string(::getpid()) + ")\n";
+      const bool named = ::ftruncate(fd, 0) == 0 && ::pwrite(fd, text.data(), text.size(), 0) >= 0;
+      (void)named;  // the text only names the holder in messages: a lock without it still holds
+      fd_ = fd;
+      return;
+    }
+    ::close(fd);
+  }
+  throw InputError(option, "", path_.string() + ": other runs keep replacing it");
+}
+
+FolderLock::~FolderLock() {
+  if (fd_ < 0) return;
+  ::unlink(path_.c_str());  // while still locked: a waiter that opened it sees another inode and retries
+  ::close(fd_);
 }
 
 }  // namespace romunect::jobs

@@ -52,4 +52,23 @@ class RunFolder {
   bool begun_ = false, done_ = false;
 };
 
+// An exclusive lock for a run that writes into an output folder in place (calibrate's --out, which
+// may hold the calibration it updates; record's and render's OUT_DIR): the lock file
+// `<folder>.lock` beside the folder is created and locked (flock) for the lock's life, and removed
+// when it is released. Throws InputError, before any work, when another run holds it. A lock file
+// a killed run left is taken over.
+class FolderLock {
+ public:
+  FolderLock(const std::filesystem::path& folder, const std::string& option, const std::string& job);
+  ~FolderLock();
+  FolderLock(const FolderLock&) = delete;
+  FolderLock& operator=(const FolderLock&) = delete;
+
+  const std::filesystem::path& path() const { return path_; }
+
+ private:
+  std::filesystem::path path_;
+  int fd_ = -1;
+};
+
 }  // namespace romunect::jobs
