@@ -22,10 +22,10 @@ constexpr int kMaxJsonDepth = 64;
 constexpr int kMaxYamlDepth = 64;
 // The widest indentation of a YAML line, in columns: block nesting needs one column per level.
 constexpr int kMaxYamlIndent = 256;
-// Size of a text input file (JSON, YAML, CSV). A calibration file with its depth maps inline at
-// 1280 x 1024 is ~30 MB.
+// Size of a text input file (JSON, YAML, CSV). A calibration file with its two depth maps inline
+// at 1280 x 1024 is ~40 MB.
 constexpr size_t kMaxTextFileBytes = size_t{256} << 20;
-// Size of an image file: a 16384 x 1024 float EXR without compression is 64 MB.
+// Size of an image file: the largest image read (2^24 float pixels) is 64 MB uncompressed.
 constexpr size_t kMaxImageFileBytes = size_t{256} << 20;
 // Image dimensions, read from the file's header before anything is decoded.
 constexpr int kMaxImageSidePx = 16384;
