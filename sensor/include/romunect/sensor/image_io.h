@@ -49,6 +49,12 @@ std::optional<HeightMapGeometry> ReadHeightMapGeometry(const std::filesystem::pa
 cv::Mat ReadPng16(const std::filesystem::path& path, const std::optional<cv::Size>& expected = std::nullopt);
 cv::Mat DecodePng16(std::string_view bytes, const std::string& source,
                     const std::optional<cv::Size>& expected = std::nullopt);
+// Reads a picture of any format OpenCV reads (PNG, JPEG, BMP, TIFF: calibration board views) as
+// stored (IMREAD_UNCHANGED), or an empty Mat when OpenCV cannot decode it. A regular file only; for
+// PNG, JPEG and BMP the size is read from the header and checked against input_limits.h's bounds
+// before decoding (InputError "image size").
+cv::Mat ReadPicture(const std::filesystem::path& path);
+
 // Writes a CV_16U Mat as a 16-bit PNG.
 void WritePng16(const std::filesystem::path& path, const cv::Mat& image,
                 ImageCompression compression = ImageCompression::kCompact);
