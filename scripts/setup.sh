@@ -9,6 +9,8 @@ packages=(
   libembree-dev libmujoco-dev libopenexr-dev libopenni2-dev
   nlohmann-json3-dev libcli11-dev zlib1g-dev libpng-dev
   libgtest-dev libgmock-dev libbenchmark-dev
+  # The fuzz targets (scripts/fuzz.sh): clang and its libFuzzer runtime (libclang_rt.fuzzer).
+  clang libclang-rt-14-dev
   # Packaging traps: MuJoCo's CMake target needs qhull and GL; OpenEXR's Imath config
   # needs python3-imath.
   libqhull-dev libgl-dev python3-imath

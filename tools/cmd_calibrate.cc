@@ -8,6 +8,7 @@
 #include <memory>
 
 #include "commands.h"
+#include "romunect/calib/chain.h"
 #include "romunect/tools/jobs/calibrate.h"
 
 namespace romunect::tools {
@@ -37,11 +38,13 @@ void AddCalibrateCommand(CLI::App& app) {
                         "No step named: output folder of the in-the-loop run (default calibration)");
   calibrate->add_option("--seed", loop->seed, "Seed of the simulated rig's nominal errors, noise and view jitter");
   calibrate->add_option("--rig", loop->rig, "Rig preset (romunect, kinect-v1) or rig JSON file (default romunect)");
+  // The printed ranges are the validator's (calib::ChainOptions::Problem).
+  const calib::ChainOptions chain;
   calibrate->add_option("--views", loop->views, "Board views for the intrinsics (default 20)")
-      ->check(CLI::Range(3, 200));
+      ->check(CLI::Range(chain.MinViews(), 200));
   calibrate->add_option("--stations", loop->stations, "Hand-eye stations (default 15)")->check(CLI::Range(3, 200));
   calibrate->add_option("--planes", loop->planes, "Reference-plane captures for the depth step (default 12)")
-      ->check(CLI::Range(2, 200));
+      ->check(CLI::Range(chain.MinPlanes(), 200));
   calibrate->add_option("--board-samples", loop->board_samples, "Sub-pixel samples per axis for board images (odd)");
   calibrate->add_option("--threads", loop->threads, "Simulation threads (default 2)")->check(CLI::Range(1, 64));
   calibrate->add_flag("--overwrite-worse", loop->overwrite_worse, "Replace an existing file even when worse");

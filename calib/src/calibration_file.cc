@@ -11,6 +11,7 @@
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/image_io.h"
+#include "romunect/sensor/input_limits.h"
 
 namespace romunect::calib {
 namespace fs = std::filesystem;
@@ -36,6 +37,7 @@ cv::Mat PoseToMat(const Pose& T) {
 cv::Mat ReadMat(const cv::FileNode& root, const std::string& key, int rows, int cols, const std::string& source) {
   const cv::FileNode node = root[key];
   if (node.empty()) throw InputError(source, key, "missing");
+  CheckMatrixNode(node, rows, cols, source, key);
   cv::Mat m;
   try {
     node >> m;
@@ -87,13 +89,21 @@ cv::Mat ReadMap(const cv::FileNode& depth, const std::string& name, const fs::pa
   if (!depth[name + "_exr"].empty()) {
     const fs::path exr = file.parent_path() / ReadString(depth, name + "_exr", source, field + "_exr");
     try {
-      map = ReadDepthExr(exr);
+      map = ReadDepthExr(exr, cv::Size(camera.width, camera.height));
     } catch (const InputError& e) {
       throw InputError(source, field + "_exr", e.what());
     }
   } else {
     const cv::FileNode node = depth[name];
     if (node.empty()) throw InputError(source, field, "missing (neither " + name + " nor " + name + "_exr)");
+    // OpenCV allocates rows x cols before it reads the data: check the size it will take first.
+    const cv::FileNode rows = node["rows"], cols = node["cols"];
+    if (!rows.isInt() || !cols.isInt() || static_cast<int>(rows) != camera.height ||
+        static_cast<int>(cols) != camera.width) {
+      throw InputError(source, field,
+                       "must be an OpenCV matrix of the image size " + std::to_string(camera.width) + "x" +
+                           std::to_string(camera.height) + " (rows and cols)");
+    }
     try {
       node >> map;
     } catch (const cv::Exception&) {
@@ -134,20 +144,13 @@ constexpr ResidualField kResidualFields[] = {
 // Opens a calibration file and checks its format and version.
 cv::FileStorage OpenCalibrationFile(const fs::path& path) {
   const std::string source = path.string();
-  if (!fs::is_regular_file(path)) throw InputError(source, "", "no such calibration file");
-  cv::FileStorage fs;
-  try {
-    if (!fs.open(source, cv::FileStorage::READ | cv::FileStorage::FORMAT_YAML)) {
-      throw InputError(source, "", "cannot be opened as an OpenCV YAML file");
-    }
-  } catch (const cv::Exception& e) {
-    throw InputError(source, "", std::string("not a valid OpenCV YAML file: ") + e.what());
-  }
+  cv::FileStorage fs = OpenFileStorage(path, "calibration file");
   const cv::FileNode root = fs.root();
   if (ReadString(root, "format", source, "format") != kCalibrationFormat) {
     throw InputError(source, "format", std::string("must be \"") + kCalibrationFormat + "\"");
   }
-  if (static_cast<int>(ReadReal(root, "version", source, "version")) != kCalibrationVersion) {
+  // Exactly the version: 1.9 is not 1, and a cast of 1e300 to int would be undefined.
+  if (ReadReal(root, "version", source, "version") != static_cast<double>(kCalibrationVersion)) {
     throw InputError(source, "version", "must be " + std::to_string(kCalibrationVersion));
   }
   return fs;
@@ -303,12 +306,21 @@ Calibration ReadWholeCalibration(const cv::FileNode& root, const fs::path& path)
 
 }  // namespace
 
-Calibration LoadCalibration(const fs::path& path) {
-  const cv::FileStorage fs = OpenCalibrationFile(path);
-  return ReadWholeCalibration(fs.root(), path);
+namespace {
+
+// OpenCV throws when a node is of another kind than asked for (a list where a map is read).
+template <typename Read>
+Calibration WithOpenCvErrorsAsInputErrors(const fs::path& path, Read read) {
+  try {
+    return read();
+  } catch (const InputError&) {
+    throw;
+  } catch (const std::exception& e) {
+    throw InputError(path.string(), "", std::string("not a valid calibration file: ") + e.what());
+  }
 }
 
-Calibration LoadDeviceCalibration(const fs::path& path) {
+Calibration ReadDeviceCalibration(const fs::path& path) {
   const std::string source = path.string();
   const cv::FileStorage fs = OpenCalibrationFile(path);
   const cv::FileNode root = fs.root();
@@ -325,6 +337,17 @@ Calibration LoadDeviceCalibration(const fs::path& path) {
   c.camera = CameraModel::Read(root, source);
   c.T_H_C = ReadPose(root, "T_H_C", source);
   return c;
+}
+
+}  // namespace
+
+Calibration LoadCalibration(const fs::path& path) {
+  return WithOpenCvErrorsAsInputErrors(path,
+                                       [&] { return ReadWholeCalibration(OpenCalibrationFile(path).root(), path); });
+}
+
+Calibration LoadDeviceCalibration(const fs::path& path) {
+  return WithOpenCvErrorsAsInputErrors(path, [&] { return ReadDeviceCalibration(path); });
 }
 
 std::string HandEyeWarning(const Calibration& calibration, const std::string& path) {

@@ -115,16 +115,18 @@ BoardCaptures CaptureBoardViews(CalibrationHardware* hw, const ChainOptions& opt
 
 }  // namespace
 
+int ChainOptions::MinViews() const { return std::max(3, intrinsics.min_views); }
+int ChainOptions::MinPlanes() const { return std::max(2, depth.min_planes); }
+
 std::string ChainOptions::Problem() const {
   std::ostringstream s;
   // The steps' own minimums: fewer planned captures could never succeed.
-  if (views < std::max(3, intrinsics.min_views)) {
-    s << "views = " << views << ": need at least " << std::max(3, intrinsics.min_views) << " (the intrinsics step)";
+  if (views < MinViews()) {
+    s << "views = " << views << ": need at least " << MinViews() << " (the intrinsics step)";
   } else if (stations < 3) {
     s << "stations = " << stations << ": need at least 3 (hand-eye)";
-  } else if (depth_planes < std::max(2, depth.min_planes)) {
-    s << "depth_planes = " << depth_planes << ": need at least " << std::max(2, depth.min_planes)
-      << " (the depth step)";
+  } else if (depth_planes < MinPlanes()) {
+    s << "depth_planes = " << depth_planes << ": need at least " << MinPlanes() << " (the depth step)";
   } else if (!(view_distance_spread >= 0 && view_distance_spread < 0.5)) {
     s << "view_distance_spread = " << view_distance_spread << ": must be in [0, 0.5)";
   } else if (!(view_distance_m > 0) || !(homography_distance_m > 0)) {

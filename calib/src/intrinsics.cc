@@ -10,8 +10,10 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "romunect/calib/picture.h"
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/errors.h"
+#include "romunect/sensor/image_io.h"
 
 namespace romunect::calib {
 namespace fs = std::filesystem;
@@ -172,7 +174,7 @@ DetectedViews DetectBoardInFolder(const fs::path& dir, const BoardSpec& board) {
   }
   DetectedViews out;
   for (const fs::path& file : files) {
-    const cv::Mat image = cv::imread(file.string(), cv::IMREAD_UNCHANGED);
+    const cv::Mat image = ReadPicture(file);  // a bomb is refused from its header, before decoding
     if (image.empty()) {
       out.rejected.emplace_back(file.filename().string(), "cannot be read as an image");
       continue;

@@ -1,6 +1,8 @@
 #include "romunect/sensor/camera_model.h"
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <sstream>
 
 #include <Eigen/LU>
@@ -8,6 +10,7 @@
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/image_io.h"
+#include "romunect/sensor/input_limits.h"
 
 namespace romunect {
 namespace {
@@ -43,15 +46,33 @@ double ReadNumber(const cv::FileNode& node, const char* key, const std::string& 
 
 std::string CameraModel::Problem() const {
   std::ostringstream s;
+  // Physical bounds: focal lengths for fields of view from ~0.1 to ~179 degrees, a principal point
+  // within a few image sizes of the image, distortion far beyond any lens's (|k| <= 100, |p| <= 1).
+  const double side_px = std::max(width, height);
   if (width <= 0 || height <= 0) {
     s << "image size " << width << " x " << height << " must be positive";
+  } else if (width > kMaxImageSidePx || height > kMaxImageSidePx ||
+             static_cast<int64_t>(width) * height > kMaxImagePixels) {
+    s << "image size " << width << " x " << height << " is beyond " << kMaxImageSidePx << " pixels a side or "
+      << kMaxImagePixels << " pixels";
   } else if (!(std::isfinite(fx) && std::isfinite(fy) && fx > 0 && fy > 0)) {
     s << "focal lengths fx = " << fx << ", fy = " << fy << " must be positive and finite";
+  } else if (!(fx >= 0.005 * side_px && fy >= 0.005 * side_px && fx <= 1000 * side_px && fy <= 1000 * side_px)) {
+    s << "focal lengths fx = " << fx << ", fy = " << fy << " px must lie in [" << 0.005 * side_px << ", "
+      << 1000 * side_px << "] (0.005 to 1000 times the image's longer side)";
   } else if (!(std::isfinite(cx) && std::isfinite(cy))) {
     s << "principal point must be finite";
+  } else if (!(std::abs(cx) <= 10.0 * side_px && std::abs(cy) <= 10.0 * side_px)) {
+    s << "principal point (" << cx << ", " << cy << ") must lie within 10 image sizes of the image";
   } else {
     for (double k : distortion) {
       if (!std::isfinite(k)) return "distortion coefficients must be finite";
+    }
+    for (int i : {0, 1, 4}) {
+      if (std::abs(distortion[i]) > 100.0) return "radial distortion k1, k2, k3 must lie in [-100, 100]";
+    }
+    for (int i : {2, 3}) {
+      if (std::abs(distortion[i]) > 1.0) return "tangential distortion p1, p2 must lie in [-1, 1]";
     }
     // Distortion must stay invertible over the image: every border pixel has an undistorted
     // preimage, and the Jacobian of Distort stays positive on the way out to it.
@@ -158,9 +179,16 @@ CameraModel CameraModel::Read(const cv::FileNode& node, const std::string& sourc
   if (width != std::floor(width) || height != std::floor(height)) {
     throw InputError(source, "image_width/image_height", "must be whole numbers");
   }
+  // Checked before the cast: a double beyond int's range (1e300) has no int.
+  if (!(width >= 1 && height >= 1 && width <= kMaxImageSidePx && height <= kMaxImageSidePx)) {
+    throw InputError(source, "image_width/image_height",
+                     "must lie in [1, " + std::to_string(kMaxImageSidePx) + "] pixels");
+  }
   camera.width = static_cast<int>(width);
   camera.height = static_cast<int>(height);
   cv::Mat K, d;
+  CheckMatrixNode(node["camera_matrix"], 3, 3, source, "camera_matrix");
+  CheckMatrixNode(node["distortion_coefficients"], 14, 14, source, "distortion_coefficients");
   try {
     node["camera_matrix"] >> K;
     node["distortion_coefficients"] >> d;
@@ -202,15 +230,14 @@ void CameraModel::Save(const std::filesystem::path& path) const {
 }
 
 CameraModel CameraModel::Load(const std::filesystem::path& path) {
-  if (!std::filesystem::exists(path)) throw InputError(path.string(), "", "file not found");
-  cv::FileStorage fs;
+  const cv::FileStorage fs = OpenFileStorage(path, "YAML/JSON/XML camera file");
   try {
-    fs.open(path.string(), cv::FileStorage::READ);
-  } catch (const cv::Exception& e) {
-    throw InputError(path.string(), "", std::string("not a readable YAML/JSON/XML file: ") + e.what());
+    return Read(fs.root(), path.string());
+  } catch (const InputError&) {
+    throw;
+  } catch (const std::exception& e) {  // OpenCV's: a node of another kind than asked for (a list for a map)
+    throw InputError(path.string(), "", std::string("not a valid camera file: ") + e.what());
   }
-  if (!fs.isOpened()) throw InputError(path.string(), "", "cannot be opened by cv::FileStorage");
-  return Read(fs.root(), path.string());
 }
 
 }  // namespace romunect

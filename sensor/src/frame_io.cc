@@ -1,5 +1,6 @@
 #include "romunect/sensor/frame_io.h"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdio>
@@ -181,6 +182,26 @@ FrameDirectoryManifest ReadFrameDirectoryManifest(const fs::path& dir) {
   return manifest;
 }
 
+namespace {
+
+// The image's path, refused when a symbolic link on the way leads out of the frame directory.
+fs::path ImageInside(const fs::path& dir, const std::string& relative) {
+  const fs::path path = dir / relative;
+  std::error_code ec;
+  const fs::path root = fs::weakly_canonical(dir, ec);
+  const fs::path target = ec ? fs::path() : fs::weakly_canonical(path, ec);
+  if (ec) throw InputError(path.string(), "", "cannot be resolved: " + ec.message());
+  const auto [end, ignored] = std::mismatch(root.begin(), root.end(), target.begin(), target.end());
+  if (end != root.end()) {
+    throw InputError(path.string(), "",
+                     "leads out of the frame directory through a symbolic link (to " + target.string() +
+                         "); images must lie inside it");
+  }
+  return path;
+}
+
+}  // namespace
+
 Frame LoadFrame(const fs::path& dir, const FrameDirectoryManifest& manifest, size_t i, InvalidDepthPolicy policy,
                 size_t* skipped_pixels) {
   ROMUNECT_CHECK(i < manifest.frames.size());
@@ -190,22 +211,23 @@ Frame LoadFrame(const fs::path& dir, const FrameDirectoryManifest& manifest, siz
   frame.time_s = record.time_s;
   frame.T_W_C = record.T_W_C;
   frame.T_B_H = record.T_B_H;
+  const cv::Size size(manifest.camera.width, manifest.camera.height);  // refused from the header, before decoding
   if (!record.depth.empty()) {
-    frame.depth_m = ReadDepthExr(dir / record.depth);
+    frame.depth_m = ReadDepthExr(ImageInside(dir, record.depth), size);
     CheckImage(frame.depth_m, manifest.camera, CV_32F, dir / record.depth);
     CheckDepthValues(&frame.depth_m, dir / record.depth, policy, skipped_pixels);
   }
   if (!record.gt_depth.empty()) {
-    frame.gt_depth_m = ReadDepthExr(dir / record.gt_depth);
+    frame.gt_depth_m = ReadDepthExr(ImageInside(dir, record.gt_depth), size);
     CheckImage(frame.gt_depth_m, manifest.camera, CV_32F, dir / record.gt_depth);
     CheckDepthValues(&frame.gt_depth_m, dir / record.gt_depth, policy, skipped_pixels);
   }
   if (!record.ir.empty()) {
-    frame.ir = ReadPng16(dir / record.ir);
+    frame.ir = ReadPng16(ImageInside(dir, record.ir), size);
     CheckImage(frame.ir, manifest.camera, CV_16U, dir / record.ir);
   }
   if (!record.raw.empty()) {
-    frame.raw = ReadPng16(dir / record.raw);
+    frame.raw = ReadPng16(ImageInside(dir, record.raw), size);
     CheckImage(frame.raw, manifest.camera, CV_16U, dir / record.raw);
   }
   return frame;

@@ -9,16 +9,20 @@
 #include <cstring>
 #include <fstream>
 #include <memory>
+#include <sstream>
 #include <string>
+#include <string_view>
 
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <Iex.h>
 #include <ImfChannelList.h>
 #include <ImfCompression.h>
 #include <ImfDoubleAttribute.h>
 #include <ImfFrameBuffer.h>
 #include <ImfHeader.h>
+#include <ImfIO.h>
 #include <ImfInputFile.h>
 #include <ImfOutputFile.h>
 #include <ImfVecAttribute.h>
@@ -27,6 +31,7 @@
 
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/errors.h"
+#include "romunect/sensor/input_limits.h"
 
 namespace romunect {
 namespace fs = std::filesystem;
@@ -172,12 +177,26 @@ void WriteAtomically(const fs::path& path, const std::function<void(const fs::pa
 }
 
 namespace {
-// Writes text to file (no temporary); errors name `path`.
+// Writes text to file (no temporary); errors name `path` and say why (a full disk: "No space left
+// on device").
 void WritePlain(const fs::path& file, const std::string& text, const fs::path& path) {
-  std::ofstream out(file, std::ios::binary);
-  out << text;
-  out.close();
-  if (!out) throw InputError(path.string(), "", "cannot write file");
+  const int fd = ::open(file.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) throw InputError(path.string(), "", std::string("cannot write file: ") + std::strerror(errno));
+  const char* data = text.data();
+  size_t left = text.size();
+  int error = 0;
+  while (left > 0 && error == 0) {
+    const ssize_t n = ::write(fd, data, left);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      error = n < 0 ? errno : EIO;
+    } else {
+      data += n;
+      left -= static_cast<size_t>(n);
+    }
+  }
+  if (::close(fd) != 0 && error == 0) error = errno;
+  if (error != 0) throw InputError(path.string(), "", std::string("cannot write file: ") + std::strerror(error));
 }
 }  // namespace
 
@@ -245,24 +264,149 @@ void WriteFrameFileAtomically(const fs::path& path, const std::string& bytes) {
 
 }  // namespace
 
-cv::Mat ReadDepthExr(const fs::path& path) {
-  if (!fs::exists(path)) throw InputError(path.string(), "", "file not found");
+namespace {
+
+// An OpenEXR input stream over bytes in memory; reading past the end throws as a short file does.
+class MemoryIStream : public Imf::IStream {
+ public:
+  MemoryIStream(std::string_view bytes, const std::string& name) : Imf::IStream(name.c_str()), bytes_(bytes) {}
+  bool read(char c[], int n) override {
+    if (n < 0 || pos_ > bytes_.size() || static_cast<size_t>(n) > bytes_.size() - pos_) {
+      throw Iex::InputExc("unexpected end of file");
+    }
+    std::memcpy(c, bytes_.data() + pos_, static_cast<size_t>(n));
+    pos_ += static_cast<size_t>(n);
+    return pos_ < bytes_.size();
+  }
+  uint64_t tellg() override { return pos_; }
+  void seekg(uint64_t pos) override { pos_ = pos; }
+
+ private:
+  std::string_view bytes_;
+  uint64_t pos_ = 0;
+};
+
+uint32_t Le32(std::string_view b, size_t at) {
+  uint32_t v = 0;
+  for (int i = 3; i >= 0; --i) v = (v << 8) | static_cast<unsigned char>(b[at + i]);
+  return v;
+}
+uint32_t Be32(std::string_view b, size_t at) {
+  uint32_t v = 0;
+  for (int i = 0; i < 4; ++i) v = (v << 8) | static_cast<unsigned char>(b[at + i]);
+  return v;
+}
+
+// OpenEXR reads an attribute of a known type by its content, not its declared size: a value whose
+// content does not end where its size says would leave the reader elsewhere than this scan.
+// Returns why a value does not match its type, or "".
+std::string ExrAttributeProblem(std::string_view value, std::string_view type, size_t max_name) {
+  static const std::pair<std::string_view, size_t> kFixed[] = {
+      {"box2i", 16},      {"box2f", 16},   {"chromaticities", 32},
+      {"compression", 1}, {"double", 8},   {"envmap", 1},
+      {"float", 4},       {"int", 4},      {"keycode", 28},
+      {"lineOrder", 1},   {"m33f", 36},    {"m33d", 72},
+      {"m44f", 64},       {"m44d", 128},   {"rational", 8},
+      {"tiledesc", 9},    {"timecode", 8}, {"v2i", 8},
+      {"v2f", 8},         {"v2d", 16},     {"v3i", 12},
+      {"v3f", 12},        {"v3d", 24},     {"deepImageState", 1}};
+  for (const auto& [name, size] : kFixed) {
+    if (type == name) return value.size() == size ? "" : "a " + std::string(type) + " of the wrong size";
+  }
+  if (type == "chlist") {  // names with 16 bytes each, then an empty name: exactly the value
+    size_t at = 0;
+    while (at < value.size() && value[at] != '\0') {
+      const size_t end = value.find('\0', at);
+      if (end == std::string_view::npos || end - at > max_name || value.size() - end - 1 < 16)
+        return "bad channel list";
+      at = end + 1 + 16;
+    }
+    return at + 1 == value.size() ? "" : "bad channel list";
+  }
+  if (type == "preview") {  // width, height, then 4 bytes per pixel
+    if (value.size() < 8) return "bad preview";
+    const uint64_t pixels = static_cast<uint64_t>(Le32(value, 0)) * Le32(value, 4);
+    return value.size() - 8 == 4 * pixels ? "" : "bad preview";
+  }
+  return "";  // strings, vectors and unknown types are read by their size
+}
+
+// The data window's size from the header of an OpenEXR file, read by hand so that nothing is
+// allocated by what the file claims: attributes are "name\0type\0" + int32 size + value. Every
+// attribute must lie inside the file (OpenEXR allocates the size an unknown one claims). Only
+// single-part scanline or tiled files are read, as romunect writes and OpenCV reads.
+cv::Size2l ExrHeaderSize(std::string_view b, const std::string& source) {
+  const auto fail = [&](const std::string& why) -> cv::Size2l {
+    throw InputError(source, "", "not a readable OpenEXR file: " + why);
+  };
+  if (b.size() < 8 || Le32(b, 0) != 20000630) return fail("no OpenEXR magic number");
+  if (Le32(b, 4) & (0x800 | 0x1000)) return fail("deep or multi-part files are not read");
+  // Names and types as OpenEXR reads them: at most 31 characters, 255 with the long-names flag.
+  const size_t max_name = (Le32(b, 4) & 0x400) ? 255 : 31;
+  std::optional<cv::Size2l> size;
+  size_t at = 8;
+  while (true) {
+    if (at >= b.size()) return fail("truncated header");
+    if (b[at] == '\0') break;  // end of the header
+    const size_t name_end = b.find('\0', at);
+    const size_t type_end = name_end == std::string_view::npos ? name_end : b.find('\0', name_end + 1);
+    if (type_end == std::string_view::npos || b.size() - type_end < 5) return fail("truncated header");
+    if (name_end - at > max_name || type_end - name_end - 1 > max_name) return fail("an attribute name is too long");
+    const std::string_view name = b.substr(at, name_end - at);
+    const uint32_t length = Le32(b, type_end + 1);
+    const size_t value = type_end + 5;
+    if (length > b.size() - value) {
+      return fail("attribute " + std::string(name) + " claims " + std::to_string(length) +
+                  " bytes, past the file's end");
+    }
+    if (const std::string why = ExrAttributeProblem(b.substr(value, length),
+                                                    b.substr(name_end + 1, type_end - name_end - 1), max_name);
+        !why.empty()) {
+      return fail("attribute " + std::string(name) + ": " + why);
+    }
+    if (name == "dataWindow") {
+      if (length != 16) return fail("dataWindow is not a box2i");
+      const auto at_i = [&](int k) { return static_cast<int64_t>(static_cast<int32_t>(Le32(b, value + 4 * k))); };
+      size = cv::Size2l(at_i(2) - at_i(0) + 1, at_i(3) - at_i(1) + 1);
+    }
+    at = value + length;
+  }
+  if (!size) return fail("no dataWindow");
+  return *size;
+}
+
+// Refuses an image whose header size is out of bounds or not the expected one, before decoding.
+void CheckHeaderSize(cv::Size2l size, const std::optional<cv::Size>& expected, const std::string& source) {
+  CheckImageDimensions(size.width, size.height, source);
+  if (expected && (size.width != expected->width || size.height != expected->height)) {
+    std::ostringstream s;
+    s << "expected " << expected->width << " x " << expected->height << ", found " << size.width << " x "
+      << size.height;
+    throw InputError(source, "image size", s.str());
+  }
+}
+
+}  // namespace
+
+cv::Mat DecodeDepthExr(std::string_view bytes, const std::string& source, const std::optional<cv::Size>& expected) {
+  CheckHeaderSize(ExrHeaderSize(bytes, source), expected, source);
   try {
-    Imf::InputFile file(path.c_str());
+    MemoryIStream stream(bytes, source);
+    Imf::InputFile file(stream);
     const Imath::Box2i window = file.header().dataWindow();
     const int width = window.max.x - window.min.x + 1;
     const int height = window.max.y - window.min.y + 1;
+    CheckHeaderSize({width, height}, expected, source);  // OpenEXR's own reading of the header agrees
     const Imf::Channel* channel = file.header().channels().findChannel("Z");
     if (channel == nullptr) {
       std::string names;
       for (auto it = file.header().channels().begin(); it != file.header().channels().end(); ++it) {
         names += std::string(names.empty() ? "" : ", ") + it.name();
       }
-      throw InputError(path.string(), "channel Z",
-                       "missing (expected one float32 channel named Z; found: " + names + ")");
+      throw InputError(source, "channel Z", "missing (expected one float32 channel named Z; found: " + names + ")");
     }
     if (channel->type != Imf::FLOAT) {
-      throw InputError(path.string(), "channel Z", "must be float32 (found half or uint)");
+      throw InputError(source, "channel Z", "must be float32 (found half or uint)");
     }
     cv::Mat depth(height, width, CV_32F);
     Imf::FrameBuffer buffer;
@@ -277,8 +421,12 @@ cv::Mat ReadDepthExr(const fs::path& path) {
   } catch (const InputError&) {
     throw;
   } catch (const std::exception& e) {
-    throw InputError(path.string(), "", std::string("not a readable OpenEXR file: ") + e.what());
+    throw InputError(source, "", std::string("not a readable OpenEXR file: ") + e.what());
   }
+}
+
+cv::Mat ReadDepthExr(const fs::path& path, const std::optional<cv::Size>& expected) {
+  return DecodeDepthExr(ReadInputFile(path, kMaxImageFileBytes, "OpenEXR file"), path.string(), expected);
 }
 
 namespace {
@@ -335,9 +483,12 @@ void WriteHeightMapExr(const fs::path& path, const cv::Mat& height_m, const Heig
 }
 
 std::optional<HeightMapGeometry> ReadHeightMapGeometry(const fs::path& path) {
-  if (!fs::exists(path)) throw InputError(path.string(), "", "file not found");
+  const std::string source = path.string();
+  const std::string bytes = ReadInputFile(path, kMaxImageFileBytes, "OpenEXR file");
+  CheckHeaderSize(ExrHeaderSize(bytes, source), std::nullopt, source);
   try {
-    Imf::InputFile file(path.c_str());
+    MemoryIStream stream(bytes, source);
+    Imf::InputFile file(stream);
     const Imf::Header& header = file.header();
     const auto* min = header.findTypedAttribute<Imf::V3dAttribute>(kMinAttribute);
     const auto* voxel = header.findTypedAttribute<Imf::DoubleAttribute>(kVoxelAttribute);
@@ -352,30 +503,32 @@ std::optional<HeightMapGeometry> ReadHeightMapGeometry(const fs::path& path) {
     g.ny = window.max.y - window.min.y + 1;
     return g;
   } catch (const std::exception& e) {
-    throw InputError(path.string(), "", std::string("not a readable OpenEXR file: ") + e.what());
+    throw InputError(source, "", std::string("not a readable OpenEXR file: ") + e.what());
   }
 }
 
-cv::Mat ReadPng16(const fs::path& path) {
-  if (!fs::exists(path)) throw InputError(path.string(), "", "file not found");
+cv::Mat DecodePng16(std::string_view bytes, const std::string& source, const std::optional<cv::Size>& expected) {
+  // The signature, then IHDR first (the PNG standard's order): width, height, bit depth, colour type.
+  static constexpr char kSignature[] = "\x89PNG\r\n\x1a\n";
+  if (bytes.size() < 33 || bytes.compare(0, 8, kSignature) != 0 || bytes.compare(12, 4, "IHDR") != 0) {
+    throw InputError(source, "", "not a readable PNG image (no PNG signature and header)");
+  }
+  CheckHeaderSize({static_cast<int64_t>(Be32(bytes, 16)), static_cast<int64_t>(Be32(bytes, 20))}, expected, source);
+  const int bit_depth = static_cast<unsigned char>(bytes[24]);
+  const int colour_type = static_cast<unsigned char>(bytes[25]);
+  if (bit_depth != 16 || colour_type != 0) {
+    throw InputError(source, "pixel type",
+                     "expected a 16-bit single-channel PNG, found bit depth " + std::to_string(bit_depth) +
+                         " and colour type " + std::to_string(colour_type));
+  }
   // libpng's simplified API: no longjmp through our frames. A 16-bit file without gamma chunks
   // reads as linear, so the samples come through unchanged (in native byte order).
   png_image png{};
   png.version = PNG_IMAGE_VERSION;
-  if (png_image_begin_read_from_file(&png, path.c_str()) == 0) {
+  if (png_image_begin_read_from_memory(&png, bytes.data(), bytes.size()) == 0) {
     const std::string why = png.message;
     png_image_free(&png);
-    throw InputError(path.string(), "", "not a readable PNG image (" + why + ")");
-  }
-  const bool grey16 = (png.format & PNG_FORMAT_FLAG_LINEAR) != 0 && (png.format & PNG_FORMAT_FLAG_COLOR) == 0 &&
-                      (png.format & PNG_FORMAT_FLAG_ALPHA) == 0;
-  if (!grey16) {
-    png_image_free(&png);
-    throw InputError(path.string(), "pixel type",
-                     "expected a 16-bit single-channel PNG, found " +
-                         std::string((png.format & PNG_FORMAT_FLAG_LINEAR) != 0 ? "16" : "8") + "-bit " +
-                         ((png.format & PNG_FORMAT_FLAG_COLOR) != 0 ? "colour" : "grey") +
-                         ((png.format & PNG_FORMAT_FLAG_ALPHA) != 0 ? " with alpha" : ""));
+    throw InputError(source, "", "not a readable PNG image (" + why + ")");
   }
   png.format = PNG_FORMAT_LINEAR_Y;
   cv::Mat image(static_cast<int>(png.height), static_cast<int>(png.width), CV_16UC1);
@@ -384,9 +537,14 @@ cv::Mat ReadPng16(const fs::path& path) {
                             nullptr) == 0) {
     const std::string why = png.message;
     png_image_free(&png);
-    throw InputError(path.string(), "", "cannot be decoded: " + why);
+    throw InputError(source, "", "cannot be decoded: " + why);
   }
   return image;
+}
+
+namespace {
+cv::Mat ReadPng16(const fs::path& path, const std::optional<cv::Size>& expected) {
+  return DecodePng16(ReadInputFile(path, kMaxImageFileBytes, "PNG file"), path.string(), expected);
 }
 
 namespace {

@@ -5,13 +5,13 @@
 #include <array>
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <sstream>
 #include <string>
 
 #include <nlohmann/json.hpp>
 
 #include "romunect/sensor/errors.h"
+#include "romunect/sensor/input_limits.h"
 
 namespace romunect::json_fields {
 
@@ -19,16 +19,14 @@ using nlohmann::json;
 
 inline const char* TypeName(const json& j) { return j.type_name(); }
 
-// Parses a whole file; malformed or truncated JSON names the byte where parsing stopped.
+// Parses a whole file; malformed or truncated JSON names the byte where parsing stopped. Only a
+// regular file of at most kMaxTextFileBytes is read, and nesting past kMaxJsonDepth is refused
+// before nlohmann::json (whose copies recurse) sees it.
 inline json ParseFile(const std::filesystem::path& path) {
-  std::error_code ec;
-  if (std::filesystem::is_directory(path, ec)) throw InputError(path.string(), "", "is a folder, not a JSON file");
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw InputError(path.string(), "", "file not found or not readable");
-  std::stringstream text;
-  text << in.rdbuf();
+  const std::string text = ReadInputFile(path, kMaxTextFileBytes, "JSON file");
+  CheckJsonNesting(text, path.string());
   try {
-    return json::parse(text.str());
+    return json::parse(text);
   } catch (const json::exception& e) {  // syntax, and numbers out of a double's range (1e999)
     throw InputError(path.string(), "", std::string("malformed JSON (") + e.what() + ")");
   }
@@ -82,6 +80,10 @@ class Field {
     if (!value_.is_number_integer()) {
       Fail(std::string("expected an integer, found ") + (value_.is_number() ? value_.dump() : TypeName(value_)));
     }
+    // An unsigned value above 2^63 (2^64 - 1) would wrap to a negative long long: checked as unsigned.
+    if (value_.is_number_unsigned() && value_.get<unsigned long long>() > 2147483647ULL) {
+      Fail("integer out of range: " + value_.dump());
+    }
     const auto x = value_.get<long long>();
     if (x < -2147483647LL || x > 2147483647LL) Fail("integer out of range: " + value_.dump());
     return static_cast<int>(x);
@@ -89,7 +91,10 @@ class Field {
 
   std::string String() const {
     if (!value_.is_string()) Fail(std::string("expected a string, found ") + TypeName(value_));
-    return value_.get<std::string>();
+    std::string text = value_.get<std::string>();
+    // "\u0000" would cut a path or name short where C strings take over.
+    if (text.find('\0') != std::string::npos) Fail("a string may not hold a NUL character (\\u0000)");
+    return text;
   }
 
   bool Bool() const {

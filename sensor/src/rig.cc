@@ -1,6 +1,8 @@
 #include "romunect/sensor/rig.h"
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <sstream>
 
 #include <Eigen/LU>
@@ -43,12 +45,22 @@ FieldProblem Prefixed(const std::string& prefix, const FieldProblem& problem) {
 std::string ProjectorModel::Problem() const { return Check().ToString(); }
 
 FieldProblem ProjectorModel::Check() const {
-  if (width <= 0) return Bad("width", "must be positive", width);
-  if (height <= 0) return Bad("height", "must be positive", height);
-  if (!(std::isfinite(fx) && fx > 0)) return Bad("fx", "must be positive and finite", fx);
-  if (!(std::isfinite(fy) && fy > 0)) return Bad("fy", "must be positive and finite", fy);
-  if (!Finite({cx})) return Bad("cx", "must be finite", cx);
-  if (!Finite({cy})) return Bad("cy", "must be finite", cy);
+  // The projector's image is rendered and stored whole: the image bounds of input_limits.h apply.
+  if (width <= 0 || width > kMaxImageSidePx) return Bad("width", "must be in [1, 16384] px", width);
+  if (height <= 0 || height > kMaxImageSidePx) return Bad("height", "must be in [1, 16384] px", height);
+  if (static_cast<int64_t>(width) * height > kMaxImagePixels) {
+    return Bad("width", "width x height must be at most 16777216 px", static_cast<double>(width) * height);
+  }
+  // Fields of view from ~0.1 to ~179 degrees, as for cameras (camera_model.h).
+  const double side_px = std::max(width, height);
+  if (!(std::isfinite(fx) && fx >= 0.005 * side_px && fx <= 1000 * side_px)) {
+    return Bad("fx", "must be in [0.005, 1000] x the longer side in px", fx);
+  }
+  if (!(std::isfinite(fy) && fy >= 0.005 * side_px && fy <= 1000 * side_px)) {
+    return Bad("fy", "must be in [0.005, 1000] x the longer side in px", fy);
+  }
+  if (!(Finite({cx}) && std::abs(cx) <= 10 * side_px)) return Bad("cx", "must be within 10 image sizes", cx);
+  if (!(Finite({cy}) && std::abs(cy) <= 10 * side_px)) return Bad("cy", "must be within 10 image sizes", cy);
   if (!(std::isfinite(focus_distance_m) && focus_distance_m > 0)) {
     return Bad("focus_distance_m", "must be positive and finite", focus_distance_m);
   }
@@ -247,6 +259,7 @@ FieldProblem Rig::Check() const {
                T_C_P.linear()(2, 2));
   }
   if (t.norm() < 0.005) return Bad("T_C_P", "baseline must be at least 5 mm", t.norm());
+  if (t.norm() > 1.0) return Bad("T_C_P", "baseline must be at most 1 m (a hand-held sensor)", t.norm());
   if (!H_P_rec.allFinite() || std::abs(H_P_rec.determinant()) < 1e-12) {
     return {"H_P_rec", "must be a finite, invertible 3x3 matrix"};
   }

@@ -2,7 +2,12 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <fstream>
 #include <random>
+#include <sstream>
+#include <unordered_map>
+#include <vector>
 
 #include <Eigen/Geometry>
 
@@ -215,6 +220,74 @@ ObjectSpec MakeObject(ObjectKind kind, uint32_t seed) {
   return spec;
 }
 
+namespace {
+
+// MuJoCo 2.2 reads binary STL only, of 1 to 200,000 faces, and refuses a file shorter than its
+// face count says (user_mesh.cc). Checked here, so that the error names the user's file rather
+// than the scene MuJoCo composes from it.
+constexpr uint64_t kMuJoCoMaxStlFaces = 200000;
+
+void CheckStlAsMuJoCoReadsIt(const std::filesystem::path& file) {
+  const std::string source = file.string();
+  std::ifstream in(file, std::ios::binary);
+  char header[84] = {};
+  in.read(header, sizeof(header));
+  std::error_code ec;
+  const uint64_t size = std::filesystem::file_size(file, ec);
+  uint32_t faces = 0;
+  for (int i = 3; i >= 0; --i) faces = (faces << 8) | static_cast<unsigned char>(header[80 + i]);
+  const bool binary_size = !ec && size >= 84 && size - 84 >= 50ull * faces;
+  if (std::string(header, 5) == "solid" && !(binary_size && size - 84 == 50ull * faces)) {
+    throw InputError(source, "format", "an ASCII STL; MuJoCo reads binary STL only: save the mesh as binary STL");
+  }
+  if (!binary_size) {
+    throw InputError(source, "format",
+                     "not a binary STL: " + std::to_string(size) + " bytes, fewer than its header's " +
+                         std::to_string(faces) + " faces need (84 + 50 per face)");
+  }
+  if (faces < 1 || faces > kMuJoCoMaxStlFaces) {
+    throw InputError(source, "triangles",
+                     std::to_string(faces) + " faces; MuJoCo takes 1 to " + std::to_string(kMuJoCoMaxStlFaces) +
+                         " per STL: simplify the mesh");
+  }
+}
+
+// A closed surface borders each of its edges with exactly two triangles. Vertices are welded by
+// position first: an STL repeats them in every face.
+void CheckClosedByEdges(const TriangleMesh& mesh, const std::filesystem::path& file) {
+  struct Hash {
+    size_t operator()(const Eigen::Vector3f& v) const {
+      size_t h = 0;
+      for (int k = 0; k < 3; ++k) h = h * 1000003u ^ std::hash<float>()(v[k]);
+      return h;
+    }
+  };
+  std::unordered_map<Eigen::Vector3f, int, Hash> ids;
+  std::vector<int> welded(mesh.vertices_O.size());
+  for (size_t i = 0; i < mesh.vertices_O.size(); ++i) {
+    welded[i] = ids.emplace(mesh.vertices_O[i], static_cast<int>(ids.size())).first->second;
+  }
+  std::unordered_map<uint64_t, int> uses;  // undirected edge (low id, high id) -> triangles
+  for (const Eigen::Vector3i& t : mesh.triangles) {
+    for (int k = 0; k < 3; ++k) {
+      const int a = welded[t[k]], b = welded[t[(k + 1) % 3]];
+      if (a != b) ++uses[(static_cast<uint64_t>(std::min(a, b)) << 32) | static_cast<uint32_t>(std::max(a, b))];
+    }
+  }
+  std::vector<Eigen::Vector3f> positions(ids.size());
+  for (const auto& [p, id] : ids) positions[id] = p;
+  for (const auto& [edge, count] : uses) {
+    if (count == 2) continue;
+    const Eigen::Vector3f a = positions[edge >> 32], b = positions[edge & 0xffffffffu];
+    std::ostringstream s;
+    s << "not closed: the edge from (" << a.x() << ", " << a.y() << ", " << a.z() << ") to (" << b.x() << ", " << b.y()
+      << ", " << b.z() << ") m borders " << count << " triangle(s); a closed mesh borders every edge with exactly two";
+    throw InputError(file.string(), "triangles", s.str());
+  }
+}
+
+}  // namespace
+
 ObjectSpec MakeUserMeshObject(const std::filesystem::path& mesh_file, double scale_to_m, const IrMaterial& material,
                               double density_kg_m3) {
   std::string ext = mesh_file.extension().string();
@@ -232,6 +305,7 @@ ObjectSpec MakeUserMeshObject(const std::filesystem::path& mesh_file, double sca
   // Read here too (MuJoCo reads it again), so a bad file is reported as the file's fault, not the
   // composed scene's: malformed content, a part whose unit is likely wrong, or no volume to give
   // it mass.
+  if (ext == ".stl") CheckStlAsMuJoCoReadsIt(mesh_file);
   const TriangleMesh mesh = LoadMesh(mesh_file, scale_to_m);
   Eigen::AlignedBox3d box;
   double six_volume = 0.0;
@@ -250,6 +324,7 @@ ObjectSpec MakeUserMeshObject(const std::filesystem::path& mesh_file, double sca
   if (!(std::abs(six_volume) / 6.0 > 1e-6 * across_m * across_m * across_m)) {
     throw InputError(mesh_file.string(), "triangles", "the mesh encloses no volume (it must be closed to have a mass)");
   }
+  CheckClosedByEdges(mesh, mesh_file);
   ObjectSpec spec;
   spec.kind = ObjectKind::kUserMesh;
   spec.mesh_file = std::filesystem::absolute(mesh_file);

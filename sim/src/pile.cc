@@ -12,6 +12,7 @@
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/image_io.h"
+#include "romunect/sensor/input_limits.h"
 #include "world_impl.h"
 
 namespace romunect::sim {
@@ -296,11 +297,11 @@ void SaveSettledScene(const World& world, const std::filesystem::path& path) {
 
 World LoadSettledScene(const std::filesystem::path& path) {
   const std::string source = path.string();
-  std::ifstream in(path);
-  if (!in) throw InputError(source, "", "cannot open the saved scene");
+  const std::string text = ReadInputFile(path, kMaxTextFileBytes, "saved scene");
+  CheckJsonNesting(text, source);
   nlohmann::json j;
   try {
-    in >> j;
+    j = nlohmann::json::parse(text);
   } catch (const nlohmann::json::exception& e) {
     throw InputError(source, "", std::string("not valid JSON: ") + e.what());
   }

@@ -156,6 +156,27 @@ TEST(CalibrationFileTest, MissingOrMalformedFieldsNameTheField) {
   ExpectLoadFails("(T_H_C: !!opencv-matrix\\n(?:.*\\n){3}\\s*data: \\[ )", "$01.5, ", "T_H_C");
   // A depth map of the wrong size.
   ExpectLoadFails("(a: !!opencv-matrix\\n\\s*rows: )48", "$0147", "depth_model.a");
+  // A version is matched exactly: 1.9 is not 1, and 1e300 has no int (the cast was undefined).
+  ExpectLoadFails("version: [^\\n]*", "version: 1.9", "version");
+  ExpectLoadFails("version: [^\\n]*", "version: 1.0e+300", "version");
+  // A map that claims 100000 rows is refused before OpenCV allocates it.
+  ExpectLoadFails("(a: !!opencv-matrix\\n\\s*rows: )48\\n(\\s*cols: )64", "$01100000\n$02100000", "depth_model.a");
+  // A pose matrix that claims 2e9 rows: OpenCV allocated 64 GB for them (found by the fuzz target).
+  ExpectLoadFails("(T_H_C: !!opencv-matrix\\n\\s*rows: )4", "$012000000000", "T_H_C");
+}
+
+// One key of 50,000 nested sequences overflowed the stack inside cv::FileStorage.
+TEST(CalibrationFileTest, RefusesDeepNestingBeforeOpenCvParsesIt) {
+  ScratchDir dir("deep");
+  SaveCalibration(dir / "c.yaml", Sample());
+  WriteText(dir / "c.yaml", ReadText(dir / "c.yaml") + "deep: " + std::string(50000, '[') + std::string(50000, ']'));
+  try {
+    LoadCalibration(dir / "c.yaml");
+    FAIL() << "loaded";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("c.yaml"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("nest deeper than 64"), std::string::npos) << e.what();
+  }
 }
 
 // A device's calibration (record, fuse): a file `calibrate` wrote loads whole; an integrator's

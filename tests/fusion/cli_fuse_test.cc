@@ -282,7 +282,7 @@ TEST(FuseCliTest, RefusesToOverwriteAFinishedFusion) {
   const std::string before = ReadText(scratch / "out" / "report.json");
   const auto again = RunRomunect(command + " --threads 2");
   EXPECT_EQ(again.exit_code, 2) << again.output;
-  EXPECT_THAT(again.output, HasSubstr("holds a finished fusion (report.json); refusing to overwrite it"));
+  EXPECT_THAT(again.output, HasSubstr("holds a finished fusion (report.json); choose another --out"));
   EXPECT_EQ(ReadText(scratch / "out" / "report.json"), before);
 }
 

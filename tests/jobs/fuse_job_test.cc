@@ -1,7 +1,9 @@
 // The fusion loop and the fuse job in-process: frames of an analytic bin, written by the test
 // as a frame directory or handed over from memory.
+#include <atomic>
 #include <filesystem>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <gmock/gmock.h>
@@ -196,6 +198,44 @@ TEST(FuseJob, WarnsWhenTheDepthUnitIsCoarseForTheVoxel) {
   EXPECT_FALSE(DepthUnitWarning(1e-4, 0.25e-3).has_value());
   EXPECT_FALSE(DepthUnitWarning(1e-3, 2e-3).has_value());
   EXPECT_TRUE(DepthUnitWarning(1e-4, 0.1e-3).has_value());
+}
+
+// Two fuse runs into one --out at once, many times: one is refused before it fuses a frame, the
+// other's maps are the bytes of a lone run (its report differs only in timings). Two runs used to
+// both succeed, with the EXR of one and the PNG of the other.
+TEST(FuseJob, TwoRunsAtOnceIntoOneFolder) {
+  ScratchDir dir("fuse_job");
+  WriteBinDirectory(SmallBin(2), dir / "capture");
+  RunFuse(OptionsFor(dir / "capture", dir / "lone"));
+  const char* kMaps[] = {"fused_depth.exr", "fused_depth.png", "fused_points.ply", "completeness.png"};
+  constexpr int kTrials = 12;  // each trial ~0.1 s; the run-folder test interleaves many more
+  for (int trial = 0; trial < kTrials; ++trial) {
+    const fs::path out = dir / ("fused" + std::to_string(trial));
+    std::atomic<int> ready{0}, succeeded{0};
+    std::string refusal;
+    auto one_run = [&] {
+      ready++;
+      while (ready < 2) {
+      }
+      try {
+        RunFuse(OptionsFor(dir / "capture", out));
+        succeeded++;
+      } catch (const InputError& e) {
+        refusal = e.what();
+      }
+    };
+    std::thread a(one_run), b(one_run);
+    a.join();
+    b.join();
+    ASSERT_EQ(succeeded, 1) << refusal;
+    EXPECT_TRUE(refusal.find("another run is writing into it") != std::string::npos ||
+                refusal.find("holds a finished fusion") != std::string::npos)
+        << refusal;
+    for (const char* map : kMaps) {
+      EXPECT_EQ(testing::ReadText(out / map), testing::ReadText(dir / "lone" / map)) << map;
+    }
+    EXPECT_FALSE(fs::exists(out.string() + ".incomplete"));
+  }
 }
 
 TEST(FuseJob, NamesTheOptionAtFaultAndWritesNothing) {

@@ -160,6 +160,44 @@ TEST(CameraModel, RejectsBadModelsAndFiles) {
       },
       InputError);
   EXPECT_THROW(CameraModel::Load(dir / "missing.yaml"), InputError);
+  // A list where a map is expected made OpenCV throw its own exception (found by the fuzz target).
+  testing::WriteText(dir / "list.yaml", "%YAML:1.0\n---\n- 1\n- 2\n");
+  EXPECT_THROW(CameraModel::Load(dir / "list.yaml"), InputError);
+  testing::WriteText(dir / "huge.yaml", "%YAML:1.0\n---\nimage_width: 640\nimage_height: 480\n"
+                                        "camera_matrix: !!opencv-matrix\n   rows: 2000000000\n   cols: 3\n   dt: d\n"
+                                        "   data: [ 1. ]\n");
+  EXPECT_THROW(CameraModel::Load(dir / "huge.yaml"), InputError);
+}
+
+// Values no camera has are refused with the field named: they used to pass (fx = 1e308, k1 = 1e10,
+// a 100,000 px image) or to go through an undefined cast (image_width 1e300).
+TEST(CameraModel, RefusesValuesBeyondPhysicalBounds) {
+  const auto problem_with = [](auto change) {
+    CameraModel c;
+    change(&c);
+    return c.Problem();
+  };
+  EXPECT_EQ(problem_with([](CameraModel*) {}), "");
+  EXPECT_NE(problem_with([](CameraModel* c) { c->fx = 1e308; }).find("focal lengths"), std::string::npos);
+  EXPECT_NE(problem_with([](CameraModel* c) { c->fy = 1e-3; }).find("focal lengths"), std::string::npos);
+  EXPECT_NE(problem_with([](CameraModel* c) { c->distortion[0] = 1e10; }).find("k1, k2, k3"), std::string::npos);
+  EXPECT_NE(problem_with([](CameraModel* c) { c->distortion[3] = 2.0; }).find("p1, p2"), std::string::npos);
+  EXPECT_NE(problem_with([](CameraModel* c) { c->width = 100000; }).find("image size"), std::string::npos);
+  EXPECT_NE(problem_with([](CameraModel* c) { c->cx = 1e9; }).find("principal point"), std::string::npos);
+
+  testing::ScratchDir dir("bounds");
+  CameraModel().Save(dir / "camera.yaml");
+  std::string text = testing::ReadText(dir / "camera.yaml");
+  const size_t at = text.find("image_width: ") + std::string("image_width: ").size();
+  text.replace(at, text.find('\n', at) - at, "1.0e+300");
+  testing::WriteText(dir / "camera.yaml", text);
+  try {
+    CameraModel::Load(dir / "camera.yaml");
+    ADD_FAILURE() << "loaded image_width 1e300";
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.field(), "image_width/image_height") << e.what();
+    EXPECT_NE(std::string(e.what()).find("must lie in [1, 16384]"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace

@@ -2,6 +2,8 @@
 
 #include <limits>
 
+#include <sys/stat.h>
+
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -252,6 +254,48 @@ TEST_F(BadFrameDirectory, DepthOfWrongType) {
   doc_["frames"][0]["depth"] = "depth/not_exr.png";
   Rewrite();
   ExpectFrameError(0, {"depth/not_exr.png", "OpenEXR"});
+}
+
+// An unknown key nested 80,000 levels deep overflowed the stack in the copy of unknown keys.
+TEST_F(BadFrameDirectory, UnknownKeyNestedTooDeep) {
+  std::string text = testing::ReadText(dir_ / "frames.json");
+  const std::string deep = std::string(80000, '[') + std::string(80000, ']');
+  text.insert(text.find('{') + 1, "\"deep\": " + deep + ",");
+  testing::WriteText(dir_ / "frames.json", text);
+  ExpectManifestError({"frames.json", "nests arrays and objects deeper than 64"});
+}
+
+// A FIFO named as an image is refused at once; opening it to read used to wait for a writer.
+TEST_F(BadFrameDirectory, ImageThatIsAFifo) {
+  fs::remove(dir_ / "ir/000000.png");
+  ASSERT_EQ(mkfifo((dir_ / "ir/000000.png").c_str(), 0600), 0);
+  ExpectFrameError(0, {"ir/000000.png", "not a regular file"});
+}
+
+// Paths may not leave the directory: a symbolic link out of it was followed.
+TEST_F(BadFrameDirectory, SymlinkOutOfTheDirectory) {
+  ScratchDir elsewhere("frames_elsewhere");
+  fs::rename(dir_ / "depth/000000.exr", elsewhere / "000000.exr");
+  fs::create_symlink(elsewhere / "000000.exr", dir_ / "depth/000000.exr");
+  ExpectFrameError(0, {"depth/000000.exr", "leads out of the frame directory through a symbolic link"});
+  // A link that stays inside is followed.
+  fs::remove(dir_ / "depth/000000.exr");
+  fs::create_symlink("000001.exr", dir_ / "depth/000000.exr");
+  const FrameDirectoryManifest manifest = ReadFrameDirectoryManifest(dir_.path());
+  EXPECT_NO_THROW(LoadFrame(dir_.path(), manifest, 0));
+}
+
+// "\u0000" in a path was cut at the NUL; 2^64 - 1 as an index read as "index -1".
+TEST_F(BadFrameDirectory, NulInAPathAndAnIndexBeyondInt) {
+  std::string text = testing::ReadText(dir_ / "frames.json");
+  const std::string depth = "\"depth/000000.exr\"";
+  ASSERT_NE(text.find(depth), std::string::npos);
+  testing::WriteText(dir_ / "frames.json",
+                     std::string(text).replace(text.find(depth), depth.size(), "\"depth/000000.exr\\u0000.txt\""));
+  ExpectManifestError({"frames.json", "frames[0].depth", "NUL character"});
+  doc_["frames"][0]["index"] = 18446744073709551615ULL;
+  Rewrite();
+  ExpectManifestError({"frames.json", "frames[0].index", "integer out of range: 18446744073709551615"});
 }
 
 TEST_F(BadFrameDirectory, IrOfWrongType) {

@@ -7,6 +7,8 @@
 #include <random>
 #include <string>
 
+#include <signal.h>
+#include <sys/resource.h>
 #include <unistd.h>
 
 #include <gtest/gtest.h>
@@ -122,6 +124,28 @@ TEST(ImageIoTest, FastWritersAreDeterministicAndAtomic) {
     EXPECT_EQ(entry.path().filename().string().find(".tmp"), std::string::npos) << entry.path();
   }
   EXPECT_EQ(files, 4u);
+}
+
+// A write that fails says why ("cannot write file" alone used to), and leaves no file behind. A
+// file-size limit stands in for a full disk.
+TEST(ImageIo, WriteErrorsSayWhyAndLeaveNothing) {
+  ScratchDir dir("write_errors");
+  rlimit saved{};
+  ASSERT_EQ(getrlimit(RLIMIT_FSIZE, &saved), 0);
+  const auto previous = signal(SIGXFSZ, SIG_IGN);  // the write fails with EFBIG instead
+  rlimit small = saved;
+  small.rlim_cur = 1000;
+  ASSERT_EQ(setrlimit(RLIMIT_FSIZE, &small), 0);
+  std::string error;
+  try {
+    WriteTextAtomically(dir / "big.txt", std::string(5000, 'x'));
+  } catch (const InputError& e) {
+    error = e.what();
+  }
+  setrlimit(RLIMIT_FSIZE, &saved);
+  signal(SIGXFSZ, previous);
+  EXPECT_NE(error.find("big.txt: cannot write file: File too large"), std::string::npos) << error;
+  EXPECT_TRUE(std::filesystem::is_empty(dir.path()));
 }
 
 }  // namespace

@@ -136,6 +136,24 @@ TEST(RigFileTest, BadFieldsAreNamed) {
                  "T_C_P");  // projector 30 cm behind the camera
   ExpectBadField("/T_C_P", nlohmann::json::array({1, 0, 0, 0.05, 0, 2, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1}),
                  "T_C_P");  // not a rotation
+  // Values no rig has: they passed, and a 100,000 px projector failed later inside OpenCV.
+  ExpectBadField("/projector/width", 100000, "projector.width");
+  ExpectBadField("/projector/fx", 1e308, "projector.fx");
+  ExpectBadField("/camera/fx", 1e308, "camera");
+  ExpectBadField("/camera/distortion", nlohmann::json::array({1e10, 0, 0, 0, 0}), "camera");
+  ExpectBadField("/T_C_P", nlohmann::json::array({1, 0, 0, 50, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1}),
+                 "T_C_P");  // a 50 m baseline
+}
+
+TEST(RigFileTest, DeepNestingIsRefusedBeforeParsing) {
+  ScratchDir dir("rig_deep");
+  WriteText(dir / "deep.json", "{\"x\": " + std::string(80000, '[') + std::string(80000, ']') + "}");
+  try {
+    LoadRig(dir / "deep.json");
+    ADD_FAILURE() << "no error";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("deeper than 64"), std::string::npos) << e.what();
+  }
 }
 
 // Check() names the field at fault as structure (the key path a rig file uses); Problem() is

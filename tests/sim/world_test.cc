@@ -160,9 +160,10 @@ TEST(WorldTest, ObjectsAreGeneratedWithCollisionAndRenderGeometry) {
 namespace romunect::sim {
 namespace {
 
-// A 2 cm cube as a binary STL file, in millimetres.
-void WriteCubeStlMm(const std::filesystem::path& path) {
-  const Mesh cube = Box(Eigen::Vector3d::Zero(), Eigen::Vector3d(10, 10, 10));
+// A 2 cm cube as a binary STL file, in millimetres; without its last `drop` triangles, an open box.
+void WriteCubeStlMm(const std::filesystem::path& path, size_t drop = 0) {
+  Mesh cube = Box(Eigen::Vector3d::Zero(), Eigen::Vector3d(10, 10, 10));
+  cube.triangles.resize(cube.triangles.size() - drop);
   std::string bytes(80, '\0');
   auto put = [&bytes](const void* p, size_t n) { bytes.append(static_cast<const char*>(p), n); };
   const uint32_t count = static_cast<uint32_t>(cube.triangles.size());
@@ -200,6 +201,41 @@ TEST(WorldTest, UserStlMeshBecomesAnObjectAtItsScale) {
   EXPECT_EQ(render_geoms, 1);
   EXPECT_THROW(MakeUserMeshObject(dir / "missing.stl", 1e-3, DarkMaterial()), InputError);
   EXPECT_THROW(MakeUserMeshObject(dir / "cube.ply", 1e-3, DarkMaterial()), InputError);
+}
+
+// Meshes are checked as MuJoCo takes them, each error naming the user's file: these passed our
+// check and then failed inside MuJoCo, blamed on the composed scene, or (the open box) were taken.
+TEST(WorldTest, UserMeshesAreCheckedAsMuJoCoTakesThem) {
+  testing::ScratchDir dir("sim_world_user_mesh_checks");
+  auto error_of = [&](const std::string& name) {
+    return testing::InputErrorOf([&] { MakeUserMeshObject(dir / name, 1e-3, DarkMaterial()); });
+  };
+  const Mesh cube = Box(Eigen::Vector3d::Zero(), Eigen::Vector3d(10, 10, 10));
+  std::string ascii = "solid cube\n";
+  for (const auto& t : cube.triangles) {
+    ascii += "facet normal 0 0 0\nouter loop\n";
+    for (int k = 0; k < 3; ++k) {
+      const Eigen::Vector3d v = cube.vertices[t[k]];
+      ascii += "vertex " + std::to_string(v.x()) + " " + std::to_string(v.y()) + " " + std::to_string(v.z()) + "\n";
+    }
+    ascii += "endloop\nendfacet\n";
+  }
+  testing::WriteText(dir / "ascii.stl", ascii + "endsolid cube\n");
+  EXPECT_NE(error_of("ascii.stl").find("ascii.stl: format: an ASCII STL; MuJoCo reads binary STL only"),
+            std::string::npos)
+      << error_of("ascii.stl");
+  std::string many(80, '\0');
+  const uint32_t faces = 200001;
+  many.append(reinterpret_cast<const char*>(&faces), 4);
+  many.append(50 * static_cast<size_t>(faces), '\0');
+  testing::WriteText(dir / "many.stl", many);
+  EXPECT_NE(error_of("many.stl").find("many.stl: triangles: 200001 faces; MuJoCo takes 1 to 200000"), std::string::npos)
+      << error_of("many.stl");
+  WriteCubeStlMm(dir / "open.stl", 2);  // the cube without one side
+  EXPECT_NE(error_of("open.stl").find("open.stl: triangles: not closed: the edge from"), std::string::npos)
+      << error_of("open.stl");
+  WriteCubeStlMm(dir / "cube.stl");
+  EXPECT_EQ(error_of("cube.stl"), "");
 }
 
 TEST(WorldTest, SuctionGripHoldsAnObjectAndReleaseDropsIt) {

@@ -16,6 +16,7 @@
 #include "romunect/tools/jobs/calibrate.h"
 #include "romunect/tools/jobs/output_folder.h"
 #include "romunect/tools/jobs/rig_argument.h"
+#include "romunect/tools/jobs/run_folder.h"
 #include "romunect/tools/jobs/text.h"
 
 namespace romunect::jobs {
@@ -332,6 +333,7 @@ InTheLoopSummary CalibrateInTheLoop(const InTheLoopOptions& o) {
   InTheLoopSummary s;
   s.out = OutputFolder(o.out, "--out");
   CheckFolderCanBeCreated(s.out, "--out");
+  const FolderLock lock(s.out, "--out", "calibrate");  // a second run into --out is refused here
   s.calibration_file = s.out / "calibration.yaml";
   CheckExistingFile(s.calibration_file, o.overwrite_worse);
   sim::CalibrationRigOptions rig_options = sim::CalibrationRigOptionsFor(LoadRigArgument(o.rig));

@@ -22,6 +22,7 @@
 #include "romunect/sensor/world_box.h"
 #include "romunect/tools/jobs/fusion_loop.h"
 #include "romunect/tools/jobs/output_folder.h"
+#include "romunect/tools/jobs/run_folder.h"
 #include "romunect/tools/jobs/text.h"
 
 namespace romunect::jobs {
@@ -109,17 +110,6 @@ fs::path DefaultOutput(const FuseOptions& o) {
     case openni2::SourceKind::kDevice: break;
   }
   throw InputError("--out", "", "missing: fusing a live device (" + o.source + ") needs an output folder");
-}
-
-fs::path OutputOf(const FuseOptions& o) {
-  const fs::path out = o.out.empty() ? DefaultOutput(o) : OutputFolder(o.out, "--out");
-  if (fs::exists(out / "report.json")) {
-    throw InputError(out.string(), "",
-                     "holds a finished fusion (report.json); refusing to overwrite it: give "
-                     "another --out or remove the folder");
-  }
-  CheckFolderCanBeCreated(out, "--out");
-  return out;
 }
 
 // What fuse reads: the source, and for a device or recording with a calibrated depth model, the
@@ -336,9 +326,7 @@ void CheckSomethingFused(const FuseOptions& o, const FusionSummary& fused, bool 
 }
 
 // The fused map and its files.
-void WriteFuseOutputs(const FuseJobSummary& s, const cv::Mat& height) {
-  const fs::path& out = s.out;
-  fs::create_directories(out);
+void WriteFuseOutputs(const fs::path& out, const FuseJobSummary& s, const cv::Mat& height) {
   WriteHeightMapExr(out / "fused_depth.exr", height, s.report.geometry);
   fusion::WriteHeightMapPicture(out / "fused_depth.png", height, s.report.geometry);
   fusion::WriteHeightMapPly(out / "fused_points.ply", height, s.report.geometry);
@@ -359,7 +347,9 @@ FuseJobSummary RunFuse(const FuseOptions& o) {
   // Options first: a bad option fails before any file is read.
   fusion::GridOptions grid_options = GridFromOptions(o);
   FuseJobSummary s;
-  s.out = OutputOf(o);
+  // The outputs are built in <out>.incomplete and renamed when all are written (RunFolder).
+  RunFolder run(o.out.empty() ? DefaultOutput(o).string() : o.out, "--out", "fusion");
+  s.out = run.dir();
   const FuseSource opened = OpenFuseSource(o);  // validates frames.json
   s.depth_from = opened.depth_from;
   const FrameDirectorySource* directory = openni2::FindFrameDirectorySource(opened.source.get());
@@ -388,6 +378,7 @@ FuseJobSummary RunFuse(const FuseOptions& o) {
     if (s.depth_unit_warning)
       std::fprintf(stderr, "romunect: warning: %s: %s\n", o.source.c_str(), s.depth_unit_warning->c_str());
   }
+  run.Begin();  // a second run into the same --out is refused here, before any frame is fused
   FuseHooks hooks(o, opened, directory);
   FusionSummary fused = FuseFrames(*opened.source, opened.source->camera(), grid, o.threads, hooks);
   std::fprintf(stderr, "\n");
@@ -419,7 +410,8 @@ FuseJobSummary RunFuse(const FuseOptions& o) {
   report.skipped_pixels = directory != nullptr ? directory->skipped_pixels() : 0;
   if (!gt.empty()) report.metrics = fusion::CompareHeightMaps(height, gt);
   report.peak_rss_mb = fusion::PeakRssMb();
-  WriteFuseOutputs(s, height);
+  WriteFuseOutputs(run.work_dir(), s, height);
+  run.Commit();
   return s;
 }
 

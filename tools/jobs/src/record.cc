@@ -19,6 +19,7 @@
 #include "romunect/sensor/openni2/open_source.h"
 #include "romunect/sensor/openni2/openni2_source.h"
 #include "romunect/tools/jobs/output_folder.h"
+#include "romunect/tools/jobs/run_folder.h"
 
 namespace romunect::jobs {
 namespace {
@@ -219,6 +220,8 @@ RecordSummary Record(const RecordOptions& o) {
   CheckSourceGiven(o.source);
   if (o.out_dir.empty()) throw InputError("record", "OUT_DIR", "missing (the frame directory to write)");
   const Capture c = CaptureOptions(o);
+  CheckFolderCanBeCreated(o.out_dir, "OUT_DIR");
+  const FolderLock lock(o.out_dir, "OUT_DIR", "record");  // a second run into OUT_DIR is refused here
   CheckOutputs(o, c.from_directory);
   const bool out_dir_existed = fs::exists(o.out_dir);
   std::unique_ptr<FrameSource> source = openni2::OpenSource(o.source, c.options);

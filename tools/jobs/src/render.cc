@@ -19,6 +19,7 @@
 #include "romunect/sensor/rig.h"
 #include "romunect/sim/sensor_imager.h"
 #include "romunect/tools/jobs/rig_argument.h"
+#include "romunect/tools/jobs/run_folder.h"
 #include "romunect/tools/jobs/text.h"
 
 namespace romunect::jobs {
@@ -183,6 +184,7 @@ RenderSummary Render(const RenderJobOptions& o) {
   const Rig rig = LoadRigArgument(o.rig);
   const CameraModel& camera = rig.camera;
   CheckOptions(o);
+  const FolderLock lock(o.out_dir, "OUT_DIR", "render");  // a second run into OUT_DIR is refused here
   RenderSummary s;
   s.out_dir = o.out_dir;
   s.pictures = fs::path(o.out_dir) / "pictures";

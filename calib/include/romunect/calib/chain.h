@@ -90,6 +90,10 @@ struct ChainOptions {
     return d;
   }();
   std::string Problem() const;  // "" when valid: "field = value: rule"
+  // The fewest views and depth planes Problem() accepts: the steps' own minimums (a command line's
+  // ranges print these).
+  int MinViews() const;
+  int MinPlanes() const;
 };
 
 // Compute time per step: CPU seconds of the calibration's own work (detection, solvers, fits);

@@ -13,6 +13,8 @@
 #include <filesystem>
 #include <functional>
 #include <optional>
+#include <string>
+#include <string_view>
 
 #include <opencv2/core.hpp>
 
@@ -22,8 +24,15 @@ namespace romunect {
 
 enum class ImageCompression { kCompact, kFast };
 
+// Readers open regular files only, read the image size from the header (PNG IHDR, EXR dataWindow)
+// and refuse it before decoding when it is outside input_limits.h's bounds or, when `expected` is
+// given, not that size ("image size": "expected W x H, found w x h"). The Decode* forms read
+// bytes in memory; `source` names them in errors.
+
 // Reads a single-channel float EXR with a channel named "Z" into a CV_32F Mat.
-cv::Mat ReadDepthExr(const std::filesystem::path& path);
+cv::Mat ReadDepthExr(const std::filesystem::path& path, const std::optional<cv::Size>& expected = std::nullopt);
+cv::Mat DecodeDepthExr(std::string_view bytes, const std::string& source,
+                       const std::optional<cv::Size>& expected = std::nullopt);
 // Writes a CV_32F Mat as a float32 EXR with one channel "Z" (NaN and 0 are written as is).
 void WriteDepthExr(const std::filesystem::path& path, const cv::Mat& depth,
                    ImageCompression compression = ImageCompression::kCompact);
@@ -37,7 +46,10 @@ void WriteHeightMapExr(const std::filesystem::path& path, const cv::Mat& height_
 std::optional<HeightMapGeometry> ReadHeightMapGeometry(const std::filesystem::path& path);
 
 // Reads a 16-bit single-channel PNG into a CV_16U Mat.
-cv::Mat ReadPng16(const std::filesystem::path& path);
+cv::Mat ReadPng16(const std::filesystem::path& path, const std::optional<cv::Size>& expected = std::nullopt);
+cv::Mat DecodePng16(std::string_view bytes, const std::string& source,
+                    const std::optional<cv::Size>& expected = std::nullopt);
+
 // Writes a CV_16U Mat as a 16-bit PNG.
 void WritePng16(const std::filesystem::path& path, const cv::Mat& image,
                 ImageCompression compression = ImageCompression::kCompact);

@@ -2,12 +2,22 @@
 // `<run>/` when complete, so a folder under the final name is always complete. The final name
 // may be new or an empty folder; one that holds a finished run (its report.json), anything else,
 // or a file is refused before any work and never touched.
+//
+// Two runs into one folder cannot share it: Begin() creates `<run>.incomplete/` atomically with
+// a marker file (kRunMarker) that says romunect made it, and holds an exclusive lock on the
+// marker for the run's life. A second run is refused in Begin(), before any work. A work folder
+// with a marker and no lock is what a killed run left: it is removed and replaced. A work folder
+// without the marker is never removed. Every job that writes a run folder uses this class.
 #pragma once
 
 #include <filesystem>
 #include <string>
 
 namespace romunect::jobs {
+
+// The marker file in a work folder: romunect made the folder and may remove it. It is removed
+// right after the rename, so no finished run holds it.
+constexpr const char* kRunMarker = ".romunect-run";
 
 class RunFolder {
  public:
@@ -23,16 +33,42 @@ class RunFolder {
   const std::filesystem::path& dir() const { return dir_; }            // the final name
   const std::filesystem::path& work_dir() const { return work_dir_; }  // <dir>.incomplete
 
-  // Creates the work folder, replacing one a crashed run left.
+  // Creates and locks the work folder, replacing one a killed run left. Throws InputError when
+  // another run holds it, when it lacks the marker, or when the final name was filled meanwhile.
   void Begin();
   // Moves the work folder under the final name. Throws InputError, keeping the work folder,
   // when the final name was filled meanwhile.
   void Commit();
 
  private:
-  std::string job_;
+  void CheckFinalNameIsFree() const;
+  bool TryCreate();      // false when the work folder exists
+  void RemoveIfStale();  // throws when it is not a killed run's
+  void Unlock();
+
+  std::string job_, option_;
   std::filesystem::path dir_, work_dir_;
+  int lock_fd_ = -1;  // the marker, locked (flock) while this run owns the work folder
   bool begun_ = false, done_ = false;
+};
+
+// An exclusive lock for a run that writes into an output folder in place (calibrate's --out, which
+// may hold the calibration it updates; record's and render's OUT_DIR): the lock file
+// `<folder>.lock` beside the folder is created and locked (flock) for the lock's life, and removed
+// when it is released. Throws InputError, before any work, when another run holds it. A lock file
+// a killed run left is taken over.
+class FolderLock {
+ public:
+  FolderLock(const std::filesystem::path& folder, const std::string& option, const std::string& job);
+  ~FolderLock();
+  FolderLock(const FolderLock&) = delete;
+  FolderLock& operator=(const FolderLock&) = delete;
+
+  const std::filesystem::path& path() const { return path_; }
+
+ private:
+  std::filesystem::path path_;
+  int fd_ = -1;
 };
 
 }  // namespace romunect::jobs
