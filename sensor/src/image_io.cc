@@ -542,7 +542,6 @@ cv::Mat DecodePng16(std::string_view bytes, const std::string& source, const std
   return image;
 }
 
-namespace {
 cv::Mat ReadPng16(const fs::path& path, const std::optional<cv::Size>& expected) {
   return DecodePng16(ReadInputFile(path, kMaxImageFileBytes, "PNG file"), path.string(), expected);
 }
