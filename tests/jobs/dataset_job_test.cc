@@ -174,7 +174,7 @@ TEST(DatasetOptions, BadInputIsRefusedNamingTheOptionBeforeAnyFile) {
   // a folder with other things in it is never touched
   fs::create_directories(out);
   WriteText(out / "notes.txt", "mine");
-  EXPECT_NE(InputErrorOf([&] { RunDataset(Tiny(out)); }).find("no dataset.json"), std::string::npos);
+  EXPECT_NE(InputErrorOf([&] { RunDataset(Tiny(out)); }).find("holds notes.txt but no dataset.json"), std::string::npos);
   EXPECT_EQ(Tree(out).size(), 1u);
 }
 

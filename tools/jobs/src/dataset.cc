@@ -60,8 +60,13 @@ void CheckExistingFolder(const fs::path& dir, const nlohmann::json& settings) {
   if (!fs::is_directory(dir)) throw InputError(dir.string(), "", "is a file; OUT_DIR must be a folder");
   const fs::path file = dir / "dataset.json";
   if (!fs::exists(file)) {
-    if (!fs::is_empty(dir))
-      throw InputError(dir.string(), "", "holds files but no dataset.json; choose another OUT_DIR");
+    // Empty, or being created by another shard this moment (its files and temporaries only).
+    for (const auto& entry : fs::directory_iterator(dir)) {
+      const std::string name = entry.path().filename().string();
+      const bool ours = name == kSplit || name == "models" || name == "camera.json" ||
+                        (name[0] == '.' && name.find(".tmp-") != std::string::npos);
+      if (!ours) throw InputError(dir.string(), "", "holds " + name + " but no dataset.json; choose another OUT_DIR");
+    }
     return;
   }
   std::ifstream in(file);
@@ -264,8 +269,9 @@ DatasetSummary RunDataset(const DatasetOptions& o) {
   const std::vector<Model> models = BuildModels(p.settings);  // refuses an --objects range that does not fit
 
   // The shared files: every shard writes the same bytes under a temporary name and renames.
+  fs::create_directories(p.dir);
+  WriteTextAtomically(p.dir / "dataset.json", p.doc.dump(2) + "\n");  // first: the folder is a dataset
   fs::create_directories(p.dir / kSplit);
-  WriteTextAtomically(p.dir / "dataset.json", p.doc.dump(2) + "\n");
   const CameraModel& cam = p.settings.rig.camera;
   const nlohmann::json camera = {
       {"cx", cam.cx}, {"cy", cam.cy},         {"depth_scale", kDepthScaleMm}, {"fx", cam.fx},

@@ -57,6 +57,10 @@ DatasetSummary RunDataset(const DatasetOptions& options);
 
 struct DatasetCheckSummary {
   int scenes = 0, images = 0, annotations = 0;
+  // Visible pixels that disagree with the model alone among agreeing neighbours: a ray through
+  // a crack between two triangles (vertices rounded to float) in one of the two renders. Not
+  // problems: a wrong pose, model or depth shows in whole patches.
+  int isolated_pixels = 0;
   std::vector<std::string> problems;  // "<file>: <rule broken>", empty when the dataset is valid
   std::string Text() const;
 };
@@ -64,7 +68,8 @@ struct DatasetCheckSummary {
 // Checks a dataset written by RunDataset: JSON keys and types, image sizes and types, masks
 // (mask_visib inside mask, bounding boxes and pixel counts as scene_gt_info says, visib_fract
 // = px_count_visib / px_count_all) and geometry: every visible pixel of an object, its model
-// (models/) rendered at its ground-truth pose, agrees with depth_gt within 0.1 mm. Throws
+// (models/) rendered at its ground-truth pose, agrees with depth_gt within 0.1 mm (but on the
+// edges of the model's render, and lone pixels: isolated_pixels). Throws
 // InputError when `dir` holds no dataset; every other failure is a problem in the summary.
 DatasetCheckSummary CheckDataset(const std::string& dir, int threads = 2);
 
