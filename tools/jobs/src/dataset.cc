@@ -9,6 +9,7 @@
 #include <map>
 #include <sstream>
 
+#include "dataset_png.h"
 #include "dataset_scene.h"
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/errors.h"
@@ -123,6 +124,7 @@ struct Shared {
 
 struct SceneCounts {
   int images = 0, annotations = 0;
+  DatasetSummary::CpuSeconds cpu;
 };
 
 // One image: the files of every folder, and its entries of the scene's JSON files.
@@ -130,18 +132,27 @@ void WriteImage(const Shared& c, SceneRenderer& renderer, sim::World& world, con
                 const std::vector<int>& obj_ids, const View& view, uint64_t seed, int im, const fs::path& dir,
                 std::map<int, nlohmann::json>* camera, std::map<int, nlohmann::json>* gt,
                 std::map<int, nlohmann::json>* gt_info, SceneCounts* counts) {
+  double cpu = ProcessCpuSeconds();
+  auto lap = [&cpu](double* to) {
+    const double now = ProcessCpuSeconds();
+    *to += now - cpu;
+    cpu = now;
+  };
   world.SetArmQ(view.q);
   GeometryBuffer geometry;
   renderer.Render(world, rig, view.T_W_C, &geometry);
   Frame frame;
   frame.index = im;
   frame.gt_depth_m = embree::GroundTruthDepth(geometry);
+  lap(&counts->cpu.render);
   c.imager.Image(rig, geometry, seed, &frame);
+  lap(&counts->cpu.imaging);
   const std::string name = Id6(im);
-  WritePng16(dir / "gray" / (name + ".png"), frame.ir);
-  WritePng16(dir / "depth" / (name + ".png"), DepthToPng16(frame.depth_m));
-  WritePng16(dir / "depth_gt" / (name + ".png"), DepthToPng16(frame.gt_depth_m));
-  WritePng16(dir / "raw" / (name + ".png"), frame.raw);
+  WritePng(dir / "gray" / (name + ".png"), frame.ir, PngKind::kNoisy);
+  WritePng(dir / "depth" / (name + ".png"), DepthToPng16(frame.depth_m), PngKind::kDepth);
+  WritePng(dir / "depth_gt" / (name + ".png"), DepthToPng16(frame.gt_depth_m), PngKind::kDepth);
+  WritePng(dir / "raw" / (name + ".png"), frame.raw, PngKind::kDepth);
+  lap(&counts->cpu.images);
 
   const Pose T_C_W = view.T_W_C.inverse();
   const cv::Matx33d K = rig.camera.CameraMatrix();
@@ -154,15 +165,17 @@ void WriteImage(const Shared& c, SceneRenderer& renderer, sim::World& world, con
   const cv::Mat& ids = geometry.layers[0].object_id;
   for (int i = 0; i < world.num_objects(); ++i) {
     const cv::Mat mask = renderer.Silhouette(i, rig, view.T_W_C);
+    lap(&counts->cpu.silhouettes);
     if (cv::countNonZero(mask) == 0) continue;  // not in the image: not annotated
     const cv::Mat visib = ids == i;             // 255 where the whole scene shows the object
     const std::string mask_name = name + "_" + Id6(static_cast<int>(gt_list.size())) + ".png";
-    WritePicture(dir / "mask" / mask_name, mask);
-    WritePicture(dir / "mask_visib" / mask_name, visib);
+    WritePng(dir / "mask" / mask_name, mask, PngKind::kMask);
+    WritePng(dir / "mask_visib" / mask_name, visib, PngKind::kMask);
     const Pose T_C_O = T_C_W * world.T_W_O(i);
     gt_list.push_back(
         {{"cam_R_m2c", RotationRowMajor(T_C_O)}, {"cam_t_m2c", TranslationMm(T_C_O)}, {"obj_id", obj_ids[i]}});
     info_list.push_back(MeasureInstance(mask, visib, frame.depth_m).ToJson());
+    lap(&counts->cpu.masks);
   }
   (*gt)[im] = gt_list;
   (*gt_info)[im] = info_list;
@@ -177,6 +190,7 @@ SceneCounts WriteScene(const Shared& c, int scene, const fs::path& split_dir) {
   fs::remove_all(dir);  // a killed run's leftovers: the scene is redone from the start
   for (const char* sub : {"gray", "depth", "depth_gt", "raw", "mask", "mask_visib"}) fs::create_directories(dir / sub);
 
+  const double cpu_setup = ProcessCpuSeconds();
   const SceneDraw draw = DrawScene(c.settings, c.models, scene);
   std::unique_ptr<sim::World> world = BuildSceneWorld(c.settings, c.models, draw);
   std::vector<View> views;
@@ -194,6 +208,7 @@ SceneCounts WriteScene(const Shared& c, int scene, const fs::path& split_dir) {
   SceneRenderer renderer(*world, c.threads);
   std::map<int, nlohmann::json> camera, gt, gt_info;
   SceneCounts counts;
+  counts.cpu.scene = ProcessCpuSeconds() - cpu_setup;
   for (size_t k = 0; k < views.size(); ++k) {
     WriteImage(c, renderer, *world, rig, obj_ids, views[k], Mix(draw.seed, 7000 + k), static_cast<int>(k), dir, &camera,
                &gt, &gt_info, &counts);
@@ -254,11 +269,14 @@ Prepared Prepare(const DatasetOptions& o) {
 }  // namespace
 
 std::string DatasetSummary::Text() const {
+  const double n = std::max(1, images);
   return Format(
       "dataset %s: %d scenes written, %d already complete; %d images, %d object instances, %d models; %.1f MB "
-      "written (%.2f MB per image); %.1f s (%.0f ms CPU per image, %.0f images per hour)\n",
-      dir.string().c_str(), scenes_written, scenes_skipped, images, annotations, models, mb_written,
-      images > 0 ? mb_written / images : 0.0, wall_s, images > 0 ? 1e3 * image_cpu_s / images : 0.0,
+      "written (%.2f MB per image); %.1f s (%.0f ms CPU per image: scene set-up %.0f, render %.0f, imaging %.0f, "
+      "image files %.0f, silhouettes %.0f, masks %.0f; %.0f images per hour)\n",
+      dir.string().c_str(), scenes_written, scenes_skipped, images, annotations, models, mb_written, mb_written / n,
+      wall_s, 1e3 * image_cpu_s / n, 1e3 * cpu.scene / n, 1e3 * cpu.render / n, 1e3 * cpu.imaging / n,
+      1e3 * cpu.images / n, 1e3 * cpu.silhouettes / n, 1e3 * cpu.masks / n,
       wall_s > 0 ? 3600.0 * images / wall_s : 0.0);
 }
 
@@ -309,6 +327,7 @@ DatasetSummary RunDataset(const DatasetOptions& o) {
     summary.scenes_written += 1;
     summary.images += counts.images;
     summary.annotations += counts.annotations;
+    summary.cpu.Add(counts.cpu);
     summary.mb_written += FolderBytes(p.dir / kSplit / Id6(todo[n])) / 1e6;
     if (!o.quiet) {
       const double eta = loop.seconds() / (n + 1) * (todo.size() - n - 1);

@@ -47,7 +47,17 @@ struct DatasetSummary {
   double mb_written = 0.0;
   double wall_s = 0.0;
   double cpu_s = 0.0;        // this process's CPU time over the whole run
-  double image_cpu_s = 0.0;  // CPU of the image loop only (render, imaging, masks, files)
+  double image_cpu_s = 0.0;  // CPU of the scenes' loop: everything per image, scene set-up included
+  // Where it went (process CPU, all threads): the scenes' set-up (world, settling, views),
+  // rendering, IR synthesis and depth engine, the four images' PNGs, the silhouette renders,
+  // the masks' PNGs and counts.
+  struct CpuSeconds {
+    double scene = 0, render = 0, imaging = 0, images = 0, silhouettes = 0, masks = 0;
+    void Add(const CpuSeconds& o) {
+      scene += o.scene, render += o.render, imaging += o.imaging, images += o.images;
+      silhouettes += o.silhouettes, masks += o.masks;
+    }
+  } cpu;
   std::string Text() const;
 };
 
