@@ -12,6 +12,7 @@
 
 #include "romunect/testing/test_support.h"
 #include "romunect/tools/jobs/dataset.h"
+#include "romunect/tools/jobs/fuse.h"
 
 namespace romunect {
 namespace {
@@ -176,6 +177,18 @@ TEST(DatasetOptions, BadInputIsRefusedNamingTheOptionBeforeAnyFile) {
   WriteText(out / "notes.txt", "mine");
   EXPECT_NE(InputErrorOf([&] { RunDataset(Tiny(out)); }).find("holds notes.txt but no dataset.json"), std::string::npos);
   EXPECT_EQ(Tree(out).size(), 1u);
+}
+
+TEST_F(DatasetJob, FuseReadsASceneFolderAsAFrameSource) {
+  ScratchDir dir("dataset_fuse");
+  jobs::FuseOptions o;
+  o.source = (Dataset() / "train/000000").string();
+  o.out = (dir / "fused").string();
+  const jobs::FuseJobSummary fused = jobs::RunFuse(o);
+  EXPECT_EQ(fused.report.frames, 2u);  // the scene's two views
+  EXPECT_EQ(fused.box_from, "scene_info.json's region_W");
+  EXPECT_GT(fused.report.completeness, 0.0);
+  EXPECT_TRUE(fs::exists(dir / "fused/report.json"));
 }
 
 // --- each rule of the check, broken on a copy ---

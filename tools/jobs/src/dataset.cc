@@ -216,7 +216,8 @@ SceneCounts WriteScene(const Shared& c, int scene, const fs::path& split_dir) {
   WriteTextAtomically(dir / "scene_camera.json", NumberedJson(camera));
   WriteTextAtomically(dir / "scene_gt.json", NumberedJson(gt));
   WriteTextAtomically(dir / "scene_gt_info.json", NumberedJson(gt_info));
-  // romunect's extras: what the scene drew (BOP readers ignore the file)
+  // romunect's extras: what the scene drew, and the box a scan of it fuses (`romunect fuse`)
+  const sim::ScanBox region = SceneRegion(*world, c.settings.rig);
   nlohmann::json objects = nlohmann::json::array();
   for (size_t i = 0; i < draw.model.size(); ++i) {
     const Model& m = c.models[draw.model[i]];
@@ -229,6 +230,9 @@ SceneCounts WriteScene(const Shared& c, int scene, const fs::path& split_dir) {
                                {"seed", draw.seed},
                                {"objects", objects},
                                {"ambient_e_per_s", rig.optics.ambient_e_per_s},
+                               {"region_W",
+                                {{"min", {region.min_W.x(), region.min_W.y(), region.min_W.z()}},
+                                 {"max", {region.max_W.x(), region.max_W.y(), region.max_W.z()}}}},
                                {"images", static_cast<int>(views.size())}};
   WriteTextAtomically(dir / "scene_info.json", info.dump(2) + "\n");
   fs::rename(dir, final_dir);

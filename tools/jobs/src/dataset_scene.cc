@@ -160,11 +160,23 @@ std::unique_ptr<sim::World> BuildSceneWorld(const Settings& settings, const std:
                            std::to_string(kSettleAttempts) + " drops: " + settle.BriefReport());
 }
 
-std::vector<View> ApproachViews(sim::World* world, const Rig& rig, int every) {
+namespace {
+// The approach as `romunect scan` plans it: stand-off levels in the rig's measurable range.
+sim::ApproachOptions ScanApproach(const Rig& rig) {
   sim::ApproachOptions approach;
   const sim::DepthRange range = sim::MeasurableDepthRange(rig);
   approach.focused_near_m = range.near_m;
   approach.focused_far_m = range.far_m;
+  return approach;
+}
+}  // namespace
+
+sim::ScanBox SceneRegion(const sim::World& world, const Rig& rig) {
+  return sim::ScanRegionBox(world, ScanApproach(rig));
+}
+
+std::vector<View> ApproachViews(sim::World* world, const Rig& rig, int every) {
+  const sim::ApproachOptions approach = ScanApproach(rig);
   const sim::ApproachPlan plan = sim::PlanApproach(*world, rig.camera, approach);
   sim::ApproachExecutor executor(world, plan, approach);
   executor.MoveToStart();

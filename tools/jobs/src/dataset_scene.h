@@ -15,6 +15,7 @@
 #include "romunect/sensor/embree/renderer.h"
 #include "romunect/sensor/mesh.h"
 #include "romunect/sensor/rig.h"
+#include "romunect/sim/approach.h"
 #include "romunect/sim/objects.h"
 #include "romunect/sim/world.h"
 #include "romunect/tools/jobs/dataset.h"
@@ -82,6 +83,9 @@ std::vector<View> ApproachViews(sim::World* world, const Rig& rig, int every);
 // off vertical, any roll, with that point in the rig's measurable range.
 std::vector<View> RandomViews(const sim::World& world, const Rig& rig, int count, uint64_t seed,
                               const sim::World::ArmVector& q_seed);
+
+// The box `romunect scan` fuses for this world and rig (sim::ScanRegionBox), m.
+sim::ScanBox SceneRegion(const sim::World& world, const Rig& rig);
 
 // What one scene holds, drawn from (settings, scene index) alone.
 struct SceneDraw {
