@@ -3,6 +3,7 @@
 #include <zlib.h>
 
 #include <fstream>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -85,7 +86,7 @@ void WritePng(const std::filesystem::path& path, const cv::Mat& image, PngKind k
     std::ofstream out(tmp, std::ios::binary);
     out.write(png.data(), static_cast<std::streamsize>(png.size()));
     out.close();
-    if (!out) throw InputError(tmp.string(), "", "cannot write file (disk full?)");
+    if (!out) throw std::runtime_error(tmp.string() + ": cannot write file (disk full?)");
   });
 }
 
