@@ -69,6 +69,34 @@ sim::ObjectSpec ModelSpec(sim::ObjectKind kind, int variant) {
   return sim::MakeObject(kind, 1000u * (static_cast<uint32_t>(kind) + 1) + static_cast<uint32_t>(variant));
 }
 
+namespace {
+
+// The approach as `romunect scan` plans it: stand-off levels in the rig's measurable range.
+sim::ApproachOptions ScanApproach(const Rig& rig) {
+  sim::ApproachOptions approach;
+  const sim::DepthRange range = sim::MeasurableDepthRange(rig);
+  approach.focused_near_m = range.near_m;
+  approach.focused_far_m = range.far_m;
+  return approach;
+}
+
+// The views the settings ask for, tried once in the world without a pile before any file is
+// written: an approach the arm cannot fly or a rig whose range it cannot reach is refused.
+void CheckViewsReachable(const sim::World& world, const Settings& settings) {
+  if (settings.approach) {
+    try {
+      sim::PlanApproach(world, settings.rig.camera, ScanApproach(settings.rig));
+    } catch (const InputError& e) {
+      throw InputError("--views", "",
+                       "approach: the arm cannot fly it with the rig " + settings.rig_name + ": " + e.what() +
+                           "; use --views random");
+    }
+  }
+  if (settings.random) RandomViews(world, settings.rig, 1, settings.seed, world.arm_q());
+}
+
+}  // namespace
+
 std::vector<Model> BuildModels(const Settings& settings) {
   // One world holds every model once: each object's rendered geoms, moved into its frame O.
   sim::WorldOptions w;
@@ -113,6 +141,7 @@ std::vector<Model> BuildModels(const Settings& settings) {
     throw InputError("--objects", "",
                      std::to_string(settings.objects_min) + "-" + std::to_string(settings.objects_max) + ": " + s);
   }
+  CheckViewsReachable(world, settings);
   return models;
 }
 
@@ -159,17 +188,6 @@ std::unique_ptr<sim::World> BuildSceneWorld(const Settings& settings, const std:
   throw std::runtime_error("scene seed " + std::to_string(draw.seed) + ": the pile did not settle in " +
                            std::to_string(kSettleAttempts) + " drops: " + settle.BriefReport());
 }
-
-namespace {
-// The approach as `romunect scan` plans it: stand-off levels in the rig's measurable range.
-sim::ApproachOptions ScanApproach(const Rig& rig) {
-  sim::ApproachOptions approach;
-  const sim::DepthRange range = sim::MeasurableDepthRange(rig);
-  approach.focused_near_m = range.near_m;
-  approach.focused_far_m = range.far_m;
-  return approach;
-}
-}  // namespace
 
 sim::ScanBox SceneRegion(const sim::World& world, const Rig& rig) {
   return sim::ScanRegionBox(world, ScanApproach(rig));
