@@ -3,6 +3,7 @@
 // of the check has a case that breaks it.
 #include <unistd.h>
 
+#include <algorithm>
 #include <fstream>
 #include <map>
 
@@ -117,6 +118,34 @@ TEST_F(DatasetJob, PosesAreBopsMillimetresAndRowMajorRotations) {
   EXPECT_DOUBLE_EQ(cam["0"]["depth_scale"].get<double>(), 0.1);
 }
 
+TEST(DatasetViews, TheApproachIsTheArmsOwnTrajectoryEveryKthFrame) {
+  ScratchDir dir("dataset_approach");
+  DatasetOptions o = Tiny(dir / "ds");
+  o.scenes = 1;
+  o.views = "approach";
+  o.every = 40;  // of the approach's 30 Hz frames (about 134 for the romunect rig)
+  const auto summary = RunDataset(o);
+  EXPECT_GE(summary.images, 3);
+  EXPECT_LE(summary.images, 5);
+  const auto cam = nlohmann::json::parse(ReadText(dir / "ds/train/000000/scene_camera.json"));
+  // the camera starts 40 cm above the bin and comes down to the rig's stand-off levels (about
+  // 20 cm), sweeping between them
+  std::vector<double> height_mm;
+  for (int im = 0; im < summary.images; ++im) {
+    const auto& entry = cam[std::to_string(im)];
+    EXPECT_EQ(entry["view"], "approach");
+    Eigen::Matrix3d R;
+    for (int i = 0; i < 9; ++i) R(i / 3, i % 3) = entry["cam_R_w2c"][i].get<double>();
+    Eigen::Vector3d t;
+    for (int i = 0; i < 3; ++i) t(i) = entry["cam_t_w2c"][i].get<double>();
+    height_mm.push_back((-R.transpose() * t).z());  // the camera centre in W
+  }
+  EXPECT_EQ(std::max_element(height_mm.begin(), height_mm.end()), height_mm.begin());
+  EXPECT_LT(*std::min_element(height_mm.begin(), height_mm.end()), height_mm[0] - 100.0);
+  const auto check = CheckDataset((dir / "ds").string());
+  EXPECT_TRUE(check.problems.empty()) << check.Text();
+}
+
 TEST_F(DatasetJob, ShardsInEitherOrderEqualOneRunByteForByte) {
   ScratchDir dir("dataset_shards");
   DatasetOptions second = Tiny(dir / "ab"), first = Tiny(dir / "ab");
@@ -176,7 +205,8 @@ TEST(DatasetOptions, BadInputIsRefusedNamingTheOptionBeforeAnyFile) {
   // a folder with other things in it is never touched
   fs::create_directories(out);
   WriteText(out / "notes.txt", "mine");
-  EXPECT_NE(InputErrorOf([&] { RunDataset(Tiny(out)); }).find("holds notes.txt but no dataset.json"), std::string::npos);
+  EXPECT_NE(InputErrorOf([&] { RunDataset(Tiny(out)); }).find("holds notes.txt but no dataset.json"),
+            std::string::npos);
   EXPECT_EQ(Tree(out).size(), 1u);
 }
 
