@@ -197,7 +197,7 @@ TEST(DatasetOptions, BadInputIsRefusedNamingTheOptionBeforeAnyFile) {
   refused([](DatasetOptions* o) { o->objects = "40-50"; }, "--objects");  // ... of these kinds
   refused([](DatasetOptions* o) { o->objects = "3-2"; }, "--objects");
   refused([](DatasetOptions* o) { o->shard = "3/2"; }, "--shard");
-  refused([](DatasetOptions* o) { o->shard = "1"; }, "--shard");
+  refused([](DatasetOptions* o) { o->shard = "12"; }, "--shard");  // no N
   refused([](DatasetOptions* o) { o->views = "sideways"; }, "--views");
   refused([](DatasetOptions* o) { o->every = 0; }, "--every");
   refused([](DatasetOptions* o) { o->rig = "kinect-v3"; }, "--rig");
@@ -319,7 +319,9 @@ TEST_F(DatasetJob, CheckFindsAModelThatIsNotTheRenderedOne) {
       std::string rest;
       w >> x >> y >> z;
       std::getline(w, rest);
-      line = std::to_string(x * 1.02) + " " + std::to_string(y * 1.02) + " " + std::to_string(z * 1.02) + rest;
+      char scaled[128];
+      std::snprintf(scaled, sizeof scaled, "%.6f %.6f %.6f", x * 1.02, y * 1.02, z * 1.02);
+      line = scaled + rest;
       --vertices;
     }
     if (line.rfind("element vertex ", 0) == 0) vertices = std::stoi(line.substr(15));
@@ -327,7 +329,9 @@ TEST_F(DatasetJob, CheckFindsAModelThatIsNotTheRenderedOne) {
     out += line + "\n";
   }
   WriteText(ds / name, out);
-  EXPECT_NE(Problems(ds).find("obj_id " + std::to_string(obj_id) + ":"), std::string::npos) << Problems(ds);
+  char expected[32];
+  std::snprintf(expected, sizeof expected, "obj_id %d:", obj_id);
+  EXPECT_NE(Problems(ds).find(expected), std::string::npos) << Problems(ds);
 }
 
 TEST(DatasetCheck, AFolderWithoutADatasetIsBadInput) {
