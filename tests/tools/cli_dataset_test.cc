@@ -2,6 +2,7 @@
 // and rerun, or two shards at once in one folder, it writes the bytes of one uninterrupted run;
 // bad options exit with 2 and write nothing; `dataset check` exits 0 on a good dataset.
 #include <signal.h>
+#include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -31,13 +32,19 @@ std::map<std::string, std::string> Tree(const fs::path& dir) {
   return files;
 }
 
-// Starts romunect with `arguments` (split at spaces) without waiting; returns its pid.
-pid_t Start(const std::string& arguments) {
+// Starts romunect with `arguments` (split at spaces) without waiting; returns its pid. With
+// max_file_bytes > 0, no file it writes may grow beyond that (a full disk, as the process sees it).
+pid_t Start(const std::string& arguments, rlim_t max_file_bytes = 0) {
   std::vector<std::string> words = {testing::RomunectBinary().string()};
   std::istringstream in(arguments);
   for (std::string w; in >> w;) words.push_back(w);
   const pid_t pid = fork();
   if (pid == 0) {
+    if (max_file_bytes > 0) {
+      signal(SIGXFSZ, SIG_IGN);  // a write past the limit fails (EFBIG) instead of killing
+      const rlimit limit{max_file_bytes, max_file_bytes};
+      setrlimit(RLIMIT_FSIZE, &limit);
+    }
     std::vector<char*> argv;
     for (auto& w : words) argv.push_back(w.data());
     argv.push_back(nullptr);
@@ -87,6 +94,19 @@ TEST(CliDataset, KilledAtAnyMomentAndRerunEqualsAnUninterruptedRun) {
   const auto rerun = RunRomunect("dataset " + killed.string() + kTiny);
   ASSERT_EQ(rerun.exit_code, 0) << rerun.output;
   EXPECT_TRUE(Tree(dir / "whole") == Tree(killed));
+}
+
+TEST(CliDataset, AFullDiskFailsWithTheFileAndLeavesNoSceneComplete) {
+  ScratchDir dir("cli_dataset_full");
+  ASSERT_EQ(RunRomunect("dataset " + (dir / "whole").string() + kTiny).exit_code, 0);
+  // 200 kB per file: the models fit, an IR image (about 290 kB) does not
+  const fs::path full = dir / "full";
+  EXPECT_EQ(Wait(Start("dataset " + full.string() + kTiny, 200 * 1024)), 1);
+  EXPECT_TRUE(fs::exists(full / "train/000000.incomplete"));
+  EXPECT_FALSE(fs::exists(full / "train/000000"));
+  // with room again, the rerun completes the same dataset
+  ASSERT_EQ(RunRomunect("dataset " + full.string() + kTiny).exit_code, 0);
+  EXPECT_TRUE(Tree(dir / "whole") == Tree(full));
 }
 
 TEST(CliDataset, TwoShardsAtOnceInOneFolderEqualOneRun) {

@@ -82,11 +82,11 @@ void WritePng(const std::filesystem::path& path, const cv::Mat& image, PngKind k
   PutChunk(&png, "IHDR", header);
   PutChunk(&png, "IDAT", compressed);
   PutChunk(&png, "IEND", "");
-  WriteAtomically(path, [&png](const std::filesystem::path& tmp) {
+  WriteAtomically(path, [&png, &path](const std::filesystem::path& tmp) {
     std::ofstream out(tmp, std::ios::binary);
     out.write(png.data(), static_cast<std::streamsize>(png.size()));
     out.close();
-    if (!out) throw std::runtime_error(tmp.string() + ": cannot write file (disk full?)");
+    if (!out) throw std::runtime_error(path.string() + ": cannot write file (disk full?)");
   });
 }
 
