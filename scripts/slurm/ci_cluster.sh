@@ -8,7 +8,7 @@
 set -euo pipefail
 root=$(cd "$(dirname "$0")/../.." && pwd)
 build=${1:-$root/build}
-romunect=$build/bin/romunect
+romunect=$(cd "$build" 2>/dev/null && pwd)/bin/romunect
 [ -x "$romunect" ] || { echo "slurm: no $romunect; build first" >&2; exit 1; }
 
 sudo_cmd=()
@@ -43,7 +43,7 @@ node=$(slurmd -C | head -n 1)  # this machine's CPUs and memory, as slurmd detec
 mkdir -p "$tmp/state" "$tmp/spool"
 cat > "$tmp/slurm.conf" <<CONF
 ClusterName=romunect-ci
-SlurmctldHost=$host
+SlurmctldHost=$host(127.0.0.1)
 SlurmUser=root
 SlurmdUser=root
 AuthType=auth/munge
