@@ -1,6 +1,7 @@
 // The dataset job in-process: a tiny dataset passes its check, shards in either order equal one
 // run byte for byte, a rerun resumes, bad options are refused before any file, and every rule
 // of the check has a case that breaks it.
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -168,6 +169,23 @@ TEST_F(DatasetJob, RerunSkipsCompleteScenesAndRedoesAnIncompleteOne) {
   EXPECT_EQ(summary.scenes_written, 1);
   EXPECT_FALSE(fs::exists(ds / "train/000001.incomplete"));
   EXPECT_TRUE(SameTree(Dataset(), ds));
+}
+
+TEST_F(DatasetJob, ARerunRemovesTheTemporariesOfDeadProcessesOfThisHostOnly) {
+  ScratchDir dir("dataset_stale");
+  const fs::path ds = Copy(dir);
+  const pid_t gone = fork();  // a pid that surely has no process any more
+  if (gone == 0) _exit(0);
+  waitpid(gone, nullptr, 0);
+  char host[256] = {};
+  gethostname(host, sizeof host - 1);
+  const std::string dead = ".obj_000001.ply.tmp-" + std::string(host) + "-" + std::to_string(gone) + "-0";
+  const std::string elsewhere = ".obj_000001.ply.tmp-some-other-node-" + std::to_string(gone) + "-0";
+  WriteText(ds / "models" / dead, "half a model");
+  WriteText(ds / "models" / elsewhere, "another node's model, being written");
+  EXPECT_EQ(RunDataset(Tiny(ds)).scenes_skipped, 2);
+  EXPECT_FALSE(fs::exists(ds / "models" / dead));
+  EXPECT_TRUE(fs::exists(ds / "models" / elsewhere));
 }
 
 TEST_F(DatasetJob, OtherSettingsInTheFolderAreRefusedNamingTheOption) {

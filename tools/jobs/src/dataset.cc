@@ -1,9 +1,5 @@
 #include "romunect/tools/jobs/dataset.h"
 
-#include <errno.h>
-#include <signal.h>
-#include <unistd.h>
-
 #include <cstdio>
 #include <fstream>
 #include <map>
@@ -100,19 +96,6 @@ uintmax_t FolderBytes(const fs::path& dir) {
     if (entry.is_regular_file()) bytes += entry.file_size();
   }
   return bytes;
-}
-
-// Temporaries a killed process left beside the shared files (WriteAtomically names them
-// ".<stem>.tmp-<pid>-<n>"): removed when that process is gone.
-void RemoveStaleTemporaries(const fs::path& dir) {
-  if (!fs::exists(dir)) return;
-  for (const auto& entry : fs::directory_iterator(dir)) {
-    const std::string name = entry.path().filename().string();
-    const size_t at = name.find(".tmp-");
-    if (name.empty() || name[0] != '.' || at == std::string::npos) continue;
-    const int pid = std::atoi(name.c_str() + at + 5);
-    if (pid > 0 && kill(pid, 0) != 0 && errno == ESRCH) fs::remove(entry.path());
-  }
 }
 
 struct Shared {
@@ -292,13 +275,13 @@ DatasetSummary RunDataset(const DatasetOptions& o) {
 
   // The shared files: every shard writes the same bytes under a temporary name and renames.
   fs::create_directories(p.dir);
-  WriteTextAtomically(p.dir / "dataset.json", p.doc.dump(2) + "\n");  // first: the folder is a dataset
+  WriteShared(p.dir / "dataset.json", p.doc.dump(2) + "\n");  // first: the folder is a dataset
   fs::create_directories(p.dir / kSplit);
   const CameraModel& cam = p.settings.rig.camera;
   const nlohmann::json camera = {
       {"cx", cam.cx}, {"cy", cam.cy},         {"depth_scale", kDepthScaleMm}, {"fx", cam.fx},
       {"fy", cam.fy}, {"height", cam.height}, {"width", cam.width},           {"distortion", cam.distortion}};
-  WriteTextAtomically(p.dir / "camera.json", camera.dump(2) + "\n");
+  WriteShared(p.dir / "camera.json", camera.dump(2) + "\n");
   RemoveStaleTemporaries(p.dir);
   RemoveStaleTemporaries(p.dir / "models");
   WriteModels(p.dir / "models", models);

@@ -1,11 +1,17 @@
 // The dataset's settings (parsed and validated options) and its object models (PLY and
 // models_info.json, BOP's model files).
+#include <errno.h>
+#include <signal.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <map>
 #include <sstream>
+#include <stdexcept>
 
 #include "dataset_scene.h"
 #include "romunect/sensor/errors.h"
@@ -204,13 +210,67 @@ nlohmann::json ModelInfo(const Model& m) {
 
 }  // namespace
 
+namespace {
+
+std::string HostName() {
+  char name[256] = {};
+  gethostname(name, sizeof name - 1);
+  return name;
+}
+
+constexpr const char* kTemporary = ".tmp-";
+
+}  // namespace
+
+void WriteShared(const std::filesystem::path& path, const std::string& text) {
+  static std::atomic<int> counter{0};
+  std::string name = ".";
+  name += path.filename().string();
+  name += kTemporary;
+  name += HostName();
+  char suffix[48];
+  std::snprintf(suffix, sizeof suffix, "-%d-%d", static_cast<int>(getpid()), counter++);
+  name += suffix;
+  const std::filesystem::path tmp = path.parent_path() / name;
+  {
+    std::ofstream out(tmp, std::ios::binary);
+    out << text;
+    out.close();
+    if (!out) {
+      std::error_code ignored;
+      std::filesystem::remove(tmp, ignored);
+      throw std::runtime_error(path.string() + ": cannot write file (disk full?)");
+    }
+  }
+  std::filesystem::rename(tmp, path);
+}
+
+void RemoveStaleTemporaries(const std::filesystem::path& dir) {
+  if (!std::filesystem::exists(dir)) return;
+  const std::string host = HostName();
+  for (const auto& entry : std::filesystem::directory_iterator(dir)) {
+    // ".<name>.tmp-<host>-<pid>-<n>": host names may hold '-', so read from the end
+    const std::string name = entry.path().filename().string();
+    const size_t at = name.rfind(kTemporary), last = name.rfind('-'), before = name.rfind('-', last - 1);
+    if (name.empty() || name[0] != '.' || at == std::string::npos || before == std::string::npos || before < at + 5) {
+      continue;
+    }
+    const std::string writer_host = name.substr(at + 5, before - at - 5);
+    const int pid = std::atoi(name.c_str() + before + 1);
+    if (writer_host == host && pid > 0 && kill(pid, 0) != 0 && errno == ESRCH) {
+      std::error_code ignored;  // another process may have removed it meanwhile
+      std::filesystem::remove(entry.path(), ignored);
+    }
+  }
+}
+
 void WriteModels(const std::filesystem::path& models_dir, const std::vector<Model>& models) {
   std::filesystem::create_directories(models_dir);
   nlohmann::json info = nlohmann::json::object();
   // keys sorted as numbers would be: BOP's toolkit reads them back with int()
   std::map<int, nlohmann::json> by_id;
   for (const Model& m : models) {
-    WriteTextAtomically(models_dir / ("obj_" + Id6(m.obj_id) + ".ply"), PlyText(m));
+    WriteShared(models_dir / ("obj_" + Id6(m.obj_id) + ".ply"), PlyText(m));
     by_id[m.obj_id] = ModelInfo(m);
   }
   std::string text = "{";
@@ -218,7 +278,7 @@ void WriteModels(const std::filesystem::path& models_dir, const std::vector<Mode
     text += (text.size() > 1 ? ",\n  \"" : "\n  \"") + std::to_string(id) + "\": " + model_info.dump();
   }
   text += "\n}\n";
-  WriteTextAtomically(models_dir / "models_info.json", text);
+  WriteShared(models_dir / "models_info.json", text);
 }
 
 }  // namespace romunect::jobs::dataset

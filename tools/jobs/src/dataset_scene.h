@@ -62,8 +62,14 @@ sim::ObjectSpec ModelSpec(sim::ObjectKind kind, int variant);
 // The models of every (kind, variant) of the settings, as MuJoCo renders them; and the bin's
 // capacity check of --objects (InputError naming it).
 std::vector<Model> BuildModels(const Settings& settings);
-// models/obj_NNNNNN.ply (ASCII, mm, vertex normals) and models/models_info.json, each written
-// to a temporary name and renamed (shards writing them at once write the same bytes).
+// A file several shards may write at once with the same bytes (dataset.json, camera.json, the
+// models): written under ".<name>.tmp-<host>-<pid>-<n>" and renamed, so readers see it whole.
+void WriteShared(const std::filesystem::path& path, const std::string& text);
+// Removes the temporaries of WriteShared in `dir` that a killed process of this host left (its
+// pid is gone); other hosts' are theirs to finish.
+void RemoveStaleTemporaries(const std::filesystem::path& dir);
+
+// models/obj_NNNNNN.ply (ASCII, mm, vertex normals) and models/models_info.json (WriteShared).
 void WriteModels(const std::filesystem::path& models_dir, const std::vector<Model>& models);
 // The symmetries the model's vertex set maps onto itself (BOP's symmetries_discrete: 4 x 4
 // row-major, translation in mm), tried among half turns about the axes through the bounding
