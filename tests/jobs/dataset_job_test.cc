@@ -164,6 +164,9 @@ TEST_F(DatasetJob, RerunSkipsCompleteScenesAndRedoesAnIncompleteOne) {
   // a run killed in scene 1: its folder under the temporary name, half written
   fs::rename(ds / "train/000001", ds / "train/000001.incomplete");
   fs::remove(ds / "train/000001.incomplete/scene_gt.json");
+  const auto before = CheckDataset(ds.string());
+  EXPECT_EQ(before.scenes, 1);
+  EXPECT_EQ(before.incomplete_scenes, 1);
   const auto summary = RunDataset(Tiny(ds));
   EXPECT_EQ(summary.scenes_skipped, 1);
   EXPECT_EQ(summary.scenes_written, 1);

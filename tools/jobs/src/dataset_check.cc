@@ -336,6 +336,7 @@ std::string DatasetCheckSummary::Text() const {
   std::string text;
   for (size_t i = 0; i < problems.size() && i < kMaxListed; ++i) text += problems[i] + "\n";
   if (problems.size() > kMaxListed) text += Format("... and %zu more\n", problems.size() - kMaxListed);
+  if (incomplete_scenes > 0) text += Format("%d incomplete scenes (.incomplete) not checked\n", incomplete_scenes);
   return text + Format("dataset check: %d scenes, %d images, %d object instances (%d lone pixels through cracks "
                        "between triangles): %s\n",
                        scenes, images, annotations, isolated_pixels,
@@ -382,7 +383,12 @@ DatasetCheckSummary CheckDataset(const std::string& dir_name, int threads) {
   }
   std::vector<fs::path> scenes;
   for (const auto& entry : fs::directory_iterator(dir / dataset::kSplit)) {
-    if (entry.is_directory() && entry.path().extension().empty()) scenes.push_back(entry.path());
+    if (!entry.is_directory()) continue;
+    if (entry.path().extension().empty()) {
+      scenes.push_back(entry.path());
+    } else if (entry.path().extension() == ".incomplete") {
+      ++summary.incomplete_scenes;  // being written, or left by a killed run: a rerun completes it
+    }
   }
   std::sort(scenes.begin(), scenes.end());
   for (const fs::path& scene : scenes) {

@@ -71,6 +71,7 @@ struct DatasetCheckSummary {
   // a crack between two triangles (vertices rounded to float) in one of the two renders. Not
   // problems: a wrong pose, model or depth shows in whole patches.
   int isolated_pixels = 0;
+  int incomplete_scenes = 0;          // <scene>.incomplete folders: not checked (a rerun completes them)
   std::vector<std::string> problems;  // "<file>: <rule broken>", empty when the dataset is valid
   std::string Text() const;
 };
