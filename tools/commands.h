@@ -12,5 +12,6 @@ void AddRecordCommand(CLI::App& app);     // cmd_record.cc (jobs/record.h)
 void AddRenderCommand(CLI::App& app);     // cmd_render.cc (jobs/render.h)
 void AddCalibrateCommand(CLI::App& app);  // cmd_calibrate.cc (jobs/calibrate.h)
 void AddScanCommand(CLI::App& app);       // cmd_scan.cc (the main job: jobs/scan.h)
+void AddDatasetCommand(CLI::App& app);    // cmd_dataset.cc (jobs/dataset.h)
 
 }  // namespace romunect::tools

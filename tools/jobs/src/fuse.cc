@@ -10,6 +10,7 @@
 #include <Eigen/Geometry>
 #include <nlohmann/json.hpp>
 
+#include "bop_scene_source.h"
 #include "romunect/calib/calibration_file.h"
 #include "romunect/fusion/metrics.h"
 #include "romunect/fusion/voting_grid.h"
@@ -143,6 +144,10 @@ void RefuseStreamOptions(const FuseOptions& o) {
 FuseSource OpenFuseSource(const FuseOptions& o) {
   openni2::OpenSourceOptions options;
   options.invalid_depth = InvalidDepthPolicy::kSkip;
+  if (IsBopScene(o.source)) {
+    RefuseStreamOptions(o);  // scene_camera.json holds the poses, camera.json the camera
+    return {OpenBopScene(o.source), std::nullopt, {}, "the BOP scene's sensor depth (depth/)"};
+  }
   if (openni2::ClassifySource(o.source) == openni2::SourceKind::kFrameDirectory) {
     RefuseStreamOptions(o);
     return {openni2::OpenSource(o.source, options), std::nullopt, {}, "the frame directory's depth"};
@@ -363,6 +368,17 @@ FuseJobSummary RunFuse(const FuseOptions& o) {
       throw InputError((fs::path(o.source) / "frames.json").string(), "region_W", problem);
     }
     CheckVoxelFitsBox(grid_options);
+  }
+  if (!o.box_given && IsBopScene(o.source)) {
+    if (const std::optional<WorldBox> region = BopSceneRegion(o.source)) {
+      grid_options.min_W = region->min_W;
+      grid_options.max_W = region->max_W;
+      s.box_from = "scene_info.json's region_W";
+      if (const std::string problem = grid_options.Problem(); !problem.empty()) {
+        throw InputError((fs::path(o.source) / "scene_info.json").string(), "region_W", problem);
+      }
+      CheckVoxelFitsBox(grid_options);
+    }
   }
   const cv::Mat gt = o.gt.empty() ? cv::Mat() : ReadDepthExr(o.gt);
   fusion::VotingGrid grid(grid_options);  // throws with the size needed when it does not fit
