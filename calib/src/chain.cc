@@ -10,6 +10,7 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "romunect/calib/hand_eye_check.h"
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/depth_engine.h"
@@ -421,30 +422,11 @@ void HomographyStep(CalibrationHardware* hw, const ChainOptions& options, const 
 
 // ---- 3. hand-eye (Tsai/Park initial estimate, Ceres refinement) from the same views
 
-// The board corners' reprojection RMS (px) of each station through the hand-eye fit; a corner
-// behind the camera counts 1000 px.
-std::vector<double> StationRmsPx(const std::vector<HandEyeStation>& stations, const HandEyeResult& fit,
-                                 const BoardSpec& board) {
-  std::vector<double> rms(stations.size());
-  const std::vector<Eigen::Vector3d> corners_K = board.CornersK();
-  for (size_t s = 0; s < stations.size(); ++s) {
-    const Pose T_C_K = (stations[s].T_B_H * fit.T_H_C).inverse() * fit.T_B_K;
-    double sum = 0.0;
-    for (size_t i = 0; i < corners_K.size(); ++i) {
-      const auto u = fit.camera.Project(T_C_K * corners_K[i]);
-      const cv::Point2f& d = stations[s].view.corners_px[i];
-      sum += u ? (*u - Eigen::Vector2d(d.x, d.y)).squaredNorm() : 1e6;
-    }
-    rms[s] = std::sqrt(sum / corners_K.size());
-  }
-  return rms;
-}
-
 // Stations the fit cannot explain (a corner order flipped, a pose reported wrong): drops those
 // far above the median and fits again, once, when enough stations remain.
 void DropHandEyeOutliers(const CalibrationSetup& setup, const ChainOptions& options, const ChainProgress& say,
                          std::vector<HandEyeStation>* stations, ChainResult* result) {
-  const std::vector<double> rms = StationRmsPx(*stations, result->hand_eye, setup.board);
+  const std::vector<double> rms = HandEyeStationRmsPx(*stations, result->hand_eye, setup.board);
   std::vector<double> sorted = rms;
   std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
   const double limit = 3.0 * sorted[sorted.size() / 2];
