@@ -1,5 +1,6 @@
 // romunect calibrate: the calibration chain (jobs/calibrate.h).
 //   calibrate [--out DIR] [--seed N] [--rig NAME|FILE] [--views N] [--stations N] [--planes N]
+//             [--nominal-errors SCALE] [--save-captures DIR]
 //       no step named: the whole chain in the loop with the simulated rig.
 //   calibrate intrinsics --images DIR --board 9x6 --square 0.025 [--output FILE]
 //   calibrate hand-eye   --frames SOURCE [--poses LOG [--pose-offset S]] | --images DIR --poses FILE
@@ -49,6 +50,12 @@ void AddCalibrateCommand(CLI::App& app) {
   calibrate->add_option("--board-samples", loop->board_samples, "Sub-pixel samples per axis for board images (odd)");
   calibrate->add_option("--threads", loop->threads, "Simulation threads (default 2)")->check(CLI::Range(1, 64));
   calibrate->add_flag("--overwrite-worse", loop->overwrite_worse, "Replace an existing file even when worse");
+  calibrate->add_option("--nominal-errors", loop->nominal_errors,
+                        "Scale of the rig's nominal errors (mount, plate, projector, focal length, principal point): "
+                        "0 = exact nominal values, 1 = default");
+  calibrate->add_option("--save-captures", loop->save_captures,
+                        "Also save the captures as the single steps' input: DIR/intrinsics (images), DIR/hand_eye and "
+                        "DIR/depth (frame directories with T_B_H)");
   calibrate->callback([calibrate, loop] {
     if (calibrate->get_subcommands().empty()) {
       std::printf("%s", jobs::InTheLoopSummaryText(jobs::CalibrateInTheLoop(*loop)).c_str());

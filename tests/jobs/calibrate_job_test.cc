@@ -4,14 +4,18 @@
 #include <filesystem>
 #include <string>
 
+#include <array>
+
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 
 #include "romunect/calib/calibration_file.h"
 #include "romunect/calib/intrinsics.h"
 #include "romunect/testing/test_support.h"
 #include "romunect/tools/jobs/calibrate.h"
+#include "romunect/tools/jobs/text.h"
 #include "synthetic.h"
 
 namespace romunect::jobs {
@@ -37,6 +41,7 @@ TEST(CalibrateJob, InTheLoopWritesTheFileTheReportsAndTheGoals) {
   o.stations = 8;
   o.planes = 4;
   o.board_samples = 1;
+  o.save_captures = (dir / "captures").string();
   const InTheLoopSummary summary = CalibrateInTheLoop(o);
   EXPECT_EQ(summary.calibration_file, fs::path(o.out) / "calibration.yaml");
   const calib::Calibration calibration = calib::LoadCalibration(summary.calibration_file);
@@ -47,6 +52,29 @@ TEST(CalibrateJob, InTheLoopWritesTheFileTheReportsAndTheGoals) {
     EXPECT_TRUE(fs::exists(fs::path(o.out) / name)) << name;
   }
   EXPECT_THAT(InTheLoopSummaryText(summary), HasSubstr(summary.calibration_file.string()));
+
+  // the report shows the file's final (refined) camera beside the truth
+  const std::string md = romunect::testing::ReadText(fs::path(o.out) / "report.md");
+  EXPECT_THAT(md, HasSubstr(Format("| fx | %.4f px |", calibration.camera.fx)));
+  const nlohmann::json report = nlohmann::json::parse(romunect::testing::ReadText(fs::path(o.out) / "report.json"));
+  const std::vector<double> truth_T_H_C = report["values"]["T_H_C"]["truth"];
+  ASSERT_EQ(truth_T_H_C.size(), 16u);
+
+  // the saved captures re-run the hand-eye step on their own, to the truth
+  HandEyeStepOptions hand_eye;
+  hand_eye.frames = (dir / "captures" / "hand_eye").string();
+  hand_eye.intrinsics = summary.calibration_file.string();
+  hand_eye.square_m = 0.003;  // the simulated plate's
+  hand_eye.file.output = (dir / "rerun.yaml").string();
+  const calib::Calibration rerun = RunHandEyeStep(hand_eye);
+  std::array<double, 16> row_major;
+  std::copy(truth_T_H_C.begin(), truth_T_H_C.end(), row_major.begin());
+  // the chain's own T_H_C with its own camera: the rerun with the same camera lands as near
+  EXPECT_TRUE(romunect::testing::PosesNear(rerun.T_H_C, calibration.T_H_C, kHandEyeAngleRad, kHandEyeTranslationM));
+  EXPECT_TRUE(romunect::testing::PosesNear(rerun.T_H_C, PoseFromRowMajor(row_major), 0.2 * kDeg, 1e-3));
+  EXPECT_TRUE(fs::exists(dir / "captures" / "depth" / "frames.json"));
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir / "captures" / "intrinsics"), fs::directory_iterator()),
+            o.views);
 }
 
 TEST(CalibrateJob, InTheLoopRefusesTooFewViewsBeforeAnyWork) {

@@ -72,6 +72,13 @@ struct InTheLoopOptions {
   int board_samples = 3;
   int threads = 2;
   bool overwrite_worse = false;
+  // The rig's nominal errors (CAD mount, plate placement, projector, datasheet focal length and
+  // principal point) scaled by this: 0 = nominal values exact, 1 = the rig's defaults.
+  double nominal_errors = 1.0;
+  // When set: the captures as inputs of the single steps, re-runnable with `calibrate
+  // intrinsics|hand-eye|depth`: DIR/intrinsics/ (board images), DIR/hand_eye/ and DIR/depth/
+  // (frame directories with T_B_H per frame).
+  std::string save_captures;
 };
 
 struct InTheLoopSummary {
