@@ -15,6 +15,7 @@
 #include "romunect/calib/intrinsics.h"
 #include "romunect/testing/test_support.h"
 #include "romunect/tools/jobs/calibrate.h"
+#include "romunect/tools/jobs/info.h"
 #include "romunect/tools/jobs/text.h"
 #include "synthetic.h"
 
@@ -73,8 +74,7 @@ TEST(CalibrateJob, InTheLoopWritesTheFileTheReportsAndTheGoals) {
   EXPECT_TRUE(romunect::testing::PosesNear(rerun.T_H_C, calibration.T_H_C, kHandEyeAngleRad, kHandEyeTranslationM));
   EXPECT_TRUE(romunect::testing::PosesNear(rerun.T_H_C, PoseFromRowMajor(row_major), 0.2 * kDeg, 1e-3));
   EXPECT_TRUE(fs::exists(dir / "captures" / "depth" / "frames.json"));
-  EXPECT_EQ(std::distance(fs::directory_iterator(dir / "captures" / "intrinsics"), fs::directory_iterator()),
-            o.views);
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir / "captures" / "intrinsics"), fs::directory_iterator()), o.views);
 }
 
 TEST(CalibrateJob, InTheLoopRefusesTooFewViewsBeforeAnyWork) {
@@ -131,6 +131,7 @@ TEST(CalibrateJob, HandEyeThenDepthStepsRecoverTheTruth) {
 
   const calib::testing::HandEyeRig rig = calib::testing::MakeHandEyeRig(camera, board, 12, 0.0, 0.5, 0.8, 3);
   calib::testing::WriteBoardFrames(dir / "board", camera, board, rig);
+  EXPECT_EQ(InspectFrameDirectory(dir / "board").with_hand_pose, 12u);  // `info` shows they carry T_B_H
   HandEyeStepOptions hand_eye;
   hand_eye.frames = (dir / "board").string();
   hand_eye.file.output = file.string();

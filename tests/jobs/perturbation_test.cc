@@ -13,6 +13,7 @@
 #include "romunect/sensor/image_io.h"
 #include "romunect/testing/analytic_bin.h"
 #include "romunect/testing/test_support.h"
+#include "romunect/tools/jobs/calibration_sensitivity.h"
 #include "romunect/tools/jobs/fuse.h"
 #include "romunect/tools/jobs/perturbation.h"
 
@@ -101,6 +102,16 @@ TEST(Perturbation, MapErrorGrowsWithEachInjectedError) {
       previous = mae;
     }
   }
+}
+
+// The tolerance: where the MAE's excess over the unperturbed map crosses 0.1 mm / 1 mm.
+TEST(CalibrationSensitivity, ToleranceInterpolatesWhereTheExcessCrossesTheLimit) {
+  const std::vector<SensitivityPoint> sweep = {
+      {"hand_eye_deg", 0.1, 0.55}, {"hand_eye_deg", 0.2, 0.70}, {"hand_eye_deg", 0.5, 1.90}};
+  const SensitivityTolerance t = ToleranceOf("hand_eye_deg", sweep, 0.5);
+  EXPECT_NEAR(t.within_0_1mm, 0.1 + 0.1 * (0.1 - 0.05) / (0.2 - 0.05), 1e-12);  // excess 0.05 -> 0.2
+  EXPECT_NEAR(t.within_1mm, 0.2 + 0.3 * (1.0 - 0.2) / (1.4 - 0.2), 1e-12);      // excess 0.2 -> 1.4
+  EXPECT_EQ(ToleranceOf("x", {{"x", 1.0, 0.52}}, 0.5).within_1mm, 1.0);         // never exceeded: the largest swept
 }
 
 }  // namespace
