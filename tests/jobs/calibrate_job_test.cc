@@ -149,5 +149,35 @@ TEST(CalibrateJob, HandEyeThenDepthStepsRecoverTheTruth) {
   EXPECT_EQ(done.T_H_C.matrix(), after_hand_eye.T_H_C.matrix());  // the earlier step is kept
 }
 
+// Frames skipped for their format are counted by reason at the end, not only one by one.
+TEST(CalibrateJob, HandEyeCountsFramesSkippedForTheirFormat) {
+  ScratchDir dir("job_skipped");
+  CameraModel camera = calib::testing::TruthCamera();
+  camera.distortion = {};
+  const calib::BoardSpec board{9, 6, 0.025};
+  calib::Calibration start;
+  start.camera = camera;
+  start.residuals.intrinsics_rms_px = 0.05;
+  calib::SaveCalibration(dir / "calibration.yaml", start);
+  const calib::testing::HandEyeRig rig = calib::testing::MakeHandEyeRig(camera, board, 12, 0.0, 0.5, 0.8, 3);
+  calib::testing::WriteBoardFrames(dir / "board", camera, board, rig);
+  int converted = 0;
+  for (const auto& entry : fs::directory_iterator(dir / "board" / "ir")) {
+    if (converted == 3) break;
+    cv::Mat eight_bit;
+    cv::imread(entry.path().string(), cv::IMREAD_UNCHANGED).convertTo(eight_bit, CV_8U, 1.0 / 4.0);
+    cv::imwrite(entry.path().string(), eight_bit);  // a converted IR image: 8-bit
+    ++converted;
+  }
+  HandEyeStepOptions hand_eye;
+  hand_eye.frames = (dir / "board").string();
+  hand_eye.file.output = (dir / "calibration.yaml").string();
+  ::testing::internal::CaptureStdout();
+  RunHandEyeStep(hand_eye);
+  const std::string out = ::testing::internal::GetCapturedStdout();
+  EXPECT_THAT(out, HasSubstr("skipped 3 frame(s): "));
+  EXPECT_THAT(out, HasSubstr("9 stations used"));
+}
+
 }  // namespace
 }  // namespace romunect::jobs

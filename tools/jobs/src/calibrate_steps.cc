@@ -1,8 +1,10 @@
 #include "romunect/tools/jobs/calibrate.h"
 
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <functional>
+#include <map>
 #include <memory>
 #include <string>
 #include <utility>
@@ -115,6 +117,20 @@ Calibration RunIntrinsicsStep(const IntrinsicsStepOptions& o) {
 
 namespace {
 
+// A bad frame's message with its frame numbers and file numbers blanked, so that frames skipped
+// for one reason (an image of the wrong format) count as one.
+std::string SkipReason(const std::string& error) {
+  std::string reason;
+  for (size_t i = 0; i < error.size(); ++i) {
+    if (std::isdigit(static_cast<unsigned char>(error[i]))) {
+      if (reason.empty() || reason.back() != '#') reason += '#';
+    } else {
+      reason += error[i];
+    }
+  }
+  return reason;
+}
+
 // Every frame of a recorded source (OpenSource: frame directory, .oni file with a pose log,
 // device) with its T_B_H and the image a step needs; bad frames are reported and skipped. The
 // source's camera must have the image size of `calibration` (read from `calibration_file`).
@@ -144,11 +160,13 @@ void ForEachFrame(const std::string& source_text, const PoseLogOptions& poses, b
   }
   Frame frame;
   std::string error;
+  std::map<std::string, int> skipped;  // by reason, for the final message
   for (;;) {
     const FrameStatus status = source->Next(&frame, &error);
     if (status == FrameStatus::kEndOfStream) break;
     if (status == FrameStatus::kBadFrame) {
       std::printf("skipped a bad frame: %s\n", error.c_str());
+      ++skipped[SkipReason(error)];
       continue;
     }
     const std::string field = "frames[" + std::to_string(frame.index) + "]";
@@ -163,6 +181,7 @@ void ForEachFrame(const std::string& source_text, const PoseLogOptions& poses, b
     }
     use(frame);
   }
+  for (const auto& [reason, count] : skipped) std::printf("skipped %d frame(s): %s\n", count, reason.c_str());
 }
 
 }  // namespace
