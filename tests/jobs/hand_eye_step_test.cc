@@ -25,6 +25,7 @@ namespace fs = std::filesystem;
 using romunect::testing::InputErrorOf;
 using romunect::testing::ScratchDir;
 using ::testing::HasSubstr;
+using ::testing::Not;
 
 constexpr double kDeg = M_PI / 180.0;
 // Rendered, 4x supersampled 640 x 480 images, camera refined: within 0.05 deg (0.02 deg
@@ -72,9 +73,11 @@ std::vector<Pose> TruePoses(const Scene& scene, int first, int count) {
   return poses;
 }
 
-fs::path WriteIntrinsics(const fs::path& dir, const CameraModel& camera) {
+fs::path WriteIntrinsics(const fs::path& dir, const CameraModel& camera, double focal_scale = 1.0) {
   calib::Calibration c;
   c.camera = camera;
+  c.camera.fx *= focal_scale;
+  c.camera.fy *= focal_scale;
   c.residuals.intrinsics_rms_px = 0.05;
   const fs::path file = dir / "intrinsics.yaml";
   calib::SaveCalibration(file, c);
@@ -95,10 +98,16 @@ TEST(HandEyeStep, ImagesAndAPoseFileRecoverTheTruth) {
   const Scene scene(15, 3);
   WriteImages(dir / "images", scene, 0, 15, false);  // 8-bit
   WritePoses(dir / "poses.txt", TruePoses(scene, 0, 15), 17);
-  HandEyeStepOptions o = Step(dir.path(), WriteIntrinsics(dir.path(), scene.camera));
+  // intrinsics from weakly tilted views: the focal length 0.1 % short
+  HandEyeStepOptions o = Step(dir.path(), WriteIntrinsics(dir.path(), scene.camera, 0.999));
   o.refine_intrinsics = true;
+  ::testing::internal::CaptureStdout();
   const calib::Calibration c = RunHandEyeStep(o);
+  const std::string out = ::testing::internal::GetCapturedStdout();
+  EXPECT_THAT(out, HasSubstr("constrain the focal length weakly"));
+  EXPECT_THAT(out, HasSubstr("stations used"));
   EXPECT_TRUE(romunect::testing::PosesNear(c.T_H_C, scene.rig.T_H_C, kHandEyeAngleRad, kHandEyeTranslationM));
+  EXPECT_NEAR(c.camera.fx, scene.camera.fx, 0.1);  // refined back: 0.1 % is 0.58 px
   EXPECT_TRUE(fs::exists(o.file.output));
   EXPECT_FALSE(fs::exists(dir / "images" / "out.yaml"));
 }
@@ -116,7 +125,11 @@ TEST(HandEyeStep, SixteenBitImagesAndRoundedMillimetrePosesInverted) {
   HandEyeStepOptions o = Step(dir.path(), WriteIntrinsics(dir.path(), scene.camera));
   o.pose_units = "mm";
   o.poses_are = "base-in-hand";
+  ::testing::internal::CaptureStdout();
   const calib::Calibration c = RunHandEyeStep(o);
+  const std::string out = ::testing::internal::GetCapturedStdout();
+  EXPECT_THAT(out, HasSubstr("rotations re-orthonormalized"));
+  EXPECT_THAT(out, Not(HasSubstr("weakly")));  // the true camera: no warning about its focal length
   // 6 decimals of millimetres and rotations: 1e-6 rad, well below the goal
   EXPECT_TRUE(romunect::testing::PosesNear(c.T_H_C, scene.rig.T_H_C, kHandEyeAngleRad, kHandEyeTranslationM));
 }
