@@ -104,6 +104,46 @@ TEST(Perturbation, MapErrorGrowsWithEachInjectedError) {
   }
 }
 
+// The experiment on a given scan folder (here an analytic bin's frames, its ground truth and voxel):
+// the table, the CSV, a plot per sweep and the tolerances.
+TEST(CalibrationSensitivity, ReFusesAGivenScanPerInjectedError) {
+  ScratchDir dir("sensitivity");
+  testing::AnalyticBinOptions bin_options;
+  bin_options.width = 96, bin_options.height = 72, bin_options.frames = 6, bin_options.seed = 2;
+  const testing::AnalyticBin bin(bin_options);
+  const fs::path scan = dir / "scan";
+  {
+    FrameDirectoryWriter writer(scan / "frames", bin.camera());
+    for (int i = 0; i < bin.frames(); ++i) writer.Add(bin.RenderFrame(i));
+    writer.Finish();
+  }
+  fusion::GridOptions grid;
+  grid.voxel_m = 1e-3;
+  const Eigen::Vector3i n = grid.Dims();
+  WriteHeightMapExr(scan / "gt_height.exr", bin.GroundTruthHeightMap(grid.min_W, grid.voxel_m, n.x(), n.y()),
+                    fusion::VotingGrid(grid).geometry());
+  WriteTextAtomically(scan / "report.json", R"({"options": {"voxel_m": 0.001}})");
+  SensitivityOptions o;
+  o.out = (dir / "out").string();
+  o.scan = scan.string();
+  o.sweeps = {"hand_eye_deg=1:0.5", "depth_offset_mm=2"};
+  const SensitivitySummary s = RunCalibrationSensitivity(o);
+  ASSERT_EQ(s.points.size(), 3u);
+  EXPECT_EQ(s.points[0].value, 0.5);  // sorted
+  EXPECT_GT(s.points[1].mae_mm, s.points[0].mae_mm);
+  ASSERT_EQ(s.tolerances.size(), 2u);
+  EXPECT_GT(s.tolerances[0].within_1mm, 0.0);
+  for (const char* file : {"sensitivity.md", "sensitivity.csv", "hand_eye_deg.svg", "depth_offset_mm.svg"}) {
+    EXPECT_TRUE(fs::exists(dir / "out" / file)) << file;
+  }
+  EXPECT_THAT(InputErrorOf([&] {
+                o.out = (dir / "out2").string();
+                o.sweeps = {"hand_eye=1"};
+                RunCalibrationSensitivity(o);
+              }),
+              HasSubstr("unknown"));
+}
+
 // The tolerance: where the MAE's excess over the unperturbed map crosses 0.1 mm / 1 mm.
 TEST(CalibrationSensitivity, ToleranceInterpolatesWhereTheExcessCrossesTheLimit) {
   const std::vector<SensitivityPoint> sweep = {
