@@ -112,6 +112,27 @@ TEST(CalibrateJob, IntrinsicsStepRecoversTheCameraFromAFolderOfImages) {
   EXPECT_LT(calibration.residuals.intrinsics_rms_px, 0.1);
   EXPECT_EQ(calib::LoadCalibration(o.file.output).camera.fx, calibration.camera.fx);  // what it saved
 
+  // into a file holding a hand-eye result: its T_H_C went with the old camera and is dropped
+  calib::Calibration with_hand_eye = calibration;
+  with_hand_eye.T_H_C = MakePose(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.01, 0.02, 0.03));
+  with_hand_eye.residuals.hand_eye_rms_px = 0.1;
+  calib::SaveCalibration(dir / "with_hand_eye.yaml", with_hand_eye);
+  o.file.output = (dir / "with_hand_eye.yaml").string();
+  ::testing::internal::CaptureStdout();
+  const calib::Calibration redone = RunIntrinsicsStep(o);
+  EXPECT_THAT(::testing::internal::GetCapturedStdout(), HasSubstr("held a hand-eye result for its old camera"));
+  EXPECT_LT(redone.residuals.hand_eye_rms_px, 0.0);
+  EXPECT_TRUE(redone.T_H_C.matrix().isIdentity());
+  // a file with a better result is kept, and the refusal names the flag that overrides it
+  calib::Calibration better = calibration;
+  better.residuals.intrinsics_rms_px = 0.001;
+  calib::SaveCalibration(dir / "better.yaml", better);
+  o.file.output = (dir / "better.yaml").string();
+  EXPECT_THAT(InputErrorOf([&] { RunIntrinsicsStep(o); }), HasSubstr("--overwrite-worse"));
+  o.square_m = 0.0;
+  EXPECT_EQ(InputErrorOf([&] { RunIntrinsicsStep(o); }).rfind("--square", 0), 0u);
+
+  o.square_m = 0.025;
   o.images = (dir / "nothing").string();
   o.file.output = (dir / "x.yaml").string();
   EXPECT_THAT(InputErrorOf([&] { RunIntrinsicsStep(o); }), HasSubstr("not a folder"));
