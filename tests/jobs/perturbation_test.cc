@@ -130,6 +130,7 @@ TEST(CalibrationSensitivity, ReFusesAGivenScanPerInjectedError) {
   const SensitivitySummary s = RunCalibrationSensitivity(o);
   ASSERT_EQ(s.points.size(), 3u);
   EXPECT_EQ(s.points[0].value, 0.5);  // sorted
+  EXPECT_EQ(s.points[0].pick, -1);    // no settled pile (scene.json) to pick from
   EXPECT_GT(s.points[1].mae_mm, s.points[0].mae_mm);
   ASSERT_EQ(s.tolerances.size(), 2u);
   EXPECT_GT(s.tolerances[0].within_1mm, 0.0);

@@ -4,12 +4,17 @@
 #include <cstdio>
 #include <fstream>
 #include <map>
+#include <optional>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
 
 #include "romunect/sensor/errors.h"
+#include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/image_io.h"
+#include "romunect/sim/ik.h"
+#include "romunect/sim/pick.h"
+#include "romunect/sim/pile.h"
 #include "romunect/tools/jobs/fuse.h"
 #include "romunect/tools/jobs/perturbation.h"
 #include "romunect/tools/jobs/run_folder.h"
@@ -46,6 +51,25 @@ Sweep ParseSweep(const std::string& text) {
   return sweep;
 }
 
+const char* PickText(int pick) { return pick < 0 ? "-" : pick == 1 ? "succeeded" : "failed"; }
+
+// The pick from a fused map in a fresh copy of the scan's settled pile, the arm where the scan
+// ended (its last frame's hand pose): 1 succeeded, 0 failed, -1 when it could not be set up.
+int PickFrom(const fs::path& scan, const fs::path& map) {
+  const std::optional<HeightMapGeometry> geometry = ReadHeightMapGeometry(map);
+  if (!fs::exists(scan / "scene.json") || !geometry) return -1;
+  const FrameDirectoryManifest manifest = ReadFrameDirectoryManifest(scan / "frames");
+  if (manifest.frames.empty() || !manifest.frames.back().T_B_H) return -1;
+  sim::World world = sim::LoadSettledScene(scan / "scene.json");
+  const sim::IkResult ik = sim::SolveIk(world, sim::ArmSite::kHand, world.T_W_B() * *manifest.frames.back().T_B_H,
+                                        world.arm_q());
+  if (!ik.converged) return -1;
+  world.SetArmQ(ik.q);
+  const sim::PickResult pick = sim::Pick(&world, ReadDepthExr(map), *geometry);
+  if (!pick.success) std::fprintf(stderr, "sensitivity: the pick failed: %s\n", pick.failure.c_str());
+  return pick.success ? 1 : 0;
+}
+
 // Fuses the scan's frames with one perturbation; the fuse's own outputs are dropped.
 SensitivityPoint FusePoint(const fs::path& scan, double voxel_m, int threads, const fs::path& work,
                            const std::string& name, double value) {
@@ -57,11 +81,13 @@ SensitivityPoint FusePoint(const fs::path& scan, double voxel_m, int threads, co
   o.threads = threads;
   if (!name.empty()) o.perturb = name + "=" + Format("%.17g", value);
   const FuseJobSummary s = RunFuse(o);
-  fs::remove_all(o.out);
   const fusion::HeightMapMetrics& m = *s.report.metrics;
-  std::fprintf(stderr, "sensitivity: %s = %g: MAE %.3f mm, within 1 mm %.1f %%\n", name.empty() ? "none" : name.c_str(),
-               value, m.mae_mm, 100.0 * m.within_1mm);
-  return {name, value, m.mae_mm, m.rmse_mm, m.within_1mm, s.report.completeness};
+  SensitivityPoint point{name, value, m.mae_mm, m.rmse_mm, m.within_1mm, s.report.completeness};
+  point.pick = PickFrom(scan, fs::path(o.out) / "fused_depth.exr");
+  fs::remove_all(o.out);
+  std::fprintf(stderr, "sensitivity: %s = %g: MAE %.3f mm, within 1 mm %.1f %%, pick %s\n",
+               name.empty() ? "none" : name.c_str(), value, m.mae_mm, 100.0 * m.within_1mm, PickText(point.pick));
+  return point;
 }
 
 // A plot of MAE (mm, left axis) and within 1 mm (%, right axis) against the injected error.
@@ -147,22 +173,23 @@ SensitivitySummary RunCalibrationSensitivity(const SensitivityOptions& o) {
   double voxel_m = 0.0;
   const fs::path scan = ScanToUse(o, run.work_dir(), &voxel_m);
   s.baseline = FusePoint(scan, voxel_m, o.threads, run.work_dir(), "", 0.0);
-  std::string csv = "name,value,mae_mm,rmse_mm,within_1mm,completeness\n";
-  csv += Format("none,0,%.6f,%.6f,%.6f,%.6f\n", s.baseline.mae_mm, s.baseline.rmse_mm, s.baseline.within_1mm,
-                s.baseline.completeness);
-  s.table = Format("Unperturbed: MAE %.3f mm, RMSE %.3f mm, within 1 mm %.1f %%, completeness %.1f %%.\n\n",
-                   s.baseline.mae_mm, s.baseline.rmse_mm, 100 * s.baseline.within_1mm, 100 * s.baseline.completeness);
-  s.table +=
-      "| injected | value | MAE mm | RMSE mm | within 1 mm | completeness |\n| --- | --- | --- | --- | --- | --- |\n";
+  std::string csv = "name,value,mae_mm,rmse_mm,within_1mm,completeness,pick\n";
+  csv += Format("none,0,%.6f,%.6f,%.6f,%.6f,%d\n", s.baseline.mae_mm, s.baseline.rmse_mm, s.baseline.within_1mm,
+                s.baseline.completeness, s.baseline.pick);
+  s.table = Format("Unperturbed: MAE %.3f mm, RMSE %.3f mm, within 1 mm %.1f %%, completeness %.1f %%, pick %s.\n\n",
+                   s.baseline.mae_mm, s.baseline.rmse_mm, 100 * s.baseline.within_1mm, 100 * s.baseline.completeness,
+                   PickText(s.baseline.pick));
+  s.table += "| injected | value | MAE mm | RMSE mm | within 1 mm | completeness | pick |\n"
+             "| --- | --- | --- | --- | --- | --- | --- |\n";
   for (const Sweep& sweep : sweeps) {
     std::vector<SensitivityPoint> points;
     for (double v : sweep.values) {
       points.push_back(FusePoint(scan, voxel_m, o.threads, run.work_dir(), sweep.name, v));
       const SensitivityPoint& p = points.back();
-      csv += Format("%s,%g,%.6f,%.6f,%.6f,%.6f\n", p.name.c_str(), p.value, p.mae_mm, p.rmse_mm, p.within_1mm,
-                    p.completeness);
-      s.table += Format("| %s | %g | %.3f | %.3f | %.1f %% | %.1f %% |\n", p.name.c_str(), p.value, p.mae_mm, p.rmse_mm,
-                        100 * p.within_1mm, 100 * p.completeness);
+      csv += Format("%s,%g,%.6f,%.6f,%.6f,%.6f,%d\n", p.name.c_str(), p.value, p.mae_mm, p.rmse_mm, p.within_1mm,
+                    p.completeness, p.pick);
+      s.table += Format("| %s | %g | %.3f | %.3f | %.1f %% | %.1f %% | %s |\n", p.name.c_str(), p.value, p.mae_mm,
+                        p.rmse_mm, 100 * p.within_1mm, 100 * p.completeness, PickText(p.pick));
     }
     WriteTextAtomically(run.work_dir() / (sweep.name + ".svg"), PlotSvg(sweep.name, s.baseline, points));
     s.tolerances.push_back(ToleranceOf(sweep.name, points, s.baseline.mae_mm));

@@ -2,7 +2,8 @@
 // One scan with the rig's true calibration (or a given scan run folder), then its frames
 // re-fused with each injected error of each sweep (perturbation.h: every error it injects acts
 // where fusion uses the calibration, so the frames themselves do not change and are scanned
-// once). Writes OUT/sensitivity.md (the table and the tolerances), OUT/sensitivity.csv and one
+// once). Each map is also picked from, in a fresh copy of the scan's settled pile (when the scan
+// folder has its scene.json). Writes OUT/sensitivity.md (the table and the tolerances), OUT/sensitivity.csv and one
 // plot per sweep (OUT/<name>.svg: MAE and share within 1 mm against the injected error).
 #pragma once
 
@@ -26,6 +27,7 @@ struct SensitivityPoint {
   std::string name;
   double value = 0.0;
   double mae_mm = 0.0, rmse_mm = 0.0, within_1mm = 0.0, completeness = 0.0;
+  int pick = -1;  // the pick from this map in the scan's settled pile: 1 succeeded, 0 failed, -1 not tried
 };
 
 // The largest injected error that keeps the map's MAE within `mm` of the unperturbed map's
