@@ -307,15 +307,15 @@ std::string ValuesTable(const Measured& m) {
   row("fy", c.fy, t.fy, "px");
   row("cx", c.cx, t.cx, "px");
   row("cy", c.cy, t.cy, "px");
-  for (int i = 0; i < 5; ++i) row(("k" + std::to_string(i)).c_str(), c.distortion[i], t.distortion[i], "");
-  const char* axes[] = {"x", "y", "z"};
+  const char* distortion[] = {"k1", "k2", "p1", "p2", "k3"};  // OpenCV's order
+  for (int i = 0; i < 5; ++i) row(distortion[i], c.distortion[i], t.distortion[i], "");
+  const char* hand_eye[] = {"T_H_C x", "T_H_C y", "T_H_C z"};
+  const char* board[] = {"T_B_K x", "T_B_K y", "T_B_K z"};
   for (int i = 0; i < 3; ++i) {
-    row(("T_H_C " + std::string(axes[i])).c_str(), 1e3 * m.r.calibration.T_H_C.translation()[i],
-        1e3 * m.truth_T_H_C.translation()[i], "mm");
+    row(hand_eye[i], 1e3 * m.r.calibration.T_H_C.translation()[i], 1e3 * m.truth_T_H_C.translation()[i], "mm");
   }
   for (int i = 0; i < 3; ++i) {
-    row(("T_B_K " + std::string(axes[i])).c_str(), 1e3 * m.r.calibration.T_B_K.translation()[i],
-        1e3 * m.truth_T_B_K.translation()[i], "mm");
+    row(board[i], 1e3 * m.r.calibration.T_B_K.translation()[i], 1e3 * m.truth_T_B_K.translation()[i], "mm");
   }
   table += Format("| T_H_C rotation | | | %.4f deg |\n| T_B_K rotation | | | %.4f deg |\n\n",
                   m.truth.hand_eye.angle_rad / kDeg, m.truth.board.angle_rad / kDeg);
