@@ -81,7 +81,7 @@ HandEyeAlternative SquareSizeAlternative(const std::vector<HandEyeStation>& stat
   HandEyeCheckOptions coarse = options;
   coarse.hand_eye.refine = false;
   double best_log = 0.0, best_rms = std::numeric_limits<double>::infinity();
-  for (double log_k = std::log(0.2); log_k <= std::log(5.0); log_k += 0.05) {
+  for (double log_k = std::log(0.2); log_k <= std::log(5.0); log_k += 0.1) {
     BoardSpec scaled = board;
     scaled.square_m = board.square_m * std::exp(log_k);
     const double rms = RefitRmsPx(stations, camera, scaled, coarse);
@@ -94,10 +94,10 @@ HandEyeAlternative SquareSizeAlternative(const std::vector<HandEyeStation>& stat
     return rms < 0.0 ? std::numeric_limits<double>::infinity() : rms;
   };
   const double g = (std::sqrt(5.0) - 1.0) / 2.0;
-  double a = best_log - 0.05, b = best_log + 0.05;
+  double a = best_log - 0.1, b = best_log + 0.1;
   double c = b - g * (b - a), d = a + g * (b - a);
   double fc = refined_rms(c), fd = refined_rms(d);
-  for (int i = 0; i < 14; ++i) {  // the bracket shrinks to 0.1 * 0.618^14: 1e-4 of the square
+  for (int i = 0; i < 14; ++i) {  // the bracket shrinks to 0.2 * 0.618^14: 2e-4 of the square
     if (fc < fd) {
       b = d, d = c, fd = fc, c = b - g * (b - a), fc = refined_rms(c);
     } else {
