@@ -25,6 +25,10 @@ void AddFuseCommand(CLI::App& app) {
                       "region_W, as romunect scan records it, else -0.075,-0.04,-0.004,0.075,0.04,0.06)");
   cmd->add_option("--voxel", o->voxel_m, "Voxel size in metres (default 0.00025)");
   cmd->add_option("--threads", o->threads, "Insertion threads (default 1)");
+  cmd->add_option("--perturb", o->perturb,
+                  "Inject calibration errors into the poses, camera and depth fused: NAME=VALUE[,...] with "
+                  "hand_eye_deg[_x|_y|_z], hand_eye_mm[_x|_y|_z], focal_pct, principal_px[_x|_y], depth_scale_pct, "
+                  "depth_offset_mm (docs/calibrate.md)");
   cmd->add_option("--max-memory-mb", o->max_memory_mb, "Refuse grids larger than this (default 16384)");
   cmd->add_option("--poses,--pose-log", o->poses,
                   ".oni/device: CSV pose log of T_B_H (time_s,x_m,y_m,z_m,qw,qx,qy,qz; docs/hardware.md)");

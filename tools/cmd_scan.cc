@@ -37,6 +37,10 @@ void AddScanCommand(CLI::App& app) {
                   "How the approach visits the stand-off levels: columns (through all levels at each pass "
                   "centre) or levels (a serpentine per level)")
       ->capture_default_str();
+  cmd->add_option("--perturb", o->perturb,
+                  "Inject calibration errors into what fusion uses (never the simulated truth): NAME=VALUE[,...] with "
+                  "hand_eye_deg[_x|_y|_z], hand_eye_mm[_x|_y|_z], focal_pct, principal_px[_x|_y], depth_scale_pct, "
+                  "depth_offset_mm");
   cmd->add_flag("--ideal-depth", o->ideal_depth, "Fuse ground-truth depth instead of the sensor's (debugging)");
   cmd->add_flag("--compress-frames", o->compress_frames,
                 "Compress the frame directory's files (PNG, EXR ZIP: 2-5x smaller, ~50 ms of CPU per frame)");

@@ -7,11 +7,14 @@
 namespace romunect::tools {
 
 void AddInfoCommand(CLI::App& app);
-void AddFuseCommand(CLI::App& app);       // cmd_fuse.cc (jobs/fuse.h)
-void AddRecordCommand(CLI::App& app);     // cmd_record.cc (jobs/record.h)
-void AddRenderCommand(CLI::App& app);     // cmd_render.cc (jobs/render.h)
-void AddCalibrateCommand(CLI::App& app);  // cmd_calibrate.cc (jobs/calibrate.h)
-void AddScanCommand(CLI::App& app);       // cmd_scan.cc (the main job: jobs/scan.h)
-void AddDatasetCommand(CLI::App& app);    // cmd_dataset.cc (jobs/dataset.h)
+void AddFuseCommand(CLI::App& app);        // cmd_fuse.cc (jobs/fuse.h)
+void AddRecordCommand(CLI::App& app);      // cmd_record.cc (jobs/record.h)
+void AddRenderCommand(CLI::App& app);      // cmd_render.cc (jobs/render.h)
+void AddCalibrateCommand(CLI::App& app);   // cmd_calibrate.cc (jobs/calibrate.h)
+void AddScanCommand(CLI::App& app);        // cmd_scan.cc (the main job: jobs/scan.h)
+void AddDatasetCommand(CLI::App& app);     // cmd_dataset.cc (jobs/dataset.h)
+void AddExperimentCommand(CLI::App& app);  // cmd_experiment.cc: the `experiment` group
+// cmd_experiment_calibration.cc (jobs/calibration_sensitivity.h)
+void AddCalibrationSensitivityExperiment(CLI::App& experiment);
 
 }  // namespace romunect::tools

@@ -21,6 +21,7 @@ int main(int argc, char** argv) {
   romunect::tools::AddRenderCommand(app);
   romunect::tools::AddCalibrateCommand(app);
   romunect::tools::AddDatasetCommand(app);
+  romunect::tools::AddExperimentCommand(app);
 
   try {
     app.parse(argc, argv);

@@ -10,6 +10,7 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "romunect/calib/hand_eye_check.h"
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/depth_engine.h"
@@ -423,77 +424,38 @@ void HomographyStep(CalibrationHardware* hw, const ChainOptions& options, const 
 
 // ---- 3. hand-eye (Tsai/Park initial estimate, Ceres refinement) from the same views
 
-// The board corners' reprojection RMS (px) of each station through the hand-eye fit; a corner
-// behind the camera counts 1000 px.
-std::vector<double> StationRmsPx(const std::vector<HandEyeStation>& stations, const HandEyeResult& fit,
-                                 const BoardSpec& board) {
-  std::vector<double> rms(stations.size());
-  const std::vector<Eigen::Vector3d> corners_K = board.CornersK();
-  for (size_t s = 0; s < stations.size(); ++s) {
-    const Pose T_C_K = (stations[s].T_B_H * fit.T_H_C).inverse() * fit.T_B_K;
-    double sum = 0.0;
-    for (size_t i = 0; i < corners_K.size(); ++i) {
-      const auto u = fit.camera.Project(T_C_K * corners_K[i]);
-      const cv::Point2f& d = stations[s].view.corners_px[i];
-      sum += u ? (*u - Eigen::Vector2d(d.x, d.y)).squaredNorm() : 1e6;
-    }
-    rms[s] = std::sqrt(sum / corners_K.size());
-  }
-  return rms;
-}
-
-// Stations the fit cannot explain (a corner order flipped, a pose reported wrong): drops those
-// far above the median and fits again, once, when enough stations remain.
-void DropHandEyeOutliers(const CalibrationSetup& setup, const ChainOptions& options, const ChainProgress& say,
-                         std::vector<HandEyeStation>* stations, ChainResult* result) {
-  const std::vector<double> rms = StationRmsPx(*stations, result->hand_eye, setup.board);
-  std::vector<double> sorted = rms;
-  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
-  const double limit = 3.0 * sorted[sorted.size() / 2];
-  std::vector<HandEyeStation> kept;
-  for (size_t s = 0; s < stations->size(); ++s) {
-    const HandEyeStation& station = (*stations)[s];
-    if (rms[s] <= limit) {
-      kept.push_back(station);
-    } else {
-      result->rejected.emplace_back(station.view.name, "hand-eye outlier (" + std::to_string(rms[s]) + " px)");
-      say("  dropped " + station.view.name + ": " + std::to_string(rms[s]) + " px against the fit");
-    }
-  }
-  if (kept.size() < stations->size() && static_cast<int>(kept.size()) >= options.hand_eye.min_stations) {
-    *stations = std::move(kept);
-    result->stations_used = static_cast<int>(stations->size());
-    result->hand_eye = Timed(&result->times.hand_eye_s, [&] {
-      return CalibrateHandEye(*stations, result->intrinsics.camera, setup.board, options.hand_eye);
-    });
-    say(result->hand_eye.BriefReport());
-  }
-}
-
 void HandEyeStep(const BoardCaptures& board, const CalibrationSetup& setup, const ChainOptions& options,
                  const ChainProgress& say, ChainResult* result) {
-  std::vector<HandEyeStation> stations;
+  HandEyeCaptures captures;
   for (size_t i = 0; i < board.views.size(); ++i) {
-    if (board.planned_index[i] < options.stations) stations.push_back({board.T_B_H[i], board.views[i]});
+    if (board.planned_index[i] < options.stations) {
+      captures.T_B_H.push_back(board.T_B_H[i]);
+      captures.views.push_back(board.views[i]);
+    }
   }
-  result->stations_used = static_cast<int>(stations.size());
-  say("hand-eye: " + std::to_string(stations.size()) + " stations");
-  result->hand_eye = Timed(&result->times.hand_eye_s, [&] {
-    return CalibrateHandEye(stations, result->intrinsics.camera, setup.board, options.hand_eye);
+  say("hand-eye: " + std::to_string(captures.T_B_H.size()) + " stations");
+  // the same corners fit the camera alone to intrinsics.rms_px: far more means stations whose
+  // poses and images disagree; those far above the median are dropped once (hand_eye_check.h)
+  HandEyeCheckOptions check;
+  check.hand_eye = options.hand_eye;
+  check.intrinsics_rms_px = result->intrinsics.rms_px;
+  const CheckedHandEye checked = Timed(&result->times.hand_eye_s, [&] {
+    return CalibrateHandEyeChecked(captures, result->intrinsics.camera, setup.board, check);
   });
+  for (const auto& [name, rms_px] : checked.dropped) {
+    result->rejected.emplace_back(name, "hand-eye outlier (" + std::to_string(rms_px) + " px)");
+    say("  dropped " + name + ": " + std::to_string(rms_px) + " px against the fit");
+  }
+  result->hand_eye = checked.fit;
+  result->stations_used = static_cast<int>(checked.used.size());
   say(result->hand_eye.BriefReport());
-  // the same corners fit the camera alone to intrinsics.rms_px: far more here means stations
-  // whose poses and images disagree
-  const double limit_px = std::max(1.0, 5.0 * result->intrinsics.rms_px);
-  if (result->hand_eye.rms_px > limit_px) DropHandEyeOutliers(setup, options, say, &stations, result);
-  if (result->hand_eye.rms_px > limit_px) {
+  if (!checked.accepted) {
     throw InputError(kSource, "hand-eye",
                      "the stations do not agree (reprojection RMS " + std::to_string(result->hand_eye.rms_px) +
-                         " px against " + std::to_string(result->intrinsics.rms_px) +
-                         " px for the views alone): check the reported hand poses and "
-                         "the board's corner order");
+                         " px against " + std::to_string(result->intrinsics.rms_px) + " px for the views alone): " +
+                         checked.cause + "; check the reported hand poses and the board's corner order");
   }
-  result->hand_eye_stations = stations;
+  result->hand_eye_stations = checked.used;
 }
 
 // ---- 4. per-pixel depth correction (eqs. 2-3): planes placed with the calibrated hand-eye

@@ -232,9 +232,49 @@ Pose OpenCvHandEye(const std::vector<HandEyeStation>& stations, const CameraMode
     t_C_K.push_back(ToCv(Eigen::Vector3d(T_C_K.translation())));
   }
   cv::Mat R_H_C, t_H_C;
-  cv::calibrateHandEye(R_B_H, t_B_H, R_C_K, t_C_K, R_H_C, t_H_C,
-                       method == HandEyeInitialMethod::kPark ? cv::CALIB_HAND_EYE_PARK : cv::CALIB_HAND_EYE_TSAI);
+  cv::HandEyeCalibrationMethod cv_method = cv::CALIB_HAND_EYE_TSAI;
+  switch (method) {
+    case HandEyeInitialMethod::kAuto:
+    case HandEyeInitialMethod::kTsai: cv_method = cv::CALIB_HAND_EYE_TSAI; break;
+    case HandEyeInitialMethod::kPark: cv_method = cv::CALIB_HAND_EYE_PARK; break;
+    case HandEyeInitialMethod::kHoraud: cv_method = cv::CALIB_HAND_EYE_HORAUD; break;
+    case HandEyeInitialMethod::kAndreff: cv_method = cv::CALIB_HAND_EYE_ANDREFF; break;
+    case HandEyeInitialMethod::kDaniilidis: cv_method = cv::CALIB_HAND_EYE_DANIILIDIS; break;
+  }
+  cv::calibrateHandEye(R_B_H, t_B_H, R_C_K, t_C_K, R_H_C, t_H_C, cv_method);
   return FromCv(R_H_C, t_H_C);
+}
+
+std::vector<OpenCvHandEyeResult> OpenCvHandEyeAll(const std::vector<HandEyeStation>& stations,
+                                                  const CameraModel& camera, const BoardSpec& board) {
+  const std::pair<const char*, HandEyeInitialMethod> methods[] = {{"tsai", HandEyeInitialMethod::kTsai},
+                                                                  {"park", HandEyeInitialMethod::kPark},
+                                                                  {"horaud", HandEyeInitialMethod::kHoraud},
+                                                                  {"andreff", HandEyeInitialMethod::kAndreff},
+                                                                  {"daniilidis", HandEyeInitialMethod::kDaniilidis}};
+  std::vector<Pose> T_C_K;
+  for (const HandEyeStation& s : stations) T_C_K.push_back(EstimateBoardPose(s.view, camera, board));
+  std::vector<OpenCvHandEyeResult> out;
+  for (const auto& [name, method] : methods) {
+    OpenCvHandEyeResult r;
+    r.method = name;
+    try {
+      r.fit.T_H_C = OpenCvHandEye(stations, camera, board, method);
+    } catch (const cv::Exception&) {
+      continue;
+    }
+    if (!r.fit.T_H_C.matrix().allFinite()) continue;
+    std::vector<Pose> T_B_K;
+    for (size_t i = 0; i < stations.size(); ++i) T_B_K.push_back(stations[i].T_B_H * r.fit.T_H_C * T_C_K[i]);
+    r.fit.T_B_K = MeanPose(T_B_K);
+    r.fit.T_H_C_initial = r.fit.T_H_C;
+    r.fit.camera = camera;
+    r.fit.initial_method = name;
+    r.fit.rms_px = ReprojectionRms(stations, camera, board, r.fit.T_H_C, r.fit.T_B_K);
+    r.fit.initial_rms_px = r.fit.rms_px;
+    out.push_back(r);
+  }
+  return out;
 }
 
 HandEyeResult CalibrateHandEye(const std::vector<HandEyeStation>& stations, const CameraModel& camera,
@@ -266,6 +306,9 @@ HandEyeResult CalibrateHandEye(const std::vector<HandEyeStation>& stations, cons
   switch (options.initial) {
     case HandEyeInitialMethod::kTsai: candidates = {{"tsai", HandEyeInitialMethod::kTsai}}; break;
     case HandEyeInitialMethod::kPark: candidates = {{"park", HandEyeInitialMethod::kPark}}; break;
+    case HandEyeInitialMethod::kHoraud: candidates = {{"horaud", options.initial}}; break;
+    case HandEyeInitialMethod::kAndreff: candidates = {{"andreff", options.initial}}; break;
+    case HandEyeInitialMethod::kDaniilidis: candidates = {{"daniilidis", options.initial}}; break;
     case HandEyeInitialMethod::kAuto:
       candidates = {{"park", HandEyeInitialMethod::kPark}};
       if (result.max_pair_rotation_rad <= options.max_pair_rotation_rad) {

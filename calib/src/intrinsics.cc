@@ -114,6 +114,29 @@ CvCalibration RunCalibrateCamera(const std::vector<const BoardView*>& views, con
   return out;
 }
 
+// Mean grey in a small square around p; -1 when it leaves the image.
+double MeanGrey(const cv::Mat& grey, cv::Point2f p, int half) {
+  const cv::Rect box(cvRound(p.x) - half, cvRound(p.y) - half, 2 * half + 1, 2 * half + 1);
+  if ((box & cv::Rect(0, 0, grey.cols, grey.rows)) != box) return -1.0;
+  return cv::mean(grey(box))[0];
+}
+
+// The detectors may start a board at either end (a 180 deg turn of K), and mixed orders across
+// views break hand-eye. With cols + rows odd the squares at the two ends of the corner grid
+// differ in colour: the order starts at the end whose square is dark (square (0, 0) of K, between
+// the first four corners, is black, as is (-1, -1)).
+void OrderFromTheDarkCorner(const cv::Mat& grey, const BoardSpec& board, std::vector<cv::Point2f>* corners) {
+  if ((board.cols + board.rows) % 2 == 0) return;  // symmetric colours: the order is ambiguous
+  const std::vector<cv::Point2f>& c = *corners;
+  const int n = board.corner_count(), w = board.cols;
+  const cv::Point2f first = 0.25f * (c[0] + c[1] + c[w] + c[w + 1]);
+  const cv::Point2f last = 0.25f * (c[n - 1] + c[n - 2] + c[n - 1 - w] + c[n - 2 - w]);
+  const cv::Point2f step = c[1] - c[0];
+  const int half = std::max(1, static_cast<int>(0.2 * std::sqrt(step.dot(step))));
+  const double g_first = MeanGrey(grey, first, half), g_last = MeanGrey(grey, last, half);
+  if (g_first >= 0.0 && g_last >= 0.0 && g_first > g_last) std::reverse(corners->begin(), corners->end());
+}
+
 }  // namespace
 
 std::optional<std::vector<cv::Point2f>> DetectBoard(const cv::Mat& image, const BoardSpec& board, std::string* reason) {
@@ -153,11 +176,12 @@ std::optional<std::vector<cv::Point2f>> DetectBoard(const cv::Mat& image, const 
   const int half = std::clamp(static_cast<int>(spacing * 0.4), 2, 11);
   cv::cornerSubPix(grey, corners, cv::Size(half, half), cv::Size(-1, -1),
                    cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 50, 1e-3));
+  OrderFromTheDarkCorner(grey, board, &corners);
   reason->clear();
   return corners;
 }
 
-DetectedViews DetectBoardInFolder(const fs::path& dir, const BoardSpec& board) {
+std::vector<fs::path> ListBoardImages(const fs::path& dir) {
   if (!fs::is_directory(dir)) throw InputError(dir.string(), "", "not a folder of images");
   std::vector<fs::path> files;
   for (const auto& entry : fs::directory_iterator(dir)) {
@@ -172,6 +196,11 @@ DetectedViews DetectBoardInFolder(const fs::path& dir, const BoardSpec& board) {
   if (files.empty()) {
     throw InputError(dir.string(), "", "holds no images (png, jpg, bmp, tif); give the folder of board views");
   }
+  return files;
+}
+
+DetectedViews DetectBoardInFolder(const fs::path& dir, const BoardSpec& board) {
+  const std::vector<fs::path> files = ListBoardImages(dir);
   DetectedViews out;
   for (const fs::path& file : files) {
     const cv::Mat image = ReadPicture(file);  // a bomb is refused from its header, before decoding

@@ -6,6 +6,8 @@
 #include <filesystem>
 #include <string>
 
+#include <array>
+
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -15,6 +17,8 @@
 #include "romunect/calib/intrinsics.h"
 #include "romunect/testing/test_support.h"
 #include "romunect/tools/jobs/calibrate.h"
+#include "romunect/tools/jobs/info.h"
+#include "romunect/tools/jobs/text.h"
 #include "synthetic.h"
 
 namespace romunect::jobs {
@@ -40,6 +44,7 @@ TEST(CalibrateJob, InTheLoopWritesTheFileTheReportsAndTheGoals) {
   o.stations = 8;
   o.planes = 4;
   o.board_samples = 1;
+  o.save_captures = (dir / "captures").string();
   const InTheLoopSummary summary = CalibrateInTheLoop(o);
   EXPECT_EQ(summary.calibration_file, fs::path(o.out) / "calibration.yaml");
   const calib::Calibration calibration = calib::LoadCalibration(summary.calibration_file);
@@ -50,6 +55,28 @@ TEST(CalibrateJob, InTheLoopWritesTheFileTheReportsAndTheGoals) {
     EXPECT_TRUE(fs::exists(fs::path(o.out) / name)) << name;
   }
   EXPECT_THAT(InTheLoopSummaryText(summary), HasSubstr(summary.calibration_file.string()));
+
+  // the report shows the file's final (refined) camera beside the truth
+  const std::string md = romunect::testing::ReadText(fs::path(o.out) / "report.md");
+  EXPECT_THAT(md, HasSubstr(Format("| fx | %.4f px |", calibration.camera.fx)));
+  const nlohmann::json report = nlohmann::json::parse(romunect::testing::ReadText(fs::path(o.out) / "report.json"));
+  const std::vector<double> truth_T_H_C = report["values"]["T_H_C"]["truth"];
+  ASSERT_EQ(truth_T_H_C.size(), 16u);
+
+  // the saved captures re-run the hand-eye step on their own, to the truth
+  HandEyeStepOptions hand_eye;
+  hand_eye.frames = (dir / "captures" / "hand_eye").string();
+  hand_eye.intrinsics = summary.calibration_file.string();
+  hand_eye.square_m = 0.003;  // the simulated plate's
+  hand_eye.file.output = (dir / "rerun.yaml").string();
+  const calib::Calibration rerun = RunHandEyeStep(hand_eye);
+  std::array<double, 16> row_major;
+  std::copy(truth_T_H_C.begin(), truth_T_H_C.end(), row_major.begin());
+  // the chain's own T_H_C with its own camera: the rerun with the same camera lands as near
+  EXPECT_TRUE(romunect::testing::PosesNear(rerun.T_H_C, calibration.T_H_C, kHandEyeAngleRad, kHandEyeTranslationM));
+  EXPECT_TRUE(romunect::testing::PosesNear(rerun.T_H_C, PoseFromRowMajor(row_major), 0.2 * kDeg, 1e-3));
+  EXPECT_TRUE(fs::exists(dir / "captures" / "depth" / "frames.json"));
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir / "captures" / "intrinsics"), fs::directory_iterator()), o.views);
 }
 
 // The stock Kinect (0.5-4 m) is calibrated with a board and motion sized for its range: the
@@ -123,6 +150,27 @@ TEST(CalibrateJob, IntrinsicsStepRecoversTheCameraFromAFolderOfImages) {
   EXPECT_LT(calibration.residuals.intrinsics_rms_px, 0.1);
   EXPECT_EQ(calib::LoadCalibration(o.file.output).camera.fx, calibration.camera.fx);  // what it saved
 
+  // into a file holding a hand-eye result: its T_H_C went with the old camera and is dropped
+  calib::Calibration with_hand_eye = calibration;
+  with_hand_eye.T_H_C = MakePose(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.01, 0.02, 0.03));
+  with_hand_eye.residuals.hand_eye_rms_px = 0.1;
+  calib::SaveCalibration(dir / "with_hand_eye.yaml", with_hand_eye);
+  o.file.output = (dir / "with_hand_eye.yaml").string();
+  ::testing::internal::CaptureStdout();
+  const calib::Calibration redone = RunIntrinsicsStep(o);
+  EXPECT_THAT(::testing::internal::GetCapturedStdout(), HasSubstr("held a hand-eye result for its old camera"));
+  EXPECT_LT(redone.residuals.hand_eye_rms_px, 0.0);
+  EXPECT_TRUE(redone.T_H_C.matrix().isIdentity());
+  // a file with a better result is kept, and the refusal names the flag that overrides it
+  calib::Calibration better = calibration;
+  better.residuals.intrinsics_rms_px = 0.001;
+  calib::SaveCalibration(dir / "better.yaml", better);
+  o.file.output = (dir / "better.yaml").string();
+  EXPECT_THAT(InputErrorOf([&] { RunIntrinsicsStep(o); }), HasSubstr("--overwrite-worse"));
+  o.square_m = 0.0;
+  EXPECT_EQ(InputErrorOf([&] { RunIntrinsicsStep(o); }).rfind("--square", 0), 0u);
+
+  o.square_m = 0.025;
   o.images = (dir / "nothing").string();
   o.file.output = (dir / "x.yaml").string();
   EXPECT_THAT(InputErrorOf([&] { RunIntrinsicsStep(o); }), HasSubstr("not a folder"));
@@ -142,6 +190,7 @@ TEST(CalibrateJob, HandEyeThenDepthStepsRecoverTheTruth) {
 
   const calib::testing::HandEyeRig rig = calib::testing::MakeHandEyeRig(camera, board, 12, 0.0, 0.5, 0.8, 3);
   calib::testing::WriteBoardFrames(dir / "board", camera, board, rig);
+  EXPECT_EQ(InspectFrameDirectory(dir / "board").with_hand_pose, 12u);  // `info` shows they carry T_B_H
   HandEyeStepOptions hand_eye;
   hand_eye.frames = (dir / "board").string();
   hand_eye.file.output = file.string();
@@ -157,6 +206,36 @@ TEST(CalibrateJob, HandEyeThenDepthStepsRecoverTheTruth) {
   ASSERT_TRUE(done.depth.has_value());
   EXPECT_LE(done.residuals.depth_rms_m, kDepthGoalM);
   EXPECT_EQ(done.T_H_C.matrix(), after_hand_eye.T_H_C.matrix());  // the earlier step is kept
+}
+
+// Frames skipped for their format are counted by reason at the end, not only one by one.
+TEST(CalibrateJob, HandEyeCountsFramesSkippedForTheirFormat) {
+  ScratchDir dir("job_skipped");
+  CameraModel camera = calib::testing::TruthCamera();
+  camera.distortion = {};
+  const calib::BoardSpec board{9, 6, 0.025};
+  calib::Calibration start;
+  start.camera = camera;
+  start.residuals.intrinsics_rms_px = 0.05;
+  calib::SaveCalibration(dir / "calibration.yaml", start);
+  const calib::testing::HandEyeRig rig = calib::testing::MakeHandEyeRig(camera, board, 12, 0.0, 0.5, 0.8, 3);
+  calib::testing::WriteBoardFrames(dir / "board", camera, board, rig);
+  int converted = 0;
+  for (const auto& entry : fs::directory_iterator(dir / "board" / "ir")) {
+    if (converted == 3) break;
+    cv::Mat eight_bit;
+    cv::imread(entry.path().string(), cv::IMREAD_UNCHANGED).convertTo(eight_bit, CV_8U, 1.0 / 4.0);
+    cv::imwrite(entry.path().string(), eight_bit);  // a converted IR image: 8-bit
+    ++converted;
+  }
+  HandEyeStepOptions hand_eye;
+  hand_eye.frames = (dir / "board").string();
+  hand_eye.file.output = (dir / "calibration.yaml").string();
+  ::testing::internal::CaptureStdout();
+  RunHandEyeStep(hand_eye);
+  const std::string out = ::testing::internal::GetCapturedStdout();
+  EXPECT_THAT(out, HasSubstr("skipped 3 frame(s): "));
+  EXPECT_THAT(out, HasSubstr("9 stations used"));
 }
 
 }  // namespace

@@ -23,6 +23,8 @@ TEST(InfoJob, CountsFramesImagesAndPoses) {
   const std::string text = FrameDirectoryInfoText(info);
   EXPECT_THAT(text, HasSubstr("frames: 3"));
   EXPECT_THAT(text, HasSubstr("camera positions (world, m)"));
+  EXPECT_EQ(info.with_hand_pose, 2u);  // the sample gives every other frame a robot hand pose
+  EXPECT_THAT(text, HasSubstr("poses T_W_C 3, T_B_H 2"));
   EXPECT_THAT(text, HasSubstr("valid: all 3 frames read and checked\n"));
 }
 

@@ -1,15 +1,18 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "romunect/calib/chain.h"
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/errors.h"
+#include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/image_io.h"
 #include "romunect/sim/calibration_rig.h"
 #include "romunect/sim/scanner.h"
@@ -106,6 +109,8 @@ void CheckExistingFile(const fs::path& file, bool overwrite_worse) {
 struct Measured {
   ChainResult r;
   sim::ChainTruthErrors truth;
+  CameraModel truth_camera;  // the rig's (report only)
+  Pose truth_T_H_C, truth_T_B_K;
   double wall_s = 0.0, compute_s = 0.0;
   double homography_px = 0.0, depth_mm = -1.0, affine_mm = -1.0;
   bool met_mapping = false, met_hand_eye = false, met_homography = false, met_depth = false, met_compute = false;
@@ -233,10 +238,21 @@ json GoalsJson(const Measured& m) {
           {"compute_s", {{"goal", kGoalComputeS}, {"value", m.compute_s}, {"met", m.met_compute}}}};
 }
 
+json ValuesJson(const Measured& m) {
+  const auto camera = [](const CameraModel& c) {
+    return json{{"fx", c.fx}, {"fy", c.fy}, {"cx", c.cx}, {"cy", c.cy}, {"distortion", c.distortion}};
+  };
+  const auto pose = [](const Pose& T) { return PoseToRowMajor(T); };
+  return {{"camera", {{"estimate", camera(m.r.calibration.camera)}, {"truth", camera(m.truth_camera)}}},
+          {"T_H_C", {{"estimate", pose(m.r.calibration.T_H_C)}, {"truth", pose(m.truth_T_H_C)}}},
+          {"T_B_K", {{"estimate", pose(m.r.calibration.T_B_K)}, {"truth", pose(m.truth_T_B_K)}}}};
+}
+
 std::string ReportJson(const Measured& m, const std::string& rig_name, unsigned seed) {
   const json report = {{"rig", rig_name},
                        {"seed", seed},
                        {"calibration_file", "calibration.yaml"},
+                       {"values", ValuesJson(m)},
                        {"intrinsics", IntrinsicsJson(m)},
                        {"homography", HomographyJson(m)},
                        {"hand_eye", HandEyeJson(m)},
@@ -278,6 +294,35 @@ std::string GoalsTable(const Measured& m) {
   return table;
 }
 
+// The file's final values (the camera after the hand-eye refinement) beside the rig's truth.
+std::string ValuesTable(const Measured& m) {
+  const CameraModel& c = m.r.calibration.camera;
+  const CameraModel& t = m.truth_camera;
+  std::string table = "## Values: calibration.yaml against the truth\n\n| quantity | calibration.yaml | truth | "
+                      "error |\n| --- | --- | --- | --- |\n";
+  const auto row = [&](const char* name, double estimate, double truth, const char* unit) {
+    table += Format("| %s | %.4f %s | %.4f %s | %+.4f %s |\n", name, estimate, unit, truth, unit, estimate - truth,
+                    unit);
+  };
+  row("fx", c.fx, t.fx, "px");
+  row("fy", c.fy, t.fy, "px");
+  row("cx", c.cx, t.cx, "px");
+  row("cy", c.cy, t.cy, "px");
+  const char* distortion[] = {"k1", "k2", "p1", "p2", "k3"};  // OpenCV's order
+  for (int i = 0; i < 5; ++i) row(distortion[i], c.distortion[i], t.distortion[i], "");
+  const char* hand_eye[] = {"T_H_C x", "T_H_C y", "T_H_C z"};
+  const char* board[] = {"T_B_K x", "T_B_K y", "T_B_K z"};
+  for (int i = 0; i < 3; ++i) {
+    row(hand_eye[i], 1e3 * m.r.calibration.T_H_C.translation()[i], 1e3 * m.truth_T_H_C.translation()[i], "mm");
+  }
+  for (int i = 0; i < 3; ++i) {
+    row(board[i], 1e3 * m.r.calibration.T_B_K.translation()[i], 1e3 * m.truth_T_B_K.translation()[i], "mm");
+  }
+  table += Format("| T_H_C rotation | | | %.4f deg |\n| T_B_K rotation | | | %.4f deg |\n\n",
+                  m.truth.hand_eye.angle_rad / kDeg, m.truth.board.angle_rad / kDeg);
+  return table;
+}
+
 std::string ReportMarkdown(const Measured& m, const std::string& table, const std::string& rig_name, unsigned seed) {
   const ChainResult& r = m.r;
   std::string md = "# Calibration in the loop: simulated rig '" + rig_name + "', seed " + std::to_string(seed) +
@@ -291,8 +336,9 @@ std::string ReportMarkdown(const Measured& m, const std::string& table, const st
   md += Format("Compute per step: intrinsics %.3f s, homography %.3f s, hand-eye %.3f s, depth %.3f s; "
                "simulated hardware (moves, rendering, imaging) %.1f s.\n\n",
                r.times.intrinsics_s, r.times.homography_s, r.times.hand_eye_s, r.times.depth_s, r.times.hardware_s);
-  md += "- " + r.intrinsics.BriefReport() + "\n- " + r.homography.BriefReport() + "\n- " + r.hand_eye.BriefReport() +
-        "\n- " + r.depth.BriefReport() + "\n";
+  md += ValuesTable(m);
+  md += "- Zhang's step, before the hand-eye refinement: " + r.intrinsics.BriefReport() + "\n- " +
+        r.homography.BriefReport() + "\n- " + r.hand_eye.BriefReport() + "\n- " + r.depth.BriefReport() + "\n";
   md += Format("- depth engine matches on the reference area: %.1f %% unwarped, %.1f %% with the nominal pre-warp, "
                "%.1f %% with the calibrated H_P_rec\n",
                100 * r.raw_valid_fraction_unwarped, 100 * r.raw_valid_fraction_initial,
@@ -306,6 +352,73 @@ std::string ReportMarkdown(const Measured& m, const std::string& table, const st
 // The views' largest tilt for a rig calibrated far out (CalibrationRigOptions::working_distance_m).
 constexpr double kLongRangeMaxTiltRad = 0.35;
 
+// The hardware with every lamp-lit board view and every raw capture kept with the hand pose it
+// was taken at, for --save-captures: the chain's motion as the single steps' input.
+class RecordingHardware : public calib::CalibrationHardware {
+ public:
+  explicit RecordingHardware(calib::CalibrationHardware* inner) : inner_(inner) {}
+  const calib::CalibrationSetup& setup() const override { return inner_->setup(); }
+  std::optional<Pose> MoveHand(const Pose& T_B_H) override {
+    const std::optional<Pose> executed = inner_->MoveHand(T_B_H);
+    if (executed) T_B_H_ = *executed;
+    return executed;
+  }
+  cv::Mat CaptureLampIr() override {
+    cv::Mat ir = inner_->CaptureLampIr();
+    board_.push_back({ir.clone(), T_B_H_, Eigen::Matrix3d::Identity()});
+    return ir;
+  }
+  cv::Mat CaptureProjectedIr(const PatternSpec& pattern, const Eigen::Matrix3d& H) override {
+    return inner_->CaptureProjectedIr(pattern, H);
+  }
+  cv::Mat CaptureRaw(const Eigen::Matrix3d& H) override {
+    cv::Mat raw = inner_->CaptureRaw(H);
+    raw_.push_back({raw.clone(), T_B_H_, H});
+    return raw;
+  }
+
+  // DIR/intrinsics/view_NN.png, DIR/hand_eye/ (IR with T_B_H), DIR/depth/ (raw with T_B_H:
+  // the captures taken through the final pre-warp H_P_rec, as the depth step's were).
+  void Save(const fs::path& dir, const CameraModel& camera, const Eigen::Matrix3d& H_P_rec) const {
+    fs::create_directories(dir / "intrinsics");
+    FrameDirectoryWriter hand_eye(dir / "hand_eye", camera), depth(dir / "depth", camera);
+    for (size_t i = 0; i < board_.size(); ++i) {
+      cv::imwrite((dir / "intrinsics" / Format("view_%02zu.png", i)).string(), board_[i].image);
+      Frame frame;
+      frame.index = static_cast<int>(i);
+      frame.time_s = 0.1 * static_cast<double>(i);
+      frame.ir = board_[i].image;
+      frame.raw = cv::Mat(board_[i].image.size(), CV_16U, cv::Scalar(kRawInvalid));
+      frame.T_B_H = board_[i].T_B_H;
+      hand_eye.Add(frame);
+    }
+    int index = 0;
+    for (const Capture& c : raw_) {
+      if (!c.H.isApprox(H_P_rec, 1e-12)) continue;  // the engine checks with the nominal pre-warp
+      Frame frame;
+      frame.index = index;
+      frame.time_s = 0.1 * index++;
+      frame.raw = c.image;
+      frame.T_B_H = c.T_B_H;
+      depth.Add(frame);
+    }
+    hand_eye.Finish();
+    depth.Finish();
+    std::printf("saved the captures in %s: intrinsics/ (%zu images), hand_eye/ (%zu frames), depth/ (%d frames)\n",
+                dir.c_str(), board_.size(), board_.size(), index);
+  }
+
+ private:
+  struct Capture {
+    cv::Mat image;
+    Pose T_B_H;
+    Eigen::Matrix3d H;
+  };
+  calib::CalibrationHardware* inner_;
+  Pose T_B_H_ = Pose::Identity();
+  std::vector<Capture> board_, raw_;
+};
+
 // The chain with the simulated rig, then its comparison with the rig's ground truth.
 Measured RunChain(const InTheLoopOptions& o, const sim::CalibrationRigOptions& rig_options,
                   const ChainOptions& options) {
@@ -313,17 +426,24 @@ Measured RunChain(const InTheLoopOptions& o, const sim::CalibrationRigOptions& r
               rig_options.rig.name.c_str(), o.seed, o.views, o.stations, o.planes);
   std::fflush(stdout);
   sim::SimulatedCalibrationRig rig(rig_options);
+  std::optional<RecordingHardware> recorder;
+  if (!o.save_captures.empty()) recorder.emplace(&rig);
   Measured m;
   const Stopwatch chain;
-  m.r = RunCalibrationChain(&rig, options, [](const std::string& line) {
-    std::printf("%s\n", line.c_str());
-    std::fflush(stdout);
-  });
+  m.r = RunCalibrationChain(recorder ? static_cast<calib::CalibrationHardware*>(&*recorder) : &rig, options,
+                            [](const std::string& line) {
+                              std::printf("%s\n", line.c_str());
+                              std::fflush(stdout);
+                            });
   m.wall_s = chain.seconds();
   // ground truth (simulation only)
   std::printf("comparing with the rig's ground truth\n");
   m.truth = sim::CompareWithTruth(&rig, m.r);
+  m.truth_camera = rig.TruthRig().camera;
+  m.truth_T_H_C = rig.TruthT_H_C();
+  m.truth_T_B_K = rig.TruthT_B_K();
   JudgeGoals(&m);
+  if (recorder) recorder->Save(o.save_captures, rig.setup().nominal_rig.camera, m.r.calibration.H_P_rec);
   return m;
 }
 
@@ -340,6 +460,18 @@ InTheLoopSummary CalibrateInTheLoop(const InTheLoopOptions& o) {
   rig_options.seed = o.seed;
   rig_options.threads = o.threads;
   rig_options.board_samples = o.board_samples;
+  if (!(o.nominal_errors >= 0.0 && o.nominal_errors <= 10.0)) {
+    throw InputError("--nominal-errors", "", std::to_string(o.nominal_errors) + ": must be a scale in [0, 10]");
+  }
+  for (double* error : {&rig_options.mount_error_rad, &rig_options.mount_error_m, &rig_options.plate_error_rad,
+                        &rig_options.plate_error_m, &rig_options.projector_error_rad, &rig_options.projector_error_m,
+                        &rig_options.focal_error, &rig_options.principal_error_px}) {
+    *error *= o.nominal_errors;
+  }
+  if (!o.save_captures.empty()) {
+    for (const char* step : {"hand_eye", "depth"})
+      FrameDirectoryWriter::CheckCanWrite(fs::path(o.save_captures) / step);
+  }
   ChainOptions options;
   options.views = o.views;
   options.stations = o.stations;

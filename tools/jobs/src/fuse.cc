@@ -24,6 +24,7 @@
 #include "romunect/tools/jobs/fusion_loop.h"
 #include "romunect/tools/jobs/output_folder.h"
 #include "romunect/tools/jobs/run_folder.h"
+#include "romunect/tools/jobs/perturbation.h"
 #include "romunect/tools/jobs/text.h"
 
 namespace romunect::jobs {
@@ -232,8 +233,10 @@ void CheckGroundTruth(const FuseOptions& o, const cv::Mat& gt, const fusion::Vot
 // skipped, a device that is gone keeps what was fused; the depth model applies to raw shifts.
 class FuseHooks : public FrameHooks {
  public:
-  FuseHooks(const FuseOptions& o, const FuseSource& opened, const FrameDirectorySource* directory)
+  FuseHooks(const FuseOptions& o, const FuseSource& opened, const FrameDirectorySource* directory,
+            const CalibrationPerturbation& perturbation)
       : opened_(opened),
+        perturbation_(perturbation),
         directory_(directory),
         where_(directory != nullptr ? (fs::path(o.source) / "frames.json").string() : o.source),
         camera_(opened.source->camera()),
@@ -259,6 +262,11 @@ class FuseHooks : public FrameHooks {
                        "is " + std::to_string(frame->depth_m.cols) + " x " + std::to_string(frame->depth_m.rows) +
                            ", the camera is " + std::to_string(camera_.width) + " x " + std::to_string(camera_.height));
     }
+    // --perturb: the calibration's pose and depth model as if wrong by the injected errors
+    if (!perturbation_.empty()) {
+      *frame->T_W_C = *frame->T_W_C * perturbation_.T_C_Cp();
+      perturbation_.ApplyToDepth(&frame->depth_m);
+    }
   }
 
   void OnFused(size_t i, const Frame&, const FusionSummary& summary) override {
@@ -279,6 +287,7 @@ class FuseHooks : public FrameHooks {
   }
 
   const FuseSource& opened_;
+  const CalibrationPerturbation perturbation_;
   const FrameDirectorySource* directory_;
   const std::string where_;
   const CameraModel camera_;
@@ -351,10 +360,12 @@ void WriteFuseOutputs(const fs::path& out, const FuseJobSummary& s, const cv::Ma
 FuseJobSummary RunFuse(const FuseOptions& o) {
   // Options first: a bad option fails before any file is read.
   fusion::GridOptions grid_options = GridFromOptions(o);
+  const CalibrationPerturbation perturbation = ParsePerturbation(o.perturb);
   FuseJobSummary s;
   // The outputs are built in <out>.incomplete and renamed when all are written (RunFolder).
   RunFolder run(o.out.empty() ? DefaultOutput(o).string() : o.out, "--out", "fusion");
   s.out = run.dir();
+  s.perturbation = perturbation.Text();
   const FuseSource opened = OpenFuseSource(o);  // validates frames.json
   s.depth_from = opened.depth_from;
   const FrameDirectorySource* directory = openni2::FindFrameDirectorySource(opened.source.get());
@@ -395,8 +406,8 @@ FuseJobSummary RunFuse(const FuseOptions& o) {
       std::fprintf(stderr, "romunect: warning: %s: %s\n", o.source.c_str(), s.depth_unit_warning->c_str());
   }
   run.Begin();  // a second run into the same --out is refused here, before any frame is fused
-  FuseHooks hooks(o, opened, directory);
-  FusionSummary fused = FuseFrames(*opened.source, opened.source->camera(), grid, o.threads, hooks);
+  FuseHooks hooks(o, opened, directory, perturbation);
+  FusionSummary fused = FuseFrames(*opened.source, perturbation.Apply(opened.source->camera()), grid, o.threads, hooks);
   std::fprintf(stderr, "\n");
   // A device that skipped frame numbers lost frames fuse could not keep up with (or the link
   // dropped): the map misses them, so the report counts them.
@@ -413,7 +424,7 @@ FuseJobSummary RunFuse(const FuseOptions& o) {
   s.report = std::move(fused.report);
   s.stopped = fused.stopped;
   fusion::FusionReport& report = s.report;
-  report.input = o.source;
+  report.input = perturbation.empty() ? o.source : o.source + " (calibration perturbed: " + s.perturbation + ")";
   report.geometry = grid.geometry();
   report.max_x_m = grid_options.max_W.x();
   report.max_y_m = grid_options.max_W.y();
@@ -435,6 +446,7 @@ std::string FuseSummaryText(const FuseJobSummary& s) {
   const fusion::FusionReport& r = s.report;
   std::string text = Format("fused %zu frames into %s: completeness %.1f %%", r.frames, s.out.string().c_str(),
                             100.0 * r.completeness);
+  if (s.perturbation != "none") text = "injected calibration errors: " + s.perturbation + "\n" + text;
   if (r.metrics && r.metrics->compared_cells == 0) {
     text += ", no fused cell where the ground truth has a value (no error to report)";
   } else if (r.metrics) {

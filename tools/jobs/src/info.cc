@@ -30,6 +30,7 @@ FrameDirectoryInfo InspectFrameDirectory(const std::filesystem::path& dir) {
     info.with_ir += !r.ir.empty();
     info.with_raw += !r.raw.empty();
     info.with_gt_depth += !r.gt_depth.empty();
+    info.with_hand_pose += r.T_B_H.has_value();
     if (!frame.depth_m.empty()) {
       const double valid = static_cast<double>(cv::countNonZero(frame.depth_m)) / frame.depth_m.total();
       valid_sum += valid;
@@ -66,8 +67,8 @@ std::string FrameDirectoryInfoText(const FrameDirectoryInfo& info) {
     if (info.frames > 1 && t1 > t0) text += Format(" (%.1f Hz)", (info.frames - 1) / (t1 - t0));
   }
   text += "\n";
-  text += Format("images: depth %zu, ir %zu, raw %zu, gt_depth %zu; poses T_W_C %zu\n", info.with_depth, info.with_ir,
-                 info.with_raw, info.with_gt_depth, info.with_pose);
+  text += Format("images: depth %zu, ir %zu, raw %zu, gt_depth %zu; poses T_W_C %zu, T_B_H %zu\n", info.with_depth,
+                 info.with_ir, info.with_raw, info.with_gt_depth, info.with_pose, info.with_hand_pose);
   if (info.with_depth > 0) {
     text += Format("valid depth pixels: mean %.1f %% (min %.1f %%, max %.1f %%)\n", 100.0 * info.valid_mean,
                    100.0 * info.valid_min, 100.0 * info.valid_max);

@@ -52,6 +52,7 @@ void CheckOptionValues(const ScanJobOptions& o) {
   if (!(o.voxel_m >= 0.05e-3 && o.voxel_m <= 5e-3)) {
     throw InputError("--voxel", "", "expected 0.00005 .. 0.005 metres");
   }
+  ParsePerturbation(o.perturb);  // before any work
   for (const std::string* file : {&o.scene, &o.saved_scene, &o.calibration}) {
     if (!file->empty() && !fs::exists(*file)) throw InputError(*file, "", "file not found");
   }
@@ -139,11 +140,16 @@ fusion::GridOptions FusionBox(const sim::World& world, const sim::ApproachOption
 // records), the valid share and sample depths per frame, and the progress line.
 class ScanHooks : public FrameHooks {
  public:
-  ScanHooks(ScanReport* report, const std::optional<calib::Calibration>& calibration, const Pose& T_W_B, int total)
-      : report_(report), calibration_(calibration), T_W_B_(T_W_B), total_(total) {}
+  ScanHooks(ScanReport* report, const std::optional<calib::Calibration>& calibration,
+            const CalibrationPerturbation& perturbation, const Pose& T_W_B, int total)
+      : report_(report), calibration_(calibration), perturbation_(perturbation), T_W_B_(T_W_B), total_(total) {}
 
   void Prepare(size_t, Frame* frame) override {
     if (calibration_) frame->T_W_C = T_W_B_ * *frame->T_B_H * calibration_->T_H_C;
+    if (!perturbation_.empty()) {  // --perturb: what fusion believes, never the simulated truth
+      frame->T_W_C = *frame->T_W_C * perturbation_.T_C_Cp();
+      perturbation_.ApplyToDepth(&frame->depth_m);
+    }
   }
 
   void OnFused(size_t, const Frame& frame, const FusionSummary& summary) override {
@@ -163,6 +169,7 @@ class ScanHooks : public FrameHooks {
  private:
   ScanReport* report_;
   const std::optional<calib::Calibration>& calibration_;
+  const CalibrationPerturbation perturbation_;
   const Pose T_W_B_;
   const int total_;
   const bool interactive_ = isatty(fileno(stderr));
@@ -172,8 +179,14 @@ class ScanHooks : public FrameHooks {
 // The approach: frames fused as they arrive, the frame directory written beside.
 void FuseApproach(const ScanJobOptions& o, sim::Scanner& scanner, const std::optional<calib::Calibration>& calibration,
                   const fs::path& work_dir, ScanReport* report) {
-  // What fusion believes: the calibrated camera and hand-eye pose, or the simulator's truth.
-  const CameraModel camera = calibration ? calibration->camera : scanner.camera();
+  // What fusion believes: the calibrated camera and hand-eye pose, or the simulator's truth,
+  // with the injected errors; and how far that is from the truth.
+  const CalibrationPerturbation perturbation = ParsePerturbation(o.perturb);
+  const CameraModel camera = perturbation.Apply(calibration ? calibration->camera : scanner.camera());
+  const Pose T_H_C_truth = scanner.world().T_H_C();
+  report->perturbation = perturbation.Text();
+  report->calibration_errors = CompareCalibration(
+      (calibration ? calibration->T_H_C : T_H_C_truth) * perturbation.T_C_Cp(), camera, T_H_C_truth, scanner.camera());
   // Uncompressed frame files keep up with the 30 Hz loop (image_io.h).
   FrameDirectoryWriter writer(work_dir / "frames", camera,
                               o.compress_frames ? ImageCompression::kCompact : ImageCompression::kFast);
@@ -186,7 +199,7 @@ void FuseApproach(const ScanJobOptions& o, sim::Scanner& scanner, const std::opt
                grid.voxel_m() * 1e3);
   const Stopwatch loop;
   const double cpu_loop = ProcessCpuSeconds();
-  ScanHooks hooks(report, calibration, scanner.world().T_W_B(), total);
+  ScanHooks hooks(report, calibration, perturbation, scanner.world().T_W_B(), total);
   // Fusion runs beside the simulator, which keeps every core busy: one thread fewer (at least
   // one) costs the least CPU per frame (threads owning slabs walk the rays that cross them
   // twice: on 2 cores 16 ms CPU per frame at 1 thread, 17-20 ms at 2, scan_benchmark).

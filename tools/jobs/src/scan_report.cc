@@ -196,6 +196,13 @@ std::string ScanReportJson(const ScanReport& r) {
   j["objects"] = r.objects;
   j["samples_per_pixel"] = r.samples;
   j["depth_correction"] = r.depth_correction;
+  // injected errors, the calibration's errors against the truth and the map's, side by side
+  const CalibrationErrors& e = r.calibration_errors;
+  j["calibration_check"] = {{"injected", r.perturbation},
+                            {"hand_eye_error_deg", e.hand_eye_deg},
+                            {"hand_eye_error_mm", e.hand_eye_mm},
+                            {"focal_error_pct", e.focal_pct},
+                            {"principal_point_error_px", e.principal_px}};
   const ScanJobOptions& a = r.options;  // `romunect scan` with these repeats the run (same bytes)
   j["options"] = {{"scene", a.scene},
                   {"saved_scene", a.saved_scene},
@@ -288,6 +295,10 @@ std::string ScanSummaryText(const ScanSummary& summary) {
   }
   s << "   (all " << r.fusion.completeness_per_frame.size() << " frames: " << Format("%.1f %%", 100.0 * m.completeness)
     << ")\n";
+  const CalibrationErrors& e = r.calibration_errors;
+  s << "calibration used vs truth: hand-eye " << Format("%.3f deg %.3f mm", e.hand_eye_deg, e.hand_eye_mm) << ", focal "
+    << Format("%+.3f %%", e.focal_pct) << ", principal point " << Format("%.2f px", e.principal_px)
+    << " (injected: " << r.perturbation << ")\n";
   s << "accuracy vs ground truth: RMSE " << Format("%.3f", m.rmse_mm) << " mm, MAE " << Format("%.3f", m.mae_mm)
     << " mm, " << Format("%.1f %%", 100.0 * m.within_1mm) << " within 1 mm\n";
   s << "pick: " << r.pick.BriefReport() << "\n";

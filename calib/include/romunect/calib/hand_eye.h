@@ -28,6 +28,9 @@ enum class HandEyeInitialMethod {
           // the candidate with the smaller board-pose inconsistency wins
   kTsai,  // OpenCV's Tsai alone (the bar; fails for large pair rotations in 4.6)
   kPark,  // OpenCV's Park alone
+  kHoraud,
+  kAndreff,
+  kDaniilidis,  // OpenCV's other solvers alone (for comparison)
 };
 
 struct HandEyeOptions {
@@ -69,6 +72,16 @@ HandEyeResult CalibrateHandEye(const std::vector<HandEyeStation>& stations, cons
 // OpenCV's calibrateHandEye alone (no guard, no refinement), for comparison: T_H_C.
 Pose OpenCvHandEye(const std::vector<HandEyeStation>& stations, const CameraModel& camera, const BoardSpec& board,
                    HandEyeInitialMethod method);
+
+// OpenCV's five solvers alone (Tsai, Park, Horaud, Andreff, Daniilidis), each with the board
+// pose T_B_K averaged over the stations and its corner RMS: the comparison for held-out error.
+// A solver that fails is left out.
+struct OpenCvHandEyeResult {
+  std::string method;
+  HandEyeResult fit;
+};
+std::vector<OpenCvHandEyeResult> OpenCvHandEyeAll(const std::vector<HandEyeStation>& stations,
+                                                  const CameraModel& camera, const BoardSpec& board);
 
 // The board pose in the camera from one view (solvePnP, iterative), with a known camera.
 Pose EstimateBoardPose(const BoardView& view, const CameraModel& camera, const BoardSpec& board);

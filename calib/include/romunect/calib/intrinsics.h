@@ -18,7 +18,9 @@
 namespace romunect::calib {
 
 // Finds the board's inner corners in an 8-bit or 16-bit grey (or BGR) image and refines them
-// to sub-pixel precision. nullopt (with *reason) when the board is not found completely.
+// to sub-pixel precision. nullopt (with *reason) when the board is not found completely. With
+// cols + rows odd (9x6) the order starts at the end whose outer corner square is dark, in every
+// view, so that K is the same board frame in all (board.h).
 std::optional<std::vector<cv::Point2f>> DetectBoard(const cv::Mat& image, const BoardSpec& board, std::string* reason);
 
 struct DetectedViews {
@@ -26,6 +28,10 @@ struct DetectedViews {
   std::vector<BoardView> views;                               // views where the board was found
   std::vector<std::pair<std::string, std::string>> rejected;  // (file, reason)
 };
+
+// The image files of `dir` (png, jpg, jpeg, bmp, tif, tiff), in name order. Throws InputError
+// if the folder is missing or holds no images.
+std::vector<std::filesystem::path> ListBoardImages(const std::filesystem::path& dir);
 
 // Detects the board in every image file of `dir` (png, jpg, jpeg, bmp, tif, tiff), in name
 // order. Throws InputError if the folder is missing or holds no images, or if image sizes

@@ -38,10 +38,17 @@ struct IntrinsicsStepOptions {
   CalibrationFileOptions file;
 };
 
+// Hand-eye input is either `frames` (a frame source with T_B_H per frame, or --poses LOG by
+// time) or `images` with `poses.log` (a folder of board images of any bit depth, paired in name
+// order with a pose file: 16 numbers per line, row-major, or the CSV pose log; counts must match).
 struct HandEyeStepOptions {
-  std::string frames, board = "9x6";
+  std::string frames, images, board = "9x6";
   PoseLogOptions poses;
+  std::string pose_units = "m";            // m or mm: the translations of the poses
+  std::string poses_are = "hand-in-base";  // or base-in-hand (T_H_B: inverted on reading)
   double square_m = 0.025;
+  std::string intrinsics;          // calibration file with the camera; empty: file.output
+  bool refine_intrinsics = false;  // refine the camera with the robot's motion
   CalibrationFileOptions file;
 };
 
@@ -51,7 +58,8 @@ struct DepthStepOptions {
   CalibrationFileOptions file;
 };
 
-// Each step returns the calibration it saved.
+// Each step returns the calibration it saved. The hand-eye step refuses (InputError, nothing
+// written) a fit whose RMS exceeds max(1 px, 5 x the intrinsics' RMS), naming the likely cause.
 calib::Calibration RunIntrinsicsStep(const IntrinsicsStepOptions& options);
 calib::Calibration RunHandEyeStep(const HandEyeStepOptions& options);
 calib::Calibration RunDepthStep(const DepthStepOptions& options);
@@ -64,6 +72,13 @@ struct InTheLoopOptions {
   int board_samples = 3;
   int threads = 2;
   bool overwrite_worse = false;
+  // The rig's nominal errors (CAD mount, plate placement, projector, datasheet focal length and
+  // principal point) scaled by this: 0 = nominal values exact, 1 = the rig's defaults.
+  double nominal_errors = 1.0;
+  // When set: the captures as inputs of the single steps, re-runnable with `calibrate
+  // intrinsics|hand-eye|depth`: DIR/intrinsics/ (board images), DIR/hand_eye/ and DIR/depth/
+  // (frame directories with T_B_H per frame).
+  std::string save_captures;
 };
 
 struct InTheLoopSummary {

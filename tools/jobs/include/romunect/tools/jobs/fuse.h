@@ -26,12 +26,14 @@ struct FuseOptions {
   double timeout_s = 2.0;
   bool device_depth = false;  // fuse the device's metric depth even with a depth model
   bool pose_offset_given = false, timeout_given = false;
+  std::string perturb;  // injected calibration errors (perturbation.h); "" none
 };
 
 struct FuseJobSummary {
   std::filesystem::path out;
   fusion::FusionReport report;
   std::string depth_from, box_from;
+  std::string perturbation = "none";             // the injected calibration errors (perturbation.h)
   int dropped_frames = 0;                         // gaps in a device's frame numbers
   std::optional<std::string> depth_unit_warning;  // an OpenNI2 source's depth unit is coarse for the voxel
   std::optional<std::string> stopped;             // why the source stopped before its end

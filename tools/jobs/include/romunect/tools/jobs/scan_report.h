@@ -18,6 +18,7 @@
 #include "romunect/sensor/frame.h"
 #include "romunect/sim/pick.h"
 #include "romunect/sim/scanner.h"
+#include "romunect/tools/jobs/perturbation.h"
 
 namespace romunect::jobs {
 
@@ -36,6 +37,7 @@ struct ScanJobOptions {
   std::vector<std::string> meshes;  // user meshes added to the pile, one object each
   double mesh_unit_m = 1e-3;
   std::string mesh_material = "bright";
+  std::string perturb;  // injected calibration errors (perturbation.h); "" none
 };
 
 // Keeps two single depth maps of the scan for figure 2: the first one with a useful share of
@@ -73,6 +75,11 @@ struct ScanReport {
   // loop_cpu_s: the process's CPU time (all threads) during the loop: with loop_wall_s it says
   // how busy the cores were.
   double write_s = 0.0, wait_s = 0.0, loop_wall_s = 0.0, loop_cpu_s = 0.0, total_wall_s = 0.0;
+
+  // What fusion believed against the truth: the injected errors (perturbation.h) and the
+  // resulting calibration's errors against the rig's truth, beside the map's errors (fusion).
+  std::string perturbation = "none";
+  CalibrationErrors calibration_errors;
 
   cv::Mat height_m, gt_height_m, overview;
   sim::ScanStats scan_stats;
