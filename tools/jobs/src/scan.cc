@@ -40,9 +40,13 @@ std::string DefaultRunDir() {
 
 // The checks that need no file read: before the run folder is looked at.
 void CheckOptionValues(const ScanJobOptions& o) {
-  if (o.objects < 1 || o.objects > 60) {
-    throw InputError("--objects", "", std::to_string(o.objects) + " is outside 1..60");
+  if (o.objects < 0 || o.objects > 60) {
+    throw InputError("--objects", "", std::to_string(o.objects) + " is outside 0..60");
   }
+  if (o.objects == 0 && o.meshes.empty() && o.saved_scene.empty()) {
+    throw InputError("--objects", "", "0 needs at least one --mesh (an empty bin has nothing to scan)");
+  }
+  for (const std::string& kind : o.kinds) sim::GeneratedKindFromName(kind, "--kinds");
   if (o.threads < 1 || o.threads > 64) {
     throw InputError("--threads", "", std::to_string(o.threads) + " is outside 1..64");
   }
@@ -65,6 +69,7 @@ sim::ScanOptions SimulatorOptions(const ScanJobOptions& o, std::optional<calib::
   options.saved_scene = o.saved_scene;
   options.rig = LoadRigArgument(o.rig);
   options.pile.num_objects = o.objects;
+  for (const std::string& kind : o.kinds) options.pile.kinds.push_back(sim::GeneratedKindFromName(kind, "--kinds"));
   options.pile.seed = o.seed;
   options.seed = o.seed;
   options.threads = o.threads;

@@ -201,6 +201,7 @@ std::string ScanReportJson(const ScanReport& r) {
                   {"saved_scene", a.saved_scene},
                   {"seed", a.seed},
                   {"objects", a.objects},
+                  {"kinds", a.kinds},
                   {"meshes", a.meshes},
                   {"mesh_unit_m", a.mesh_unit_m},
                   {"mesh_material", a.mesh_material},

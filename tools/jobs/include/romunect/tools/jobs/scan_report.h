@@ -26,7 +26,8 @@ namespace romunect::jobs {
 struct ScanJobOptions {
   std::string scene, saved_scene, rig = "romunect", calibration, out;  // out "": runs/scan-<date>-<time>
   uint32_t seed = 1;
-  int objects = 12;
+  int objects = 12;                 // 0 only with meshes
+  std::vector<std::string> kinds;   // the pile's kinds (GeneratedKindFromName); empty: all five
   int threads = 2;
   int samples = 1;
   double voxel_m = 0.25e-3;
