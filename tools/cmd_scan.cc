@@ -40,8 +40,9 @@ void AddScanCommand(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--voxel", o->voxel_m, "Fusion voxel size, metres, 0.00005..0.005")->capture_default_str();
   cmd->add_option("--sweep", o->sweep,
-                  "How the approach visits the stand-off levels: columns (through all levels at each pass "
-                  "centre) or levels (a serpentine per level)")
+                  "How the approach visits the stand-off levels: coverage (down over the bin, then the levels "
+                  "the measured pile needs, serpentines, and again with the hand turned), columns (through all "
+                  "levels at each pass centre) or levels (a serpentine per level)")
       ->capture_default_str();
   cmd->add_flag("--ideal-depth", o->ideal_depth, "Fuse ground-truth depth instead of the sensor's (debugging)");
   cmd->add_flag("--compress-frames", o->compress_frames,

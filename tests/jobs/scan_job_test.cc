@@ -29,8 +29,13 @@ TEST(ScanJob, RefusesBadOptionsBeforeAnyWork) {
   ScanJobOptions o;
   o.out = (dir / "run").string();
   ScanJobOptions bad = o;
-  bad.objects = 0;
-  EXPECT_EQ(ScanError(bad), "--objects: 0 is outside 1..60");
+  bad.objects = 61;
+  EXPECT_EQ(ScanError(bad), "--objects: 61 is outside 0..60");
+  bad.objects = 0;  // an empty bin: only with user meshes
+  EXPECT_EQ(ScanError(bad), "--objects: 0 needs at least one --mesh (an empty bin has nothing to scan)");
+  bad = o;
+  bad.kinds = {"key", "spoon"};
+  EXPECT_EQ(ScanError(bad), "--kinds: object kind: 'spoon' is not one of key, pillbox, puzzle, lego, gear");
   bad = o;
   bad.samples = 3;
   EXPECT_EQ(ScanError(bad), "--samples: 3 is not 1 or 4");
@@ -39,7 +44,7 @@ TEST(ScanJob, RefusesBadOptionsBeforeAnyWork) {
   EXPECT_EQ(ScanError(bad), "--voxel: expected 0.00005 .. 0.005 metres");
   bad = o;
   bad.sweep = "diagonal";
-  EXPECT_EQ(ScanError(bad), "--sweep: 'diagonal' is not columns or levels");
+  EXPECT_EQ(ScanError(bad), "--sweep: 'diagonal' is not coverage, columns or levels");
   bad = o;
   bad.mesh_material = "purple";
   EXPECT_EQ(ScanError(bad), "--mesh-material: 'purple' is not bright, dark or shiny");

@@ -6,6 +6,7 @@
 
 #include <ctime>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -26,14 +27,14 @@ namespace romunect::jobs {
 struct ScanJobOptions {
   std::string scene, saved_scene, rig = "romunect", calibration, out;  // out "": runs/scan-<date>-<time>
   uint32_t seed = 1;
-  int objects = 12;                 // 0 only with meshes
-  std::vector<std::string> kinds;   // the pile's kinds (GeneratedKindFromName); empty: all five
+  int objects = 12;                // 0 only with meshes
+  std::vector<std::string> kinds;  // the pile's kinds (GeneratedKindFromName); empty: all five
   int threads = 2;
   int samples = 1;
   double voxel_m = 0.25e-3;
   bool ideal_depth = false;
   bool compress_frames = false;
-  std::string sweep = "columns";
+  std::string sweep = "coverage";
   std::vector<std::string> meshes;  // user meshes added to the pile, one object each
   double mesh_unit_m = 1e-3;
   std::string mesh_material = "bright";
@@ -74,6 +75,12 @@ struct ScanReport {
   // loop_cpu_s: the process's CPU time (all threads) during the loop: with loop_wall_s it says
   // how busy the cores were.
   double write_s = 0.0, wait_s = 0.0, loop_wall_s = 0.0, loop_cpu_s = 0.0, total_wall_s = 0.0;
+
+  // The fusion box's heights (W z, m) and, from ground truth, the cells whose surface lies above
+  // or below it (what fusion could not hold): the report warns when any does.
+  double box_min_z_m = 0.0, box_max_z_m = 0.0;
+  int cells_above_box = 0, cells_below_box = 0;
+  std::optional<double> pile_top_m;  // the pile's top as the approach measured it (above the bin floor)
 
   cv::Mat height_m, gt_height_m, overview;
   sim::ScanStats scan_stats;

@@ -1,0 +1,194 @@
+#include "romunect/sim/coverage.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/Geometry>
+
+#include "path.h"
+#include "romunect/sensor/check.h"
+#include "romunect/sensor/errors.h"
+
+namespace romunect::sim {
+namespace {
+
+// A wide measurable range (the stock Kinect's 0.45-2.1 m) is used near its near end, where depth
+// noise (growing with Z^2) is lowest, with this much room for taller surfaces.
+constexpr double kWideRangeRoomM = 0.25;
+// Points this close to a wall are left out of the pile's height (the walls are the bin, not the pile).
+constexpr double kWallMarginM = 0.003;
+// The descent starts at least this far above the first level, so the pile's top comes into range
+// on the way down.
+constexpr double kDescentRoomM = 0.05;
+// The hand's turn for the second passes: short of 180 deg, as the last wrist joint stops at
+// +-3.14 rad; the baseline's shadows fall on the other side all the same.
+constexpr double kTurnRad = 170.0 * M_PI / 180.0;
+
+// The camera's distance to the surfaces of a band of `span_m`: the middle of a narrow range, near
+// the near end of a wide one, clamped so the whole band stays in [near, far].
+double PreferredDistance(const ApproachOptions& o, double span_m) {
+  const double mid = 0.5 * (o.focused_near_m + o.focused_far_m);
+  const double preferred = std::min(mid, o.focused_near_m + kWideRangeRoomM);
+  return std::clamp(preferred, o.focused_near_m + 0.5 * span_m, o.focused_far_m - 0.5 * span_m);
+}
+
+CoverageLevel LevelFor(const ApproachOptions& o, double low_m, double high_m) {
+  CoverageLevel level;
+  level.low_m = low_m;
+  level.high_m = high_m;
+  level.camera_height_m = 0.5 * (low_m + high_m) + PreferredDistance(o, high_m - low_m);
+  return level;
+}
+
+// Serpentine rows over a region (bin frame, centred) at one level: the footprint at the band's
+// far end tiles it, row centres evenly from edge to edge. `reverse` runs it backwards.
+// Along x (the bin's long side) the end centres lie at least over the walls (`min_end_m`): from
+// further in, a wall hides the table beside it.
+std::vector<Eigen::Vector2d> Serpentine(const CameraModel& camera, const Eigen::Vector2d& region_m, double distance_m,
+                                        bool reverse, double min_end_x_m = 0.0) {
+  const Eigen::Vector2d foot(distance_m * camera.width / camera.fx, distance_m * camera.height / camera.fy);
+  auto centres = [](double region, double foot_m, double min_end_m = 0.0) {
+    std::vector<double> c;
+    const double travel = std::max(region - foot_m, 2 * min_end_m);
+    if (travel <= 0) return std::vector<double>{0.0};
+    const int n = static_cast<int>(std::ceil(travel / foot_m - 1e-9)) + 1;
+    for (int i = 0; i < n; ++i) c.push_back(-0.5 * travel + travel * i / (n - 1));
+    return c;
+  };
+  const std::vector<double> xs = centres(region_m.x(), foot.x(), min_end_x_m), ys = centres(region_m.y(), foot.y());
+  std::vector<Eigen::Vector2d> points;
+  for (size_t j = 0; j < ys.size(); ++j) {
+    // a row sweeps from one x end to the other: the first and last centre are enough
+    const bool forward = j % 2 == 0;
+    points.emplace_back(forward ? xs.front() : xs.back(), ys[j]);
+    if (xs.size() > 1) points.emplace_back(forward ? xs.back() : xs.front(), ys[j]);
+  }
+  if (reverse) std::reverse(points.begin(), points.end());
+  return points;
+}
+
+// Times a path of corners, rounds them and solves it for the arm's joints into `plan`.
+void Execute(const World& world, const ApproachOptions& o, const std::vector<PathPoint>& polyline, double speed_m_s,
+             double acceleration_m_s2, const World::ArmVector& q_seed, const IkOptions& ik, ApproachPlan* plan) {
+  for (size_t i = 1; i < polyline.size(); ++i) plan->length_m += (polyline[i] - polyline[i - 1]).norm();
+  std::vector<PathPoint> p_Bin = TimeParameterize(polyline, speed_m_s, acceleration_m_s2, plan->timestep_s);
+  p_Bin = Smooth(p_Bin, 2 * static_cast<int>(std::lround(o.corner_smoothing_s / plan->timestep_s / 2)) + 1);
+  std::vector<Pose> T_Bin_C;
+  for (const PathPoint& p : p_Bin) T_Bin_C.push_back(CameraPoseInBin(p));
+  SolvePath(world, T_Bin_C, q_seed, ik, plan);
+}
+
+}  // namespace
+
+std::vector<CoverageLevel> CoverageLevels(const ApproachOptions& o, double top_m, double rim_m) {
+  ROMUNECT_CHECK(o.focused_far_m > o.focused_near_m && o.focused_near_m > 0);
+  const double width = o.focused_far_m - o.focused_near_m;
+  const double low = o.surface_low_m;
+  // a range wide enough for the table and the rim at once measures both from one level
+  const double top = std::max(rim_m - low <= width ? std::max(top_m, rim_m) : top_m, low + 1e-3);
+  // bands stacked from the table up to the top, evenly
+  const int n = std::max(1, static_cast<int>(std::ceil((top - low) / width - 1e-9)));
+  const double band = (top - low) / n;
+  std::vector<CoverageLevel> levels;
+  for (int i = 0; i < n; ++i) levels.push_back(LevelFor(o, low + i * band, low + (i + 1) * band));
+  // the rim, when the bands stop below it: a band of its own centred on it
+  if (rim_m > top) levels.push_back(LevelFor(o, rim_m - 0.25 * width, rim_m + 0.25 * width));
+  return levels;
+}
+
+PileHeightMeter::PileHeightMeter(const Pose& T_W_Bin, const Eigen::Vector3d& bin_inner_size_m, int stride_px)
+    : T_Bin_W_(T_W_Bin.inverse()),
+      half_inner_m_(0.5 * bin_inner_size_m.head<2>() - Eigen::Vector2d::Constant(kWallMarginM)),
+      stride_px_(stride_px) {
+  ROMUNECT_CHECK(stride_px >= 1);
+}
+
+void PileHeightMeter::Add(const Frame& frame, const CameraModel& camera) {
+  if (frame.depth_m.empty() || !frame.T_W_C) return;
+  const Pose T_Bin_C = T_Bin_W_ * *frame.T_W_C;
+  for (int v = 0; v < frame.depth_m.rows; v += stride_px_) {
+    const float* row = frame.depth_m.ptr<float>(v);
+    for (int u = 0; u < frame.depth_m.cols; u += stride_px_) {
+      if (!(row[u] > 0)) continue;
+      const Eigen::Vector3d p_Bin = T_Bin_C * camera.Unproject(Eigen::Vector2d(u, v), row[u]);
+      if (std::abs(p_Bin.x()) > half_inner_m_.x() || std::abs(p_Bin.y()) > half_inner_m_.y()) continue;
+      heights_m_.push_back(static_cast<float>(p_Bin.z()));
+    }
+  }
+}
+
+std::optional<double> PileHeightMeter::TopM(int min_samples) const {
+  if (samples() < std::max(1, min_samples)) return std::nullopt;
+  std::vector<float> h = heights_m_;
+  const size_t k = static_cast<size_t>(0.995 * (h.size() - 1));
+  std::nth_element(h.begin(), h.begin() + k, h.end());
+  return h[k];
+}
+
+ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const ApproachOptions& o, const IkOptions& ik) {
+  ApproachPlan plan;
+  plan.timestep_s = world.timestep_s();
+  // the lowest level does not depend on the pile: its band starts at the table
+  const double rim = world.bin_inner_size_m().z();
+  const CoverageLevel first = CoverageLevels(o, o.surface_low_m, rim).front();
+  plan.levels_m = {first.camera_height_m};
+  const double start = std::max(o.start_distance_m, first.camera_height_m + kDescentRoomM);
+  const std::vector<PathPoint> polyline = {PathPoint(0, 0, start, 0), PathPoint(0, 0, first.camera_height_m, 0)};
+  Execute(world, o, polyline, o.coverage_speed_m_s, o.coverage_acceleration_m_s2, ScanPostureSeed(world), ik, &plan);
+  (void)camera;
+  return plan;
+}
+
+namespace {
+
+ApproachPlan PlanCoverageTurning(const World& world, const CameraModel& camera, const ApproachOptions& o, double top_m,
+                                 const ApproachPlan& descent, const IkOptions& ik, double turn_rad) {
+  ROMUNECT_CHECK(!descent.T_W_C.empty());
+  ApproachPlan plan;
+  plan.timestep_s = world.timestep_s();
+  const double rim = world.bin_inner_size_m().z();
+  const std::vector<CoverageLevel> levels = CoverageLevels(o, std::max(top_m, 0.0), rim);
+  const Eigen::Vector3d start_Bin = (world.T_W_Bin().inverse() * descent.T_W_C.back()).translation();
+  std::vector<PathPoint> polyline = {PathPoint(start_Bin.x(), start_Bin.y(), start_Bin.z(), 0.0)};
+  // the rim's band covers the bin's outline only; the others the whole region
+  const Eigen::Vector2d outline = world.bin_inner_size_m().head<2>() + Eigen::Vector2d::Constant(0.012);
+  auto sweep = [&](const CoverageLevel& level, double turn_rad) {
+    const bool rim_band = level.low_m > top_m && level.high_m >= rim;
+    const Eigen::Vector2d region = rim_band ? outline : o.region_size_m;
+    const double distance = level.camera_height_m - level.low_m;  // the footprint at the band's far end
+    // run it from the end nearer to where the camera is
+    const Eigen::Vector2d at = polyline.back().head<2>();
+    const double end_x = rim_band ? 0.0 : 0.5 * outline.x();
+    std::vector<Eigen::Vector2d> points = Serpentine(camera, region, distance, false, end_x);
+    if ((points.back() - at).norm() < (points.front() - at).norm()) {
+      points = Serpentine(camera, region, distance, true, end_x);
+    }
+    for (const Eigen::Vector2d& c : points) {
+      polyline.emplace_back(c.x(), c.y(), level.camera_height_m, kTurnRadiusM * turn_rad);
+    }
+  };
+  for (const CoverageLevel& level : levels) sweep(level, 0.0);
+  plan.passes_x = plan.passes_y = 1;
+  if (o.turned_passes) {
+    // back down through the bands with the hand turned: the baseline's shadows fall the other way
+    for (size_t i = levels.size(); i-- > 0;) sweep(levels[i], turn_rad);
+  }
+  for (auto it = levels.rbegin(); it != levels.rend(); ++it) plan.levels_m.push_back(it->camera_height_m);
+  Execute(world, o, polyline, o.coverage_speed_m_s, o.coverage_acceleration_m_s2, descent.q.back(), ik, &plan);
+  return plan;
+}
+
+}  // namespace
+
+ApproachPlan PlanCoverage(const World& world, const CameraModel& camera, const ApproachOptions& o, double top_m,
+                          const ApproachPlan& descent, const IkOptions& ik) {
+  // the wrist turns whichever way its joint limits allow
+  try {
+    return PlanCoverageTurning(world, camera, o, top_m, descent, ik, kTurnRad);
+  } catch (const InputError&) {
+    if (!o.turned_passes) throw;
+    return PlanCoverageTurning(world, camera, o, top_m, descent, ik, -kTurnRad);
+  }
+}
+
+}  // namespace romunect::sim
