@@ -42,20 +42,22 @@ CoverageLevel LevelFor(const ApproachOptions& o, double low_m, double high_m) {
 
 // Serpentine rows over a region (bin frame, centred) at one level: the footprint at the band's
 // far end tiles it, row centres evenly from edge to edge. `reverse` runs it backwards.
-// Along x (the bin's long side) the end centres lie at least over the walls (`min_end_m`): from
-// further in, a wall hides the table beside it.
+// The outer rows and row ends lie at least over the walls (`min_end_m`, x and y): from further
+// in, a wall hides the table beside it.
 std::vector<Eigen::Vector2d> Serpentine(const CameraModel& camera, const Eigen::Vector2d& region_m, double distance_m,
-                                        bool reverse, double min_end_x_m = 0.0) {
+                                        bool reverse, const Eigen::Vector2d& min_end_m = Eigen::Vector2d::Zero()) {
   const Eigen::Vector2d foot(distance_m * camera.width / camera.fx, distance_m * camera.height / camera.fy);
   auto centres = [](double region, double foot_m, double min_end_m = 0.0) {
     std::vector<double> c;
     const double travel = std::max(region - foot_m, 2 * min_end_m);
-    if (travel <= 0) return std::vector<double>{0.0};
+    // a strip narrower than a third of the footprint is left to the walls' shadow
+    if (travel <= foot_m / 3) return std::vector<double>{0.0};
     const int n = static_cast<int>(std::ceil(travel / foot_m - 1e-9)) + 1;
     for (int i = 0; i < n; ++i) c.push_back(-0.5 * travel + travel * i / (n - 1));
     return c;
   };
-  const std::vector<double> xs = centres(region_m.x(), foot.x(), min_end_x_m), ys = centres(region_m.y(), foot.y());
+  const std::vector<double> xs = centres(region_m.x(), foot.x(), min_end_m.x()),
+                            ys = centres(region_m.y(), foot.y(), min_end_m.y());
   std::vector<Eigen::Vector2d> points;
   for (size_t j = 0; j < ys.size(); ++j) {
     // a row sweeps from one x end to the other: the first and last centre are enough
@@ -130,7 +132,9 @@ ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const Ap
   plan.timestep_s = world.timestep_s();
   // the lowest level does not depend on the pile: its band starts at the table
   const double rim = world.bin_inner_size_m().z();
-  const CoverageLevel first = CoverageLevels(o, o.surface_low_m, rim).front();
+  // a band as wide as the range from the table up: a one-layer pile lies in it
+  const double one_layer_m = o.surface_low_m + (o.focused_far_m - o.focused_near_m);
+  const CoverageLevel first = CoverageLevels(o, std::min(one_layer_m, rim), rim).front();
   plan.levels_m = {first.camera_height_m};
   const double start = std::max(o.start_distance_m, first.camera_height_m + kDescentRoomM);
   const std::vector<PathPoint> polyline = {PathPoint(0, 0, start, 0), PathPoint(0, 0, first.camera_height_m, 0)};
@@ -150,29 +154,38 @@ ApproachPlan PlanCoverageTurning(const World& world, const CameraModel& camera, 
   const std::vector<CoverageLevel> levels = CoverageLevels(o, std::max(top_m, 0.0), rim);
   const Eigen::Vector3d start_Bin = (world.T_W_Bin().inverse() * descent.T_W_C.back()).translation();
   std::vector<PathPoint> polyline = {PathPoint(start_Bin.x(), start_Bin.y(), start_Bin.z(), 0.0)};
-  // the rim's band covers the bin's outline only; the others the whole region
-  const Eigen::Vector2d outline = world.bin_inner_size_m().head<2>() + Eigen::Vector2d::Constant(0.012);
-  auto sweep = [&](const CoverageLevel& level, double turn_rad) {
+  // The lowest band (table, floor, a one-layer pile) covers the whole region, the bands above it
+  // the bin's inside, the rim's the bin's outline.
+  const Eigen::Vector2d inside = world.bin_inner_size_m().head<2>();
+  const Eigen::Vector2d outline = inside + Eigen::Vector2d::Constant(0.012);
+  // a serpentine at level i with the hand's turn going from turn0 to turn1 along it
+  auto sweep = [&](size_t i, double turn0_rad, double turn1_rad) {
+    const CoverageLevel& level = levels[i];
     const bool rim_band = level.low_m > top_m && level.high_m >= rim;
-    const Eigen::Vector2d region = rim_band ? outline : o.region_size_m;
+    const Eigen::Vector2d region = i == 0 ? o.region_size_m : rim_band ? outline : inside;
     const double distance = level.camera_height_m - level.low_m;  // the footprint at the band's far end
     // run it from the end nearer to where the camera is
     const Eigen::Vector2d at = polyline.back().head<2>();
-    const double end_x = rim_band ? 0.0 : 0.5 * outline.x();
-    std::vector<Eigen::Vector2d> points = Serpentine(camera, region, distance, false, end_x);
+    const Eigen::Vector2d ends = i == 0 ? Eigen::Vector2d(0.5 * outline) : Eigen::Vector2d::Zero();
+    std::vector<Eigen::Vector2d> points = Serpentine(camera, region, distance, false, ends);
     if ((points.back() - at).norm() < (points.front() - at).norm()) {
-      points = Serpentine(camera, region, distance, true, end_x);
+      points = Serpentine(camera, region, distance, true, ends);
     }
-    for (const Eigen::Vector2d& c : points) {
-      polyline.emplace_back(c.x(), c.y(), level.camera_height_m, kTurnRadiusM * turn_rad);
+    for (size_t k = 0; k < points.size(); ++k) {
+      const double a = points.size() > 1 ? static_cast<double>(k) / (points.size() - 1) : 1.0;
+      polyline.emplace_back(points[k].x(), points[k].y(), level.camera_height_m,
+                            kTurnRadiusM * (turn0_rad + a * (turn1_rad - turn0_rad)));
     }
   };
-  for (const CoverageLevel& level : levels) sweep(level, 0.0);
+  // Most surfaces lie in the lowest band: it first; then the bands above it and the rim's, the
+  // hand turning on the way (few edges there); then the lowest band again, turned, so the
+  // baseline's shadows fall the other way.
+  const double turned = o.turned_passes ? turn_rad : 0.0;
+  sweep(0, 0.0, 0.0);
+  const size_t upper = levels.size() - 1;
+  for (size_t i = 1; i < levels.size(); ++i) sweep(i, turned * (i - 1) / upper, turned * i / upper);
+  if (o.turned_passes) sweep(0, turned, turned);
   plan.passes_x = plan.passes_y = 1;
-  if (o.turned_passes) {
-    // back down through the bands with the hand turned: the baseline's shadows fall the other way
-    for (size_t i = levels.size(); i-- > 0;) sweep(levels[i], turn_rad);
-  }
   for (auto it = levels.rbegin(); it != levels.rend(); ++it) plan.levels_m.push_back(it->camera_height_m);
   Execute(world, o, polyline, o.coverage_speed_m_s, o.coverage_acceleration_m_s2, descent.q.back(), ik, &plan);
   return plan;

@@ -33,6 +33,8 @@ namespace romunect::jobs {
 namespace {
 namespace fs = std::filesystem;
 
+std::string Mm(double m) { return std::to_string(static_cast<int>(std::lround(m * 1e3))) + " mm"; }
+
 std::string DefaultRunDir() {
   const std::time_t now = std::time(nullptr);
   char name[64];
@@ -201,12 +203,14 @@ void FuseApproach(const ScanJobOptions& o, sim::Scanner& scanner, const std::opt
     grid = std::make_unique<fusion::VotingGrid>(box);
     writer.SetRegion({box.min_W, box.max_W});  // `romunect fuse` re-runs the scan over the same box
     const std::optional<double> top = scanner.measured_pile_top_m();
+    std::string levels;
+    for (double level_m : scanner.plan().levels_m) levels += (levels.empty() ? "" : ", ") + Mm(level_m);
     std::fprintf(stderr,
-                 "scan: approach of %d frames (%.2f s at %.0f Hz; pile top measured at %s), fusing into %d x %d x %d "
-                 "voxels of %.2f mm\n",
+                 "scan: approach of %d frames (%.2f s at %.0f Hz; pile top measured at %s; levels %s above the bin "
+                 "floor), fusing into %d x %d x %d voxels of %.2f mm\n",
                  scanner.frame_count(), scanner.plan().duration_s(), scanner.options().rig.frame_rate_hz,
-                 top ? (std::to_string(static_cast<int>(std::lround(*top * 1e3))) + " mm").c_str() : "-", grid->nx(),
-                 grid->ny(), grid->nz(), grid->voxel_m() * 1e3);
+                 top ? Mm(*top).c_str() : "-", levels.c_str(), grid->nx(), grid->ny(), grid->nz(),
+                 grid->voxel_m() * 1e3);
     // Fusion runs beside the simulator, which keeps every core busy: one thread fewer (at least
     // one) costs the least CPU per frame (threads owning slabs walk the rays that cross them
     // twice: on 2 cores 16 ms CPU per frame at 1 thread, 17-20 ms at 2, scan_benchmark).

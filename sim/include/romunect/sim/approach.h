@@ -49,9 +49,10 @@ struct ApproachOptions {
   enum class Sweep { kCoverage, kColumns, kLevels };
   Sweep sweep = Sweep::kCoverage;
   // kCoverage: speed and acceleration along the path. Faster than the paper's 0.3 m/s: a frame
-  // then moves by about a third of the footprint (the twin models no motion blur).
-  double coverage_speed_m_s = 0.6;
-  double coverage_acceleration_m_s2 = 3.0;
+  // then moves by about half the footprint (the twin models no motion blur; a real sensor would
+  // need a short exposure).
+  double coverage_speed_m_s = 0.9;
+  double coverage_acceleration_m_s2 = 4.0;
   bool turned_passes = true;  // kCoverage: the bands again with the hand turned 180 deg
   double focused_near_m = 0.0;
   double focused_far_m = 0.0;

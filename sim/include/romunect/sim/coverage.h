@@ -8,11 +8,12 @@
 // bin floor. On the way, a PileHeightMeter collects the heights of the measured points over the
 // bin's inner floor. The coverage leg (PlanCoverage) then starts where the descent stopped:
 // measurable bands stacked from the table up to the measured top, one more for the bin's rim
-// when it lies above them, a serpentine per band whose rows tile the region with the footprint
-// at the band's far end (every frame adds new area), and the same bands once more with the
-// hand turned 180 deg, so the strips the projector's baseline shadows on one side of every
-// edge are seen from the other side. Frames: W world, C camera, Bin (the bin's inner floor
-// centre, z up); SI units; heights are above the bin floor.
+// when it lies above them, a serpentine per band whose rows tile the band's area with the
+// footprint at the band's far end (every frame adds new area): the lowest band (table, floor, a
+// one-layer pile) over the whole region; the bands above it over the bin's inside and the rim's
+// over its outline, the hand turning 170 deg on the way; the lowest band again, turned, so the
+// strips the projector's baseline shadows on one side of every edge are seen from the other. Frames: W world, C camera,
+// Bin (the bin's inner floor centre, z up); SI units; heights are above the bin floor.
 #pragma once
 
 #include <optional>
@@ -68,8 +69,8 @@ ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const Ap
 
 // The coverage leg from the end of `descent` for a pile whose measured top is top_m (the bin
 // floor when nothing was measured): levels from CoverageLevels, serpentines at
-// coverage_speed_m_s, the turned passes (ending at the lowest level, ready to pick); levels_m
-// holds the levels' camera heights, highest first. Its first sample is the descent's last. Throws
+// coverage_speed_m_s, the turned passes; levels_m holds the levels' camera heights, highest
+// first. Its first sample is the descent's last. Throws
 // InputError("approach", ...) when a pose is outside the arm's workspace.
 ApproachPlan PlanCoverage(const World& world, const CameraModel& camera, const ApproachOptions& options, double top_m,
                           const ApproachPlan& descent, const IkOptions& ik = {});
