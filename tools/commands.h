@@ -7,10 +7,11 @@
 namespace romunect::tools {
 
 void AddInfoCommand(CLI::App& app);
-void AddFuseCommand(CLI::App& app);       // cmd_fuse.cc (jobs/fuse.h)
-void AddRecordCommand(CLI::App& app);     // cmd_record.cc (jobs/record.h)
-void AddRenderCommand(CLI::App& app);     // cmd_render.cc (jobs/render.h)
-void AddCalibrateCommand(CLI::App& app);  // cmd_calibrate.cc (jobs/calibrate.h)
-void AddScanCommand(CLI::App& app);       // cmd_scan.cc (the main job: jobs/scan.h)
+void AddFuseCommand(CLI::App& app);        // cmd_fuse.cc (jobs/fuse.h)
+void AddRecordCommand(CLI::App& app);      // cmd_record.cc (jobs/record.h)
+void AddRenderCommand(CLI::App& app);      // cmd_render.cc (jobs/render.h)
+void AddCalibrateCommand(CLI::App& app);   // cmd_calibrate.cc (jobs/calibrate.h)
+void AddScanCommand(CLI::App& app);        // cmd_scan.cc (the main job: jobs/scan.h)
+void AddExperimentCommand(CLI::App& app);  // cmd_experiment.cc (the paper's experiments: jobs/table1.h)
 
 }  // namespace romunect::tools

@@ -20,6 +20,7 @@ int main(int argc, char** argv) {
   romunect::tools::AddRecordCommand(app);
   romunect::tools::AddRenderCommand(app);
   romunect::tools::AddCalibrateCommand(app);
+  romunect::tools::AddExperimentCommand(app);
 
   try {
     app.parse(argc, argv);

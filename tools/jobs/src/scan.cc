@@ -187,8 +187,11 @@ void FuseApproach(const ScanJobOptions& o, sim::Scanner& scanner, const std::opt
   // What fusion believes: the calibrated camera and hand-eye pose, or the simulator's truth.
   const CameraModel camera = calibration ? calibration->camera : scanner.camera();
   // Uncompressed frame files keep up with the 30 Hz loop (image_io.h).
-  FrameDirectoryWriter writer(work_dir / "frames", camera,
-                              o.compress_frames ? ImageCompression::kCompact : ImageCompression::kFast);
+  std::optional<FrameDirectoryWriter> writer;
+  if (o.write_frames) {
+    writer.emplace(work_dir / "frames", camera,
+                   o.compress_frames ? ImageCompression::kCompact : ImageCompression::kFast);
+  }
   const Stopwatch loop;
   const double cpu_loop = ProcessCpuSeconds();
   ScanHooks hooks(report, calibration, scanner.world().T_W_B(), scanner);
@@ -201,7 +204,7 @@ void FuseApproach(const ScanJobOptions& o, sim::Scanner& scanner, const std::opt
   auto start_fusion = [&] {
     box = FusionBox(scanner.world(), scanner.options().approach, o.voxel_m);
     grid = std::make_unique<fusion::VotingGrid>(box);
-    writer.SetRegion({box.min_W, box.max_W});  // `romunect fuse` re-runs the scan over the same box
+    if (writer) writer->SetRegion({box.min_W, box.max_W});  // `romunect fuse` re-runs the scan over the same box
     const std::optional<double> top = scanner.measured_pile_top_m();
     std::string levels;
     for (double level_m : scanner.plan().levels_m) levels += (levels.empty() ? "" : ", ") + Mm(level_m);
@@ -232,7 +235,7 @@ void FuseApproach(const ScanJobOptions& o, sim::Scanner& scanner, const std::opt
   pipeline.AddStage({"fuse", 2}, [&fuse](sim::ScanWork* work) { fuse(&work->frame); });
   // The writer may lag up to 16 frames (~60 MB of images) at a lower priority: it runs on what
   // rendering, imaging and fusion leave (steadier loop times on 2 cores).
-  pipeline.AddStage({"write", 16, 10}, [&writer](sim::ScanWork* work) { writer.Add(work->frame); });
+  if (writer) pipeline.AddStage({"write", 16, 10}, [&writer](sim::ScanWork* work) { writer->Add(work->frame); });
   pipeline.Run();
   if (!fuser) start_fusion();
   report->loop_wall_s = loop.seconds();
@@ -242,7 +245,7 @@ void FuseApproach(const ScanJobOptions& o, sim::Scanner& scanner, const std::opt
     if (stage.name == "write") report->write_s = stage.busy_s;
     if (stage.name == "fuse") report->wait_s = stage.wait_s;
   }
-  writer.Finish();
+  if (writer) writer->Finish();
   FusionSummary fused = std::move(fuser->summary());
 
   report->fusion = std::move(fused.report);

@@ -34,6 +34,7 @@ struct ScanJobOptions {
   double voxel_m = 0.25e-3;
   bool ideal_depth = false;
   bool compress_frames = false;
+  bool write_frames = true;  // false: no frames/ (experiments that only need the report)
   std::string sweep = "coverage";
   std::vector<std::string> meshes;  // user meshes added to the pile, one object each
   double mesh_unit_m = 1e-3;
@@ -98,6 +99,13 @@ struct ScanSummary {
   std::filesystem::path run_dir;
   ScanReport report;
 };
+
+// The paper's table 1 counts completeness after 1, 20 and 50 frames, from the first frame that
+// holds depth (>= 5 % valid pixels: the pile in the measurable range) over the whole region.
+inline constexpr int kTable1Frames[] = {1, 20, 50};
+int Table1FirstFrame(const ScanReport& report);
+// The completeness after `frames` frames so counted; nothing when the scan had fewer.
+std::optional<double> Table1Completeness(const ScanReport& report, int frames);
 
 // A few lines for the terminal: the paper's table 1, accuracy, pick, timings, where files are.
 std::string ScanSummaryText(const ScanSummary& summary);
