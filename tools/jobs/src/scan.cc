@@ -270,11 +270,8 @@ void CompleteReport(const ScanJobOptions& o, sim::Scanner& scanner, ScanReport* 
   report->fusion.metrics = fusion::CompareHeightMaps(report->height_m, report->gt_height_m);
   report->fusion.completeness = report->fusion.metrics->completeness;
   // What the box leaves out: cells whose true surface lies above or below it.
-  for (auto it = report->gt_height_m.begin<float>(); it != report->gt_height_m.end<float>(); ++it) {
-    if (std::isnan(*it)) continue;
-    report->cells_above_box += *it > report->box_max_z_m;
-    report->cells_below_box += *it < report->box_min_z_m;
-  }
+  CountCellsOutsideBox(report->gt_height_m, report->box_min_z_m, report->box_max_z_m, &report->cells_above_box,
+                       &report->cells_below_box);
   if (report->cells_above_box + report->cells_below_box > 0) {
     std::fprintf(stderr, "scan: warning: %d cells lie above and %d below the fusion box (ground truth)\n",
                  report->cells_above_box, report->cells_below_box);

@@ -291,6 +291,16 @@ std::string ScanReportJson(const ScanReport& r) {
 
 int Table1FirstFrame(const ScanReport& r) { return FirstFrameWithDepth(r); }
 
+void CountCellsOutsideBox(const cv::Mat& gt_height_m, double min_z_m, double max_z_m, int* above, int* below) {
+  ROMUNECT_CHECK(gt_height_m.type() == CV_32F && above != nullptr && below != nullptr);
+  *above = *below = 0;
+  for (auto it = gt_height_m.begin<float>(); it != gt_height_m.end<float>(); ++it) {
+    if (std::isnan(*it)) continue;
+    *above += *it > max_z_m;
+    *below += *it < min_z_m;
+  }
+}
+
 std::optional<double> Table1Completeness(const ScanReport& r, int frames) {
   const std::vector<double>& curve = r.fusion.completeness_per_frame;
   const int last = FirstFrameWithDepth(r) + frames - 1;

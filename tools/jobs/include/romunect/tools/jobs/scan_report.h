@@ -88,6 +88,10 @@ struct ScanReport {
   sim::PickResult pick;
 };
 
+// Cells of a ground-truth height map (CV_32F, W z in m, NaN: nothing) whose surface lies above
+// max_z_m or below min_z_m: what a fusion box of those heights cannot hold.
+void CountCellsOutsideBox(const cv::Mat& gt_height_m, double min_z_m, double max_z_m, int* above, int* below);
+
 // Writes every output file of the run into dir (each atomically).
 void WriteScanOutputs(const std::filesystem::path& dir, const ScanReport& report);
 
