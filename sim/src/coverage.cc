@@ -161,7 +161,7 @@ ApproachPlan PlanCoverageTurning(const World& world, const CameraModel& camera, 
   // a serpentine at level i with the hand's turn going from turn0 to turn1 along it
   auto sweep = [&](size_t i, double turn0_rad, double turn1_rad) {
     const CoverageLevel& level = levels[i];
-    const bool rim_band = level.low_m > top_m && level.high_m >= rim;
+    const bool rim_band = level.low_m <= rim && rim <= level.high_m;  // the band holding the rim
     const Eigen::Vector2d region = i == 0 ? o.region_size_m : rim_band ? outline : inside;
     const double distance = level.camera_height_m - level.low_m;  // the footprint at the band's far end
     // run it from the end nearer to where the camera is
@@ -178,13 +178,17 @@ ApproachPlan PlanCoverageTurning(const World& world, const CameraModel& camera, 
     }
   };
   // Most surfaces lie in the lowest band: it first; then the bands above it and the rim's, the
-  // hand turning on the way (few edges there); then the lowest band again, turned, so the
-  // baseline's shadows fall the other way.
+  // hand turning on the way; then the lowest band again, turned, so the baseline's shadows fall
+  // the other way; then the bands above it again, the hand turning back.
   const double turned = o.turned_passes ? turn_rad : 0.0;
   sweep(0, 0.0, 0.0);
   const size_t upper = levels.size() - 1;
   for (size_t i = 1; i < levels.size(); ++i) sweep(i, turned * (i - 1) / upper, turned * i / upper);
-  if (o.turned_passes) sweep(0, turned, turned);
+  if (o.turned_passes) {
+    sweep(0, turned, turned);
+    // and back up through the bands above it, the hand turning back: their edges from both sides
+    for (size_t i = 1; i < levels.size(); ++i) sweep(i, turned * (upper - i + 1) / upper, turned * (upper - i) / upper);
+  }
   plan.passes_x = plan.passes_y = 1;
   for (auto it = levels.rbegin(); it != levels.rend(); ++it) plan.levels_m.push_back(it->camera_height_m);
   Execute(world, o, polyline, o.coverage_speed_m_s, o.coverage_acceleration_m_s2, descent.q.back(), ik, &plan);

@@ -57,8 +57,8 @@ TEST(CoverageTest, EveryLevelHoldsItsBandInTheMeasurableRange) {
 }
 
 // The planned approach over the default bin: the descent ends with the table in range, every sample
-// of the coverage leg lies between the lowest and the highest level, and the leg ends at the
-// lowest level (the turned pass over the lowest band, last).
+// of the coverage leg lies between the lowest and the highest level, and the leg ends at one of
+// the levels.
 TEST(CoverageTest, PlannedFramesStayAtTheMeasuredPilesLevels) {
   World world(WorldOptions{});
   const Rig rig = RigPreset("romunect");
@@ -78,7 +78,10 @@ TEST(CoverageTest, PlannedFramesStayAtTheMeasuredPilesLevels) {
     ASSERT_GE(z, std::min(z_end, levels.front().camera_height_m) - kLevelToleranceM);
     ASSERT_LE(z, levels.back().camera_height_m + kLevelToleranceM);
   }
-  EXPECT_NEAR((T_Bin_W * leg.T_W_C.back()).translation().z(), levels.front().camera_height_m, kLevelToleranceM);
+  const double z_last = (T_Bin_W * leg.T_W_C.back()).translation().z();
+  bool at_a_level = false;
+  for (const CoverageLevel& l : levels) at_a_level |= std::abs(z_last - l.camera_height_m) < kLevelToleranceM;
+  EXPECT_TRUE(at_a_level) << z_last;
   // The hand turns for the second passes: the camera's x points along the bin's +x then.
   bool turned = false;
   for (const Pose& T_W_C : leg.T_W_C) turned |= (T_Bin_W * T_W_C).linear().col(0).x() > 0.9;
