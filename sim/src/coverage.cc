@@ -88,11 +88,15 @@ std::vector<CoverageLevel> CoverageLevels(const ApproachOptions& o, double top_m
   const double low = o.surface_low_m;
   // a range wide enough for the table and the rim at once measures both from one level
   const double top = std::max(rim_m - low <= width ? std::max(top_m, rim_m) : top_m, low + 1e-3);
-  // bands stacked from the table up to the top, evenly
+  // bands stacked from the table up to the top, each as wide as the range (the lowest, where
+  // most surfaces lie, holds as many as it can), the last one ending at the top
   const int n = std::max(1, static_cast<int>(std::ceil((top - low) / width - 1e-9)));
-  const double band = (top - low) / n;
   std::vector<CoverageLevel> levels;
-  for (int i = 0; i < n; ++i) levels.push_back(LevelFor(o, low + i * band, low + (i + 1) * band));
+  if (n == 1) levels.push_back(LevelFor(o, low, top));
+  for (int i = 0; n > 1 && i < n; ++i) {
+    const double band_low = i + 1 < n ? low + i * width : top - width;
+    levels.push_back(LevelFor(o, band_low, band_low + width));
+  }
   // the rim, when the bands stop below it: a band of its own centred on it
   if (rim_m > top) levels.push_back(LevelFor(o, rim_m - 0.25 * width, rim_m + 0.25 * width));
   return levels;

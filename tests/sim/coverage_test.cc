@@ -24,8 +24,8 @@ ApproachOptions RangeOptions(const std::string& rig_name) {
   return options;
 }
 
-// Every band is measurable from its level, the bands stack without gaps from the table to the
-// measured top, and the rim lies in a band: no planned level leaves a surface of the measured
+// Every band is measurable from its level, the bands stack without gaps (the last may overlap)
+// from the table to the measured top, and the rim lies in a band: no planned level leaves a surface of the measured
 // pile out of range, for the focused romunect rig and the stock Kinect alike.
 TEST(CoverageTest, EveryLevelHoldsItsBandInTheMeasurableRange) {
   const double rim_m = 0.035;
@@ -42,7 +42,7 @@ TEST(CoverageTest, EveryLevelHoldsItsBandInTheMeasurableRange) {
         EXPECT_LE(l.camera_height_m - l.low_m, o.focused_far_m + kPlanToleranceM) << rig << " top " << top_m;
         rim_seen |= l.low_m <= rim_m && rim_m <= l.high_m;
         if (i > 0 && levels[i - 1].high_m >= top_m) continue;  // the rim's own band may float above
-        if (i > 0) EXPECT_NEAR(l.low_m, levels[i - 1].high_m, kPlanToleranceM) << rig;
+        if (i > 0) EXPECT_LE(l.low_m, levels[i - 1].high_m + kPlanToleranceM) << rig;  // no gap
       }
       EXPECT_TRUE(rim_seen) << rig << " top " << top_m;
       double covered_to = levels.front().high_m;
