@@ -88,13 +88,13 @@ std::vector<CoverageLevel> CoverageLevels(const ApproachOptions& o, double top_m
   const double low = o.surface_low_m;
   // a range wide enough for the table and the rim at once measures both from one level
   const double top = std::max(rim_m - low <= width ? std::max(top_m, rim_m) : top_m, low + 1e-3);
-  // bands stacked from the table up to the top, each as wide as the range (the lowest, where
-  // most surfaces lie, holds as many as it can), the last one ending at the top
+  // bands from the table up to the top, each as wide as the range (the lowest, where most
+  // surfaces lie, holds as many as it can), evenly spaced, the last ending at the top
   const int n = std::max(1, static_cast<int>(std::ceil((top - low) / width - 1e-9)));
   std::vector<CoverageLevel> levels;
   if (n == 1) levels.push_back(LevelFor(o, low, top));
   for (int i = 0; n > 1 && i < n; ++i) {
-    const double band_low = i + 1 < n ? low + i * width : top - width;
+    const double band_low = low + (top - width - low) * i / (n - 1);
     levels.push_back(LevelFor(o, band_low, band_low + width));
   }
   // the rim, when the bands stop below it: a band of its own centred on it
