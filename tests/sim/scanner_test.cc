@@ -74,7 +74,7 @@ double BruteForceDistance(const World& world, const Eigen::Vector3d& o_W, const 
 
 TEST(ScannerTest, FramesMatchBruteForceRayCastingAndTheExecutedPoses) {
   Scanner scanner(SmallScan());
-  ASSERT_GT(scanner.frame_count(), 10);
+  ASSERT_GT(scanner.frame_count(), 5);  // the descent's frames: the rest is planned once they are measured
   const CameraModel& camera = scanner.camera();
   Frame frame;
   std::string error;

@@ -52,7 +52,7 @@ struct ApproachOptions {
   // then moves by about half the footprint (the twin models no motion blur; a real sensor would
   // need a short exposure).
   double coverage_speed_m_s = 0.9;
-  double coverage_acceleration_m_s2 = 4.0;
+  double coverage_acceleration_m_s2 = 8.0;
   bool turned_passes = true;  // kCoverage: the bands again with the hand turned 180 deg
   double focused_near_m = 0.0;
   double focused_far_m = 0.0;
