@@ -13,14 +13,19 @@ void AddScanCommand(CLI::App& app) {
   auto o = std::make_shared<jobs::ScanJobOptions>();
   auto* scene = cmd->add_option("--scene", o->scene,
                                 "MJCF scene with the arm and a bin (default: scenes/default/scene.xml)");
-  auto* objects = cmd->add_option("--objects", o->objects, "Objects in the random pile")->capture_default_str();
+  auto* objects = cmd->add_option("--objects", o->objects, "Objects in the random pile, 0..60 (0 only with --mesh)")
+                      ->capture_default_str();
+  auto* kinds = cmd->add_option("--kinds", o->kinds,
+                                "Kinds the pile is drawn from, comma-separated: key, pillbox, puzzle, lego, gear "
+                                "(default: all five; one kind: the paper's table 1 row beside the report's)")
+                    ->delimiter(',');
   auto* saved =
       cmd->add_option("--saved-scene", o->saved_scene,
                       "A run folder's scene.json (its scene and settled pile): the same pile without settling");
   auto* meshes = cmd->add_option(
       "--mesh", o->meshes, "A user mesh (.stl, .obj) dropped into the pile besides the --objects; repeat for more");
   // A saved scene names its MJCF scene and objects itself.
-  saved->excludes(scene)->excludes(objects)->excludes(meshes);
+  saved->excludes(scene)->excludes(objects)->excludes(meshes)->excludes(kinds);
   cmd->add_option("--mesh-unit", o->mesh_unit_m, "Metres per --mesh file unit (0.001: millimetres)")
       ->capture_default_str();
   cmd->add_option("--mesh-material", o->mesh_material, "IR material of the --mesh objects: bright, dark or shiny")
@@ -30,12 +35,14 @@ void AddScanCommand(CLI::App& app) {
   cmd->add_option("--calibration", o->calibration,
                   "Calibration file from `romunect calibrate` (default: the rig's ground truth)");
   cmd->add_option("--out", o->out, "Run folder (default: runs/scan-<date>-<time>)");
-  cmd->add_option("--threads", o->threads, "Threads for rendering, imaging and fusion")->capture_default_str();
-  cmd->add_option("--samples", o->samples, "Render samples per pixel: 1, or 4 (thin lens)")->capture_default_str();
-  cmd->add_option("--voxel", o->voxel_m, "Fusion voxel size, metres")->capture_default_str();
+  cmd->add_option("--threads", o->threads, "Threads for rendering, imaging and fusion, 1..64")->capture_default_str();
+  cmd->add_option("--samples", o->samples, "Render samples per pixel: 1 (pinhole) or 4 (thin lens)")
+      ->capture_default_str();
+  cmd->add_option("--voxel", o->voxel_m, "Fusion voxel size, metres, 0.00005..0.005")->capture_default_str();
   cmd->add_option("--sweep", o->sweep,
-                  "How the approach visits the stand-off levels: columns (through all levels at each pass "
-                  "centre) or levels (a serpentine per level)")
+                  "How the approach visits the stand-off levels: coverage (down over the bin, then the levels "
+                  "the measured pile needs, serpentines, and again with the hand turned), columns (through all "
+                  "levels at each pass centre) or levels (a serpentine per level)")
       ->capture_default_str();
   cmd->add_option("--perturb", o->perturb,
                   "Inject calibration errors into what fusion uses (never the simulated truth): NAME=VALUE[,...] with "

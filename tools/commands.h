@@ -13,7 +13,7 @@ void AddRenderCommand(CLI::App& app);      // cmd_render.cc (jobs/render.h)
 void AddCalibrateCommand(CLI::App& app);   // cmd_calibrate.cc (jobs/calibrate.h)
 void AddScanCommand(CLI::App& app);        // cmd_scan.cc (the main job: jobs/scan.h)
 void AddDatasetCommand(CLI::App& app);     // cmd_dataset.cc (jobs/dataset.h)
-void AddExperimentCommand(CLI::App& app);  // cmd_experiment.cc: the `experiment` group
+void AddExperimentCommand(CLI::App& app);  // cmd_experiment.cc (the `experiment` group; table1: jobs/table1.h)
 // cmd_experiment_calibration.cc (jobs/calibration_sensitivity.h)
 void AddCalibrationSensitivityExperiment(CLI::App& experiment);
 

@@ -3,67 +3,15 @@
 #include <algorithm>
 #include <cmath>
 
+#include "path.h"
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/errors.h"
+#include "romunect/sim/coverage.h"
 
 namespace romunect::sim {
 namespace {
 
 std::string Num(double v) { return std::to_string(v); }
-
-// Positions at constant speed with acceleration ramps along a polyline, one per time step.
-std::vector<Eigen::Vector3d> TimeParameterize(const std::vector<Eigen::Vector3d>& polyline, double speed, double accel,
-                                              double dt) {
-  std::vector<double> s_at{0.0};
-  for (size_t i = 1; i < polyline.size(); ++i) s_at.push_back(s_at.back() + (polyline[i] - polyline[i - 1]).norm());
-  const double length = s_at.back();
-  // Trapezoid (or triangle, for short paths) in arc length.
-  const double t_ramp_full = speed / accel, s_ramp_full = 0.5 * accel * t_ramp_full * t_ramp_full;
-  double v_peak = speed, t_ramp = t_ramp_full, t_cruise = 0.0;
-  if (2 * s_ramp_full >= length) {
-    v_peak = std::sqrt(accel * length);
-    t_ramp = v_peak / accel;
-  } else {
-    t_cruise = (length - 2 * s_ramp_full) / speed;
-  }
-  const double total = 2 * t_ramp + t_cruise;
-  const int steps = std::max(1, static_cast<int>(std::ceil(total / dt)));
-  std::vector<Eigen::Vector3d> out;
-  size_t seg = 1;
-  for (int k = 0; k <= steps; ++k) {
-    const double t = std::min(total, k * dt);
-    double s;
-    if (t < t_ramp) {
-      s = 0.5 * accel * t * t;
-    } else if (t < t_ramp + t_cruise) {
-      s = 0.5 * accel * t_ramp * t_ramp + v_peak * (t - t_ramp);
-    } else {
-      const double tr = total - t;
-      s = length - 0.5 * accel * tr * tr;
-    }
-    s = std::clamp(s, 0.0, length);
-    while (seg + 1 < s_at.size() && s_at[seg] < s) ++seg;
-    const double span = s_at[seg] - s_at[seg - 1];
-    const double a = span > 0 ? (s - s_at[seg - 1]) / span : 0.0;
-    out.push_back(polyline[seg - 1] + a * (polyline[seg] - polyline[seg - 1]));
-  }
-  return out;
-}
-
-// A centred moving average of `window` samples that narrows towards the ends, so the first
-// and last positions stay exact (rounds the corners).
-std::vector<Eigen::Vector3d> Smooth(const std::vector<Eigen::Vector3d>& p, int window) {
-  if (window <= 1) return p;
-  const int n = static_cast<int>(p.size());
-  std::vector<Eigen::Vector3d> out(p.size());
-  for (int i = 0; i < n; ++i) {
-    const int h = std::min({window / 2, i, n - 1 - i});
-    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-    for (int k = -h; k <= h; ++k) sum += p[i + k];
-    out[i] = sum / (2 * h + 1);
-  }
-  return out;
-}
 
 }  // namespace
 
@@ -86,6 +34,10 @@ std::string ApproachOptions::Problem() const {
   }
   if (!(surface_height_m >= 0)) return "surface_height_m = " + Num(surface_height_m) + ": must be >= 0";
   if (!(above_rim_m >= 0)) return "above_rim_m = " + Num(above_rim_m) + ": must be >= 0";
+  if (!(coverage_speed_m_s > 0) || coverage_speed_m_s > 2.0)
+    return "coverage_speed_m_s = " + Num(coverage_speed_m_s) + ": must be in (0, 2]";
+  if (!(coverage_acceleration_m_s2 > 0))
+    return "coverage_acceleration_m_s2 = " + Num(coverage_acceleration_m_s2) + ": must be > 0";
   if (!(surface_low_m <= 0)) return "surface_low_m = " + Num(surface_low_m) + ": must be <= 0 (below the bin floor)";
   return "";
 }
@@ -111,15 +63,10 @@ ScanBox ScanRegionBox(const World& world, const ApproachOptions& options) {
 ApproachPlan PlanApproach(const World& world, const CameraModel& camera, const ApproachOptions& options,
                           const IkOptions& ik) {
   if (!options.Problem().empty()) throw InputError("approach", "options", options.Problem());
+  if (options.sweep == ApproachOptions::Sweep::kCoverage && options.focused_far_m > 0)
+    return PlanDescent(world, camera, options, ik);
   ApproachPlan plan;
   plan.timestep_s = world.timestep_s();
-  const Pose T_W_Bin = world.T_W_Bin();
-  // Camera looking down the bin's -z with its x along the bin's -x: the arm reaches out along
-  // +x with the flange turned down, which leaves the hand's x (and C's) pointing back at it.
-  Eigen::Matrix3d R_Bin_C;
-  R_Bin_C.col(0) = -Eigen::Vector3d::UnitX();
-  R_Bin_C.col(1) = Eigen::Vector3d::UnitY();
-  R_Bin_C.col(2) = -Eigen::Vector3d::UnitZ();
 
   // Stand-off levels (camera heights above the bin floor), highest first.
   if (options.focused_far_m > 0) {
@@ -131,11 +78,6 @@ ApproachPlan PlanApproach(const World& world, const CameraModel& camera, const A
     const double mid = 0.5 * (options.focused_near_m + options.focused_far_m);
     const int n = static_cast<int>(std::ceil(span / width - 1e-9)) + 1;
     for (int i = 0; i < n; ++i) plan.levels_m.push_back(mid + low + span * (n - 1 - i) / (n - 1));
-    if (options.start_distance_m < plan.levels_m.front()) {
-      throw InputError("approach", "start_distance_m",
-                       Num(options.start_distance_m) + " m is below the first stand-off level " +
-                           Num(plan.levels_m.front()) + " m");
-    }
   } else {
     plan.levels_m = {options.end_distance_m};
   }
@@ -165,10 +107,11 @@ ApproachPlan PlanApproach(const World& world, const CameraModel& camera, const A
     }
   }
   std::vector<Eigen::Vector3d> polyline;
+  const double start_m = std::max(options.start_distance_m, plan.levels_m.front());
   if (options.focused_far_m > 0 && options.sweep == ApproachOptions::Sweep::kColumns) {
     // Down to the highest level, then through the levels at each centre, alternating
     // downwards and upwards, moving to the next centre at the level reached.
-    polyline.emplace_back(centres[0].x(), centres[0].y(), options.start_distance_m);
+    polyline.emplace_back(centres[0].x(), centres[0].y(), start_m);
     for (size_t i = 0; i < centres.size(); ++i) {
       const bool down = i % 2 == 0;
       polyline.emplace_back(centres[i].x(), centres[i].y(), down ? plan.levels_m.front() : plan.levels_m.back());
@@ -178,7 +121,7 @@ ApproachPlan PlanApproach(const World& world, const CameraModel& camera, const A
     if (centres.size() % 2 == 0) polyline.emplace_back(centres.back().x(), centres.back().y(), plan.levels_m.back());
   } else if (options.focused_far_m > 0) {
     // Straight down to the first level, then the serpentine at each level, back and forth.
-    polyline.emplace_back(centres[0].x(), centres[0].y(), options.start_distance_m);
+    polyline.emplace_back(centres[0].x(), centres[0].y(), start_m);
     for (size_t l = 0; l < plan.levels_m.size(); ++l) {
       for (size_t i = 0; i < centres.size(); ++i) {
         const Eigen::Vector2d& c = centres[l % 2 == 0 ? i : centres.size() - 1 - i];
@@ -201,28 +144,15 @@ ApproachPlan PlanApproach(const World& world, const CameraModel& camera, const A
     }
   }
   for (size_t i = 1; i < polyline.size(); ++i) plan.length_m += (polyline[i] - polyline[i - 1]).norm();
-  std::vector<Eigen::Vector3d> p_Bin = TimeParameterize(polyline, options.speed_m_s, options.acceleration_m_s2,
-                                                        plan.timestep_s);
+  std::vector<PathPoint> path;
+  for (const Eigen::Vector3d& p : polyline) path.emplace_back(p.x(), p.y(), p.z(), 0.0);
+  std::vector<PathPoint> p_Bin = TimeParameterize(path, options.speed_m_s, options.acceleration_m_s2, plan.timestep_s);
   p_Bin = Smooth(p_Bin, 2 * static_cast<int>(std::lround(options.corner_smoothing_s / plan.timestep_s / 2)) + 1);
 
-  // Reachability: IK at every step, warm-started from the previous one. The first pose starts
-  // from a seed with the elbow up and the flange pointing down (the scan posture).
-  World::ArmVector q;
-  q << std::atan2(T_W_Bin.translation().y(), T_W_Bin.translation().x()), 0.3, 0.9, 0.0, 0.37, 0.0;
-  for (size_t k = 0; k < p_Bin.size(); ++k) {
-    const Pose T_W_C = T_W_Bin * MakePose(R_Bin_C, p_Bin[k]);
-    const IkResult r = SolveIk(world, ArmSite::kCamera, T_W_C, q, ik);
-    if (!r.converged) {
-      throw InputError("approach", "T_W_C at t = " + Num(k * plan.timestep_s) + " s",
-                       "outside the arm's workspace: camera at (" + Num(T_W_C.translation().x()) + ", " +
-                           Num(T_W_C.translation().y()) + ", " + Num(T_W_C.translation().z()) +
-                           ") m in W is missed by " + Num(r.position_error_m) + " m, " + Num(r.angle_error_rad) +
-                           " rad");
-    }
-    q = r.q;
-    plan.T_W_C.push_back(T_W_C);
-    plan.q.push_back(q);
-  }
+  // Reachability: IK at every step (the first from the scan posture's seed).
+  std::vector<Pose> T_Bin_C;
+  for (const PathPoint& p : p_Bin) T_Bin_C.push_back(CameraPoseInBin(p));
+  SolvePath(world, T_Bin_C, ScanPostureSeed(world), ik, &plan);
   return plan;
 }
 

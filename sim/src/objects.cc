@@ -7,6 +7,7 @@
 #include <random>
 #include <sstream>
 #include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Geometry>
@@ -163,6 +164,22 @@ ObjectKind ObjectKindFromString(const std::string& name, const std::string& sour
   }
   throw InputError(source, "object kind",
                    "'" + name + "' is not one of key, pill_box, puzzle_piece, lego_brick, gear, user_mesh");
+}
+
+ObjectKind GeneratedKindFromName(const std::string& name, const std::string& source) {
+  static const std::pair<const char*, ObjectKind> kNames[] = {{"key", ObjectKind::kKey},
+                                                              {"keys", ObjectKind::kKey},
+                                                              {"pill_box", ObjectKind::kPillBox},
+                                                              {"pillbox", ObjectKind::kPillBox},
+                                                              {"puzzle_piece", ObjectKind::kPuzzlePiece},
+                                                              {"puzzle", ObjectKind::kPuzzlePiece},
+                                                              {"lego_brick", ObjectKind::kLegoBrick},
+                                                              {"lego", ObjectKind::kLegoBrick},
+                                                              {"gear", ObjectKind::kGear}};
+  for (const auto& [n, kind] : kNames) {
+    if (name == n) return kind;
+  }
+  throw InputError(source, "object kind", "'" + name + "' is not one of key, pillbox, puzzle, lego, gear");
 }
 
 IrMaterial BrightMaterial() { return IrMaterial{0.8f, 0.05f, 10.0f}; }

@@ -1,6 +1,7 @@
 #include "romunect/sim/scanner.h"
 
 #include <cmath>
+#include <condition_variable>
 #include <cstdio>
 #include <mutex>
 #include <utility>
@@ -13,6 +14,7 @@
 #include "romunect/sensor/embree/renderer.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/mesh.h"
+#include "romunect/sim/coverage.h"
 
 namespace romunect::sim {
 namespace {
@@ -102,15 +104,46 @@ std::string ScanStats::BriefReport() const {
   return std::string(s) + "; " + settle.BriefReport();
 }
 
+namespace {
+
+// The shift (px, depth_engine.h) the chip finds at the camera's centre pixel for a
+// fronto-parallel plane at depth_m: the pattern pixel the projector casts there (through
+// H_P_rec), then where the chip's reference image holds that pattern pixel.
+double CentreShiftPx(const Rig& rig, double depth_m) {
+  const ChipGeometry& chip = rig.depth_engine.chip;
+  const Eigen::Vector3d p_C(0.0, 0.0, depth_m);  // the centre pixel's ray (cx, cy)
+  const Eigen::Vector3d p_P = rig.T_C_P.inverse() * p_C;
+  const Eigen::Vector3d q(rig.projector.fx * p_P.x() / p_P.z() + rig.projector.cx,
+                          rig.projector.fy * p_P.y() / p_P.z() + rig.projector.cy, 1.0);
+  const Eigen::Vector3d x = rig.H_P_rec.inverse() * q;
+  const double x_px = x.x() / x.z();
+  // Pattern pixel -> the stock camera's pixel on the reference plane (rig.cc, IdealPrewarp).
+  const double u_ref = chip.camera.fx / chip.projector.fx * (x_px - chip.projector.cx) + chip.camera.cx +
+                       chip.FocalTimesBaseline() / chip.reference_distance_m;
+  return rig.camera.cx - u_ref;
+}
+
+}  // namespace
+
 DepthRange MeasurableDepthRange(const Rig& rig, double usable_fraction) {
   ROMUNECT_CHECK(usable_fraction > 0 && usable_fraction <= 1);
-  const double fb = rig.camera.fx * std::abs(rig.T_C_P.translation().x());  // px m
-  ROMUNECT_CHECK(fb > 0 && rig.optics.focus_distance_m > 0);
-  const double half = 0.5 * usable_fraction * rig.depth_engine.search_range_px / fb;  // 1/m
-  const double inv_focus = 1.0 / rig.optics.focus_distance_m;
+  // The shift is affine in 1/Z (exactly so with the projector centre on the camera's x axis):
+  // s = a + c / Z, from two planes.
+  const double z1 = rig.optics.focus_distance_m, z2 = 2.0 * rig.optics.focus_distance_m;
+  const double s1 = CentreShiftPx(rig, z1), s2 = CentreShiftPx(rig, z2);
+  const double c = (s1 - s2) / (1.0 / z1 - 1.0 / z2), a = s1 - c / z1;
+  ROMUNECT_CHECK(std::isfinite(c) && std::abs(c) > 1e-9);
+  // The usable part of the search window [min_shift, min_shift + range), about its centre.
+  const DepthEngineOptions& e = rig.depth_engine;
+  const double centre = e.min_shift_px + 0.5 * (e.search_range_px - 1);
+  const double half = 0.5 * usable_fraction * e.search_range_px;
+  const double inv_a = (centre - half - a) / c, inv_b = (centre + half - a) / c;
+  const double inv_near = std::max(inv_a, inv_b), inv_far = std::min(inv_a, inv_b);
+  ROMUNECT_CHECK(inv_near > 0);
   DepthRange range;
-  range.near_m = 1.0 / (inv_focus + half);
-  range.far_m = half < inv_focus ? 1.0 / (inv_focus - half) : 10.0 * rig.optics.focus_distance_m;
+  range.near_m = 1.0 / inv_near;
+  // A window that reaches zero disparity measures out to infinity: cap it.
+  range.far_m = inv_far > 0.1 / rig.optics.focus_distance_m ? 1.0 / inv_far : 10.0 * rig.optics.focus_distance_m;
   return range;
 }
 
@@ -128,6 +161,24 @@ struct Scanner::Impl {
   ScanStats stats;
   int next = 0;
   int count = 0;
+  // Sweep::kCoverage: the descent's frames are measured (by the stage that computes depth), and
+  // the frame after the descent waits for them, then plans the coverage leg from the pile's top.
+  int descent_frames = 0;
+  bool coverage_pending = false;
+  std::unique_ptr<PileHeightMeter> meter;
+  std::mutex measure_mutex;
+  std::condition_variable measured_cv;
+  int measured = 0;
+  std::optional<double> pile_top_m;
+
+  void Measure(const Frame& frame) {
+    if (!coverage_pending || frame.index >= descent_frames) return;
+    std::lock_guard<std::mutex> lock(measure_mutex);
+    meter->Add(frame, options.rig.camera);
+    ++measured;
+    measured_cv.notify_all();
+  }
+  void PlanCoverageLeg();
   // Geometry buffers rendered into and read by SynthesizeIr: in a pipeline a few frames hold one
   // at a time (one per frame between the two stages); reused, not reallocated per frame.
   std::mutex geometry_mutex;
@@ -186,6 +237,11 @@ Scanner::Scanner(const ScanOptions& options) : impl_(std::make_unique<Impl>()) {
   s.executor = std::make_unique<ApproachExecutor>(&world, s.plan, s.options.approach);
   s.stats.move_to_start_s = s.executor->MoveToStart();
   s.count = static_cast<int>(std::floor(s.plan.duration_s() * options.rig.frame_rate_hz + 1e-9)) + 1;
+  if (s.options.approach.sweep == ApproachOptions::Sweep::kCoverage && s.options.approach.focused_far_m > 0) {
+    s.coverage_pending = true;
+    s.descent_frames = s.count;
+    s.meter = std::make_unique<PileHeightMeter>(world.T_W_Bin(), world.bin_inner_size_m());
+  }
   s.scene = MirrorWorld(world, /*with_arm=*/true, &s.handles);
   s.render_options.samples_per_pixel = options.samples_per_pixel;
   s.render_options.threads = options.threads;
@@ -199,6 +255,11 @@ Scanner::~Scanner() = default;
 void Scanner::SetImager(std::unique_ptr<FrameImager> imager) { impl_->imager = std::move(imager); }
 const CameraModel& Scanner::camera() const { return impl_->options.rig.camera; }
 int Scanner::frame_count() const { return impl_->count; }
+int Scanner::descent_frames() const { return impl_->descent_frames; }
+std::optional<double> Scanner::measured_pile_top_m() const {
+  std::lock_guard<std::mutex> lock(impl_->measure_mutex);
+  return impl_->pile_top_m;
+}
 const ScanOptions& Scanner::options() const { return impl_->options; }
 const ScanStats& Scanner::stats() const { return impl_->stats; }
 const ApproachPlan& Scanner::plan() const { return impl_->plan; }
@@ -224,9 +285,30 @@ FrameStatus Scanner::Next(Frame* frame, std::string* error) {
   return FrameStatus::kOk;
 }
 
+void Scanner::Impl::PlanCoverageLeg() {
+  {
+    // every descent frame measured: the same plan whatever the threads' timing
+    std::unique_lock<std::mutex> lock(measure_mutex);
+    measured_cv.wait(lock, [this] { return measured >= descent_frames; });
+    pile_top_m = meter->TopM();
+  }
+  const double top = std::max(0.0, pile_top_m.value_or(0.0));
+  const ApproachPlan leg = PlanCoverage(*world, options.rig.camera, options.approach, top, plan, options.ik);
+  // its first sample is the descent's last
+  plan.T_W_C.insert(plan.T_W_C.end(), leg.T_W_C.begin() + 1, leg.T_W_C.end());
+  plan.q.insert(plan.q.end(), leg.q.begin() + 1, leg.q.end());
+  plan.levels_m = leg.levels_m;
+  plan.length_m += leg.length_m;
+  // the fusion box follows the measured pile (ScanRegionBox)
+  options.approach.surface_height_m = std::max(world->bin_inner_size_m().z(), top) + options.approach.above_rim_m;
+  count = static_cast<int>(std::floor(plan.duration_s() * options.rig.frame_rate_hz + 1e-9)) + 1;
+  coverage_pending = false;
+}
+
 bool Scanner::Render(ScanWork* work) {
   ROMUNECT_CHECK(work != nullptr);
   Impl& s = *impl_;
+  if (s.next >= s.count && s.coverage_pending) s.PlanCoverageLeg();
   if (s.next >= s.count) return false;
   const int k = s.next;
   const double t = k / s.options.rig.frame_rate_hz;
@@ -258,6 +340,7 @@ bool Scanner::Render(ScanWork* work) {
   if (!s.imager) {
     frame.depth_m = frame.gt_depth_m.clone();  // an ideal sensor
     s.GiveBack(std::move(work->geometry));
+    s.Measure(frame);
   }
   return true;
 }
@@ -279,6 +362,7 @@ void Scanner::ComputeDepth(ScanWork* work) {
   if (!s.imager) return;
   const Stopwatch depth;
   s.imager->ComputeDepth(s.options.rig, &work->frame);
+  s.Measure(work->frame);
   // Only this stage writes imaging_s (Render writes the other stats): no two threads share one.
   s.stats.imaging_s += work->ir_s + depth.seconds();
 }

@@ -74,7 +74,7 @@ double BruteForceDistance(const World& world, const Eigen::Vector3d& o_W, const 
 
 TEST(ScannerTest, FramesMatchBruteForceRayCastingAndTheExecutedPoses) {
   Scanner scanner(SmallScan());
-  ASSERT_GT(scanner.frame_count(), 10);
+  ASSERT_GT(scanner.frame_count(), 5);  // the descent's frames: the rest is planned once they are measured
   const CameraModel& camera = scanner.camera();
   Frame frame;
   std::string error;
@@ -108,7 +108,10 @@ TEST(ScannerTest, FramesMatchBruteForceRayCastingAndTheExecutedPoses) {
   // W); the levels come from the rig's focused range, around its 200 mm working distance.
   const Eigen::Vector3d p_Bin = scanner.world().T_W_Bin().inverse() * frame.T_W_C->translation();
   EXPECT_NEAR(p_Bin.z(), scanner.plan().levels_m.back(), 5e-3);  // within the servo's tracking error
-  EXPECT_NEAR(scanner.plan().levels_m.back(), 0.2, 0.01);
+  // The lowest level holds the table (5 mm below the floor) in the rig's measurable range.
+  const DepthRange range = MeasurableDepthRange(scanner.options().rig);
+  EXPECT_LE(scanner.plan().levels_m.back() + 0.005, range.far_m);
+  EXPECT_GE(scanner.plan().levels_m.back(), range.near_m);
   std::cout << scanner.stats().BriefReport() << "\n";
 }
 

@@ -94,6 +94,24 @@ TEST(SimFeed, OpenNI2SourceOverTheLiveFeedGivesTheSimulatorsFrames) {
   EXPECT_EQ(device.stats().dropped_frames, 0);
 }
 
+// The stock Kinect preset in the live twin: its approach is planned from its own range (about
+// 0.45-2.1 m, the bin seen from ~0.7 m), and the device delivers its frames.
+TEST(SimFeed, TheStockKinectPresetDeliversFrames) {
+  openni2::VirtualDeviceOptions step;
+  step.pace = openni2::VirtualDeviceOptions::Pace::kStep;
+  openni2::OpenNI2SourceOptions options;
+  options.uri = openni2::SimFeedUri("rig=kinect-v1&seed=2&objects=2&scale=4&depth=ideal&frames=3", step);
+  options.ir = false;  // ideal depth: the feed has no IR
+  openni2::OpenNI2Source device(options);
+  Frame live;
+  std::string error;
+  for (int i = 0; i < 3; ++i) {
+    ASSERT_EQ(device.Next(&live, &error), FrameStatus::kOk) << error;
+    EXPECT_GT(cv::countNonZero(live.depth_m), live.depth_m.total() / 2) << "the table and the bin fill the view";
+  }
+  EXPECT_EQ(device.Next(&live, &error), FrameStatus::kEndOfStream);
+}
+
 TEST(SimFeed, ABadFeedQueryIsAClearErrorThroughOpenNI2) {
   openni2::OpenNI2SourceOptions options;
   options.uri = openni2::SimFeedUri("bogus=1");

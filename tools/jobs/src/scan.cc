@@ -3,12 +3,14 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <ctime>
 #include <filesystem>
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "romunect/calib/calibration_file.h"
 #include "romunect/fusion/metrics.h"
@@ -31,6 +33,8 @@ namespace romunect::jobs {
 namespace {
 namespace fs = std::filesystem;
 
+std::string Mm(double m) { return std::to_string(static_cast<int>(std::lround(m * 1e3))) + " mm"; }
+
 std::string DefaultRunDir() {
   const std::time_t now = std::time(nullptr);
   char name[64];
@@ -40,9 +44,13 @@ std::string DefaultRunDir() {
 
 // The checks that need no file read: before the run folder is looked at.
 void CheckOptionValues(const ScanJobOptions& o) {
-  if (o.objects < 1 || o.objects > 60) {
-    throw InputError("--objects", "", std::to_string(o.objects) + " is outside 1..60");
+  if (o.objects < 0 || o.objects > 60) {
+    throw InputError("--objects", "", std::to_string(o.objects) + " is outside 0..60");
   }
+  if (o.objects == 0 && o.meshes.empty() && o.saved_scene.empty()) {
+    throw InputError("--objects", "", "0 needs at least one --mesh (an empty bin has nothing to scan)");
+  }
+  for (const std::string& kind : o.kinds) sim::GeneratedKindFromName(kind, "--kinds");
   if (o.threads < 1 || o.threads > 64) {
     throw InputError("--threads", "", std::to_string(o.threads) + " is outside 1..64");
   }
@@ -66,15 +74,17 @@ sim::ScanOptions SimulatorOptions(const ScanJobOptions& o, std::optional<calib::
   options.saved_scene = o.saved_scene;
   options.rig = LoadRigArgument(o.rig);
   options.pile.num_objects = o.objects;
+  for (const std::string& kind : o.kinds) options.pile.kinds.push_back(sim::GeneratedKindFromName(kind, "--kinds"));
   options.pile.seed = o.seed;
   options.seed = o.seed;
   options.threads = o.threads;
   options.samples_per_pixel = o.samples;
-  if (o.sweep != "columns" && o.sweep != "levels") {
-    throw InputError("--sweep", "", "'" + o.sweep + "' is not columns or levels");
+  if (o.sweep != "coverage" && o.sweep != "columns" && o.sweep != "levels") {
+    throw InputError("--sweep", "", "'" + o.sweep + "' is not coverage, columns or levels");
   }
-  options.approach.sweep = o.sweep == "levels" ? sim::ApproachOptions::Sweep::kLevels
-                                               : sim::ApproachOptions::Sweep::kColumns;
+  options.approach.sweep = o.sweep == "levels"    ? sim::ApproachOptions::Sweep::kLevels
+                           : o.sweep == "columns" ? sim::ApproachOptions::Sweep::kColumns
+                                                  : sim::ApproachOptions::Sweep::kCoverage;
   // A calibration replaces the simulator's truth wherever the real system would use it: the
   // projector's pre-warp, the depth correction, the camera model and the hand-eye pose that
   // fusion uses. The simulated hardware itself stays the rig.
@@ -141,10 +151,14 @@ fusion::GridOptions FusionBox(const sim::World& world, const sim::ApproachOption
 class ScanHooks : public FrameHooks {
  public:
   ScanHooks(ScanReport* report, const std::optional<calib::Calibration>& calibration,
-            const CalibrationPerturbation& perturbation, const Pose& T_W_B, int total)
-      : report_(report), calibration_(calibration), perturbation_(perturbation), T_W_B_(T_W_B), total_(total) {}
+            const CalibrationPerturbation& perturbation, const Pose& T_W_B, const sim::Scanner& scanner)
+      : report_(report), calibration_(calibration), perturbation_(perturbation), T_W_B_(T_W_B), scanner_(scanner) {}
 
+  // Once per frame: the descent's frames are prepared when they are held (the frame directory
+  // records what fusion believes) and pass here again when they are fused.
   void Prepare(size_t, Frame* frame) override {
+    if (frame->index <= prepared_through_) return;
+    prepared_through_ = frame->index;
     if (calibration_) frame->T_W_C = T_W_B_ * *frame->T_B_H * calibration_->T_H_C;
     if (!perturbation_.empty()) {  // --perturb: what fusion believes, never the simulated truth
       frame->T_W_C = *frame->T_W_C * perturbation_.T_C_Cp();
@@ -157,9 +171,10 @@ class ScanHooks : public FrameHooks {
                                                 frame.depth_m.total());
     report_->sample_depths.Offer(frame, report_->valid_fraction_per_frame.back());
     // One updating line on a terminal; a line every 10 frames in a log.
-    if (interactive_ || (frame.index + 1) % 10 == 0 || frame.index + 1 == total_) {
+    const int total = scanner_.frame_count();  // grows when the coverage leg is planned
+    if (interactive_ || (frame.index + 1) % 10 == 0 || frame.index + 1 == total) {
       std::fprintf(stderr, "%sscan: frame %3d/%d  valid %5.1f %%  fused completeness %5.1f %%  (%.1f s)%s",
-                   interactive_ ? "\r" : "", frame.index + 1, total_, 100.0 * report_->valid_fraction_per_frame.back(),
+                   interactive_ ? "\r" : "", frame.index + 1, total, 100.0 * report_->valid_fraction_per_frame.back(),
                    100.0 * summary.report.completeness_per_frame.back(), loop_.seconds(), interactive_ ? "" : "\n");
     }
   }
@@ -171,7 +186,7 @@ class ScanHooks : public FrameHooks {
   const std::optional<calib::Calibration>& calibration_;
   const CalibrationPerturbation perturbation_;
   const Pose T_W_B_;
-  const int total_;
+  const sim::Scanner& scanner_;
   const bool interactive_ = isatty(fileno(stderr));
   const Stopwatch loop_;
 };
@@ -188,33 +203,57 @@ void FuseApproach(const ScanJobOptions& o, sim::Scanner& scanner, const std::opt
   report->calibration_errors = CompareCalibration(
       (calibration ? calibration->T_H_C : T_H_C_truth) * perturbation.T_C_Cp(), camera, T_H_C_truth, scanner.camera());
   // Uncompressed frame files keep up with the 30 Hz loop (image_io.h).
-  FrameDirectoryWriter writer(work_dir / "frames", camera,
-                              o.compress_frames ? ImageCompression::kCompact : ImageCompression::kFast);
-  const fusion::GridOptions box = FusionBox(scanner.world(), scanner.options().approach, o.voxel_m);
-  fusion::VotingGrid grid(box);
-  writer.SetRegion({box.min_W, box.max_W});  // `romunect fuse` re-runs the scan over the same box
-  const int total = scanner.frame_count();
-  std::fprintf(stderr, "scan: approach of %d frames (%.2f s at %.0f Hz), fusing into %d x %d x %d voxels of %.2f mm\n",
-               total, scanner.plan().duration_s(), scanner.options().rig.frame_rate_hz, grid.nx(), grid.ny(), grid.nz(),
-               grid.voxel_m() * 1e3);
+  std::optional<FrameDirectoryWriter> writer;
+  if (o.write_frames) {
+    writer.emplace(work_dir / "frames", camera,
+                   o.compress_frames ? ImageCompression::kCompact : ImageCompression::kFast);
+  }
   const Stopwatch loop;
   const double cpu_loop = ProcessCpuSeconds();
-  ScanHooks hooks(report, calibration, perturbation, scanner.world().T_W_B(), total);
-  // Fusion runs beside the simulator, which keeps every core busy: one thread fewer (at least
-  // one) costs the least CPU per frame (threads owning slabs walk the rays that cross them
-  // twice: on 2 cores 16 ms CPU per frame at 1 thread, 17-20 ms at 2, scan_benchmark).
-  FrameFuser fuser(camera, grid, std::max(1, o.threads - 1), hooks);
-  // A pipeline on the cores (docs/design.md, "Frame pipeline"): frame k renders while frame
-  // k - 1's IR is synthesized and frame k - 2's depth computed, a fourth stage fuses and a fifth
-  // writes the frame directory. Frames keep their order and content, so a seed gives the same
-  // bytes. Declared after what its stages use, so its threads end first.
+  ScanHooks hooks(report, calibration, perturbation, scanner.world().T_W_B(), scanner);
+  // The fusion box follows the pile the descent measured (sim/coverage.h): the descent's frames
+  // wait (their images are their own) until the coverage leg is planned, then the grid is made.
+  fusion::GridOptions box;
+  std::unique_ptr<fusion::VotingGrid> grid;
+  std::unique_ptr<FrameFuser> fuser;
+  std::vector<Frame> held;
+  auto start_fusion = [&] {
+    box = FusionBox(scanner.world(), scanner.options().approach, o.voxel_m);
+    grid = std::make_unique<fusion::VotingGrid>(box);
+    if (writer) writer->SetRegion({box.min_W, box.max_W});  // `romunect fuse` re-runs the scan over the same box
+    const std::optional<double> top = scanner.measured_pile_top_m();
+    std::string levels;
+    for (double level_m : scanner.plan().levels_m) levels += (levels.empty() ? "" : ", ") + Mm(level_m);
+    std::fprintf(stderr,
+                 "scan: approach of %d frames (%.2f s at %.0f Hz; pile top measured at %s; levels %s above the bin "
+                 "floor), fusing into %d x %d x %d voxels of %.2f mm\n",
+                 scanner.frame_count(), scanner.plan().duration_s(), scanner.options().rig.frame_rate_hz,
+                 top ? Mm(*top).c_str() : "-", levels.c_str(), grid->nx(), grid->ny(), grid->nz(),
+                 grid->voxel_m() * 1e3);
+    // Fusion runs beside the simulator, which keeps every core busy: one thread fewer (at least
+    // one) costs the least CPU per frame (threads owning slabs walk the rays that cross them
+    // twice: on 2 cores 16 ms CPU per frame at 1 thread, 17-20 ms at 2, scan_benchmark).
+    fuser = std::make_unique<FrameFuser>(camera, *grid, std::max(1, o.threads - 1), hooks);
+    for (Frame& frame : held) fuser->Fuse(&frame);
+    held.clear();
+  };
+  auto fuse = [&](Frame* frame) {
+    if (!fuser && frame->index < scanner.descent_frames()) {
+      hooks.Prepare(0, frame);  // the frame directory records the calibrated pose
+      held.push_back(*frame);   // shares the images, which nobody writes any more
+      return;
+    }
+    if (!fuser) start_fusion();
+    fuser->Fuse(frame);
+  };
   FramePipeline<sim::ScanWork> pipeline;
   sim::AddScanStages(&scanner, &pipeline);
-  pipeline.AddStage({"fuse", 2}, [&fuser](sim::ScanWork* work) { fuser.Fuse(&work->frame); });
+  pipeline.AddStage({"fuse", 2}, [&fuse](sim::ScanWork* work) { fuse(&work->frame); });
   // The writer may lag up to 16 frames (~60 MB of images) at a lower priority: it runs on what
   // rendering, imaging and fusion leave (steadier loop times on 2 cores).
-  pipeline.AddStage({"write", 16, 10}, [&writer](sim::ScanWork* work) { writer.Add(work->frame); });
+  if (writer) pipeline.AddStage({"write", 16, 10}, [&writer](sim::ScanWork* work) { writer->Add(work->frame); });
   pipeline.Run();
+  if (!fuser) start_fusion();
   report->loop_wall_s = loop.seconds();
   report->loop_cpu_s = ProcessCpuSeconds() - cpu_loop;
   if (hooks.interactive()) std::fprintf(stderr, "\n");
@@ -222,19 +261,21 @@ void FuseApproach(const ScanJobOptions& o, sim::Scanner& scanner, const std::opt
     if (stage.name == "write") report->write_s = stage.busy_s;
     if (stage.name == "fuse") report->wait_s = stage.wait_s;
   }
-  writer.Finish();
-  FusionSummary fused = std::move(fuser.summary());
+  if (writer) writer->Finish();
+  FusionSummary fused = std::move(fuser->summary());
 
   report->fusion = std::move(fused.report);
   report->completeness_each_ms = std::move(fused.completeness_ms);
   const Stopwatch extract;
-  report->height_m = fusion::ExtractHeightMap(grid, Isa::kAuto, o.threads);
+  report->height_m = fusion::ExtractHeightMap(*grid, Isa::kAuto, o.threads);
   report->fusion.extract_ms = extract.milliseconds();
-  report->fusion.geometry = grid.geometry();
+  report->fusion.geometry = grid->geometry();
+  report->box_min_z_m = box.min_W.z();
+  report->box_max_z_m = box.max_W.z();
   report->fusion.max_x_m = box.max_W.x();
   report->fusion.max_y_m = box.max_W.y();
   report->fusion.max_z_m = box.max_W.z();
-  report->fusion.grid_mb = grid.memory_bytes() / 1e6;
+  report->fusion.grid_mb = grid->memory_bytes() / 1e6;
 }
 
 // Ground truth, metrics, the pick and the figures of the finished approach.
@@ -244,6 +285,13 @@ void CompleteReport(const ScanJobOptions& o, sim::Scanner& scanner, ScanReport* 
   report->gt_height_m = sim::GroundTruthHeightMap(scanner.world(), layout);
   report->fusion.metrics = fusion::CompareHeightMaps(report->height_m, report->gt_height_m);
   report->fusion.completeness = report->fusion.metrics->completeness;
+  // What the box leaves out: cells whose true surface lies above or below it.
+  CountCellsOutsideBox(report->gt_height_m, report->box_min_z_m, report->box_max_z_m, &report->cells_above_box,
+                       &report->cells_below_box);
+  if (report->cells_above_box + report->cells_below_box > 0) {
+    std::fprintf(stderr, "scan: warning: %d cells lie above and %d below the fusion box (ground truth)\n",
+                 report->cells_above_box, report->cells_below_box);
+  }
   report->overview = sim::OverviewPicture(scanner.world());
 
   std::fprintf(stderr, "scan: picking from the fused height map...\n");
@@ -251,6 +299,7 @@ void CompleteReport(const ScanJobOptions& o, sim::Scanner& scanner, ScanReport* 
   std::fprintf(stderr, "scan: %s\n", report->pick.BriefReport().c_str());
 
   report->scan_stats = scanner.stats();
+  report->pile_top_m = scanner.measured_pile_top_m();
   report->scan_description = scanner.Describe();
   report->rig_name = scanner.options().rig.name;
   report->seed = o.seed;

@@ -14,6 +14,7 @@
 #include "romunect/fusion/outputs.h"
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/image_io.h"
+#include "romunect/tools/jobs/table1.h"
 #include "romunect/tools/jobs/text.h"
 
 namespace romunect::jobs {
@@ -34,10 +35,13 @@ int FirstFrameWithDepth(const ScanReport& r) {
 }
 
 json CompletenessAfter(const ScanReport& r, int frames) {
-  const std::vector<double>& curve = r.fusion.completeness_per_frame;
-  const int last = FirstFrameWithDepth(r) + frames - 1;
-  if (static_cast<int>(curve.size()) <= last) return nullptr;
-  return curve[last];
+  const std::optional<double> c = Table1Completeness(r, frames);
+  return c ? json(*c) : json(nullptr);
+}
+
+// The paper's row for a scan of one of its kinds; null otherwise.
+const PaperTable1Row* PaperRow(const ScanReport& r) {
+  return r.options.kinds.size() == 1 ? FindPaperTable1Row(r.options.kinds[0]) : nullptr;
 }
 
 // Figure 2 shows no value in white, as the paper does.
@@ -153,7 +157,18 @@ std::string Html(const ScanReport& r, const fs::path& dir) {
   for (int n : kTableFrames) h << "<th>" << n << "</th>";
   h << "<th>all (" << r.fusion.completeness_per_frame.size() << ")</th></tr><tr><th>completeness [%]</th>";
   for (int n : kTableFrames) h << "<td>" << cell(CompletenessAfter(r, n), "%.2f", 100.0) << "</td>";
-  h << "<td>" << Format("%.2f", 100.0 * m.completeness) << "</td></tr></table><p>Frames are counted from "
+  h << "<td>" << Format("%.2f", 100.0 * m.completeness) << "</td></tr>";
+  if (const PaperTable1Row* paper = PaperRow(r)) {
+    h << "<tr><th>the paper (" << paper->kind << ") [%]</th>";
+    for (double v : paper->after_percent) h << "<td>" << Format("%.2f", v) << "</td>";
+    h << "<td>&ndash;</td></tr>";
+  }
+  h << "</table>";
+  if (r.cells_above_box + r.cells_below_box > 0) {
+    h << "<p><b>Warning:</b> " << r.cells_above_box << " cells lie above and " << r.cells_below_box
+      << " below the fusion box (ground truth): fusion could not hold them.</p>";
+  }
+  h << "<p>Frames are counted from "
     << "frame " << FirstFrameWithDepth(r)
     << ", the first with at least 5 % valid depth pixels (the descent starts above the focused "
     << "range).</p>";
@@ -208,6 +223,7 @@ std::string ScanReportJson(const ScanReport& r) {
                   {"saved_scene", a.saved_scene},
                   {"seed", a.seed},
                   {"objects", a.objects},
+                  {"kinds", a.kinds},
                   {"meshes", a.meshes},
                   {"mesh_unit_m", a.mesh_unit_m},
                   {"mesh_material", a.mesh_material},
@@ -224,6 +240,17 @@ std::string ScanReportJson(const ScanReport& r) {
   for (int n : kTableFrames) table["after_" + std::to_string(n)] = CompletenessAfter(r, n);
   j["table1_completeness"] = table;
   j["table1_first_frame"] = FirstFrameWithDepth(r);  // frames counted from this one (holds depth)
+  if (const PaperTable1Row* paper = PaperRow(r)) {
+    j["table1_paper"] = {{"kind", paper->kind},
+                         {"after_1", paper->after_percent[0] / 100},
+                         {"after_20", paper->after_percent[1] / 100},
+                         {"after_50", paper->after_percent[2] / 100}};
+  }
+  j["fusion_box"] = {{"min_z_m", r.box_min_z_m},
+                     {"max_z_m", r.box_max_z_m},
+                     {"cells_above", r.cells_above_box},
+                     {"cells_below", r.cells_below_box},
+                     {"measured_pile_top_m", r.pile_top_m ? json(*r.pile_top_m) : json(nullptr)}};
   j["valid_fraction_per_frame"] = r.valid_fraction_per_frame;
   j["accuracy"] = {{"completeness", m.completeness}, {"rmse_mm", m.rmse_mm}, {"mae_mm", m.mae_mm},
                    {"within_1mm", m.within_1mm},     {"cells", m.cells},     {"compared_cells", m.compared_cells}};
@@ -269,6 +296,25 @@ std::string ScanReportJson(const ScanReport& r) {
   return j.dump(1) + "\n";
 }
 
+int Table1FirstFrame(const ScanReport& r) { return FirstFrameWithDepth(r); }
+
+void CountCellsOutsideBox(const cv::Mat& gt_height_m, double min_z_m, double max_z_m, int* above, int* below) {
+  ROMUNECT_CHECK(gt_height_m.type() == CV_32F && above != nullptr && below != nullptr);
+  *above = *below = 0;
+  for (auto it = gt_height_m.begin<float>(); it != gt_height_m.end<float>(); ++it) {
+    if (std::isnan(*it)) continue;
+    *above += *it > max_z_m;
+    *below += *it < min_z_m;
+  }
+}
+
+std::optional<double> Table1Completeness(const ScanReport& r, int frames) {
+  const std::vector<double>& curve = r.fusion.completeness_per_frame;
+  const int last = FirstFrameWithDepth(r) + frames - 1;
+  if (static_cast<int>(curve.size()) <= last) return std::nullopt;
+  return curve[last];
+}
+
 void WriteScanOutputs(const fs::path& dir, const ScanReport& r) {
   WriteHeightMapExr(dir / "fused_depth.exr", r.height_m, r.fusion.geometry);
   fusion::WriteHeightMapPicture(dir / "fused_depth.png", r.height_m, r.fusion.geometry);
@@ -299,6 +345,14 @@ std::string ScanSummaryText(const ScanSummary& summary) {
   s << "calibration used vs truth: hand-eye " << Format("%.3f deg %.3f mm", e.hand_eye_deg, e.hand_eye_mm) << ", focal "
     << Format("%+.3f %%", e.focal_pct) << ", principal point " << Format("%.2f px", e.principal_px)
     << " (injected: " << r.perturbation << ")\n";
+  if (const PaperTable1Row* paper = PaperRow(r)) {
+    s << "the paper's table 1 (" << paper->kind << "):" << Format(" %.1f %%", paper->after_percent[0])
+      << Format(" %.1f %%", paper->after_percent[1]) << Format(" %.1f %%", paper->after_percent[2]) << "\n";
+  }
+  if (r.cells_above_box + r.cells_below_box > 0) {
+    s << "warning: " << r.cells_above_box << " cells lie above and " << r.cells_below_box
+      << " below the fusion box (ground truth): fusion could not hold them\n";
+  }
   s << "accuracy vs ground truth: RMSE " << Format("%.3f", m.rmse_mm) << " mm, MAE " << Format("%.3f", m.mae_mm)
     << " mm, " << Format("%.1f %%", 100.0 * m.within_1mm) << " within 1 mm\n";
   s << "pick: " << r.pick.BriefReport() << "\n";

@@ -41,9 +41,19 @@ struct ApproachOptions {
   //    footprint sees every height early, in the shortest path, ending at the lowest level
   //    (the default);
   //  - kLevels: straight down to the highest level, the serpentine over the region there, then
-  //    at each lower level (back and forth).
-  enum class Sweep { kColumns, kLevels };
-  Sweep sweep = Sweep::kColumns;
+  //    at each lower level (back and forth);
+  //  - kCoverage: planned for coverage from the measured pile (coverage.h: a descent, then the
+  //    levels the measured pile needs; PlanApproach returns the descent, the Scanner plans the
+  //    rest when the descent's frames are measured). The default; without focused_far_m, the
+  //    single-level descent as for the others.
+  enum class Sweep { kCoverage, kColumns, kLevels };
+  Sweep sweep = Sweep::kCoverage;
+  // kCoverage: speed and acceleration along the path. Faster than the paper's 0.3 m/s: a frame
+  // then moves by about half the footprint (the twin models no motion blur; a real sensor would
+  // need a short exposure).
+  double coverage_speed_m_s = 0.9;
+  double coverage_acceleration_m_s2 = 8.0;
+  bool turned_passes = true;  // kCoverage: the bands again with the hand turned 180 deg
   double focused_near_m = 0.0;
   double focused_far_m = 0.0;
   double surface_height_m = 0.0;
@@ -73,6 +83,7 @@ ScanBox ScanRegionBox(const World& world, const ApproachOptions& options);
 
 // Plans the approach over the world's bin for `camera`. Throws InputError("approach", field,
 // ...) when a pose along the way is outside the arm's workspace (IK does not converge).
+// With Sweep::kCoverage the plan is coverage.h's descent (the first leg).
 ApproachPlan PlanApproach(const World& world, const CameraModel& camera, const ApproachOptions& options,
                           const IkOptions& ik = {});
 

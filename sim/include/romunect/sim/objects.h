@@ -21,6 +21,10 @@ enum class ObjectKind { kKey, kPillBox, kPuzzlePiece, kLegoBrick, kGear, kUserMe
 const char* ToString(ObjectKind kind);
 // The kind of a name ToString() returns; throws InputError naming `source` on anything else.
 ObjectKind ObjectKindFromString(const std::string& name, const std::string& source);
+// A generated kind from a user's short name: the paper's table rows ("keys", "pillbox",
+// "puzzle", "lego") or ToString()'s names ("key", "pill_box", ...), and "gear". Throws
+// InputError naming `source` on anything else (user_mesh included: it is not generated).
+ObjectKind GeneratedKindFromName(const std::string& name, const std::string& source);
 
 // A triangle mesh in some frame (said by its owner), metres; triangles wind counter-clockwise
 // seen from outside.

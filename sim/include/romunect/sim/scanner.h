@@ -46,11 +46,13 @@ class FrameImager {
   }
 };
 
-// The depths (along the camera axis, m) where the rig measures: the depth engine searches
-// search_range_px shifts centred on the zero-shift plane (the projector's pre-warp plane, the
-// camera's focus distance), and a shift of s px is 1/Z - 1/Z_focus = s / (fx * baseline). Only
-// usable_fraction of the search window counts: best matches at its border are clamped, not
-// found. For the romunect rig about 191-210 mm (the paper's ~2 cm focused range).
+// The depths (along the camera axis, m) where the rig measures: the depth engine searches the
+// shifts [min_shift_px, min_shift_px + search_range_px) against the chip's reference, and the
+// shift at the centre pixel is affine in 1/Z (zero on the projector's pre-warp plane, or on the
+// chip's reference plane for the stock device). Only usable_fraction of the search window, about
+// its centre, counts: best matches at its border are clamped, not found. A window that reaches
+// zero disparity ends at 10 x the focus distance. The romunect rig: about 191-210 mm (the
+// paper's ~2 cm focused range); kinect-v1: about 0.45-2.1 m.
 struct DepthRange {
   double near_m = 0.0, far_m = 0.0;
 };
@@ -124,7 +126,16 @@ class Scanner : public FrameSource {
   void SynthesizeIr(ScanWork* work);  // with an imager: frame.ir; gives the geometry buffer back
   void ComputeDepth(ScanWork* work);  // with an imager: frame.raw and frame.depth_m
 
-  int frame_count() const;  // frames the approach will deliver
+  // Frames the approach will deliver. With Sweep::kCoverage, the descent's until the frame after
+  // it plans the coverage leg (Render: it waits until ComputeDepth has measured every descent
+  // frame, so the plan is the same whatever the threads' timing), then all of them.
+  int frame_count() const;
+  int descent_frames() const;  // kCoverage: frames before the coverage leg is planned; else 0
+  // kCoverage: the pile's top above the bin floor as the descent measured it (PileHeightMeter),
+  // once the coverage leg is planned; nothing before, or when too little was measured.
+  std::optional<double> measured_pile_top_m() const;
+  // The options in use; approach.focused_*_m from the rig, approach.surface_height_m from the
+  // measured pile once the coverage leg is planned (ScanRegionBox then gives the fusion box).
   const ScanOptions& options() const;
   const ScanStats& stats() const;  // between frames, or after a pipeline's run
   const ApproachPlan& plan() const;

@@ -6,6 +6,7 @@
 
 #include <ctime>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -27,13 +28,15 @@ namespace romunect::jobs {
 struct ScanJobOptions {
   std::string scene, saved_scene, rig = "romunect", calibration, out;  // out "": runs/scan-<date>-<time>
   uint32_t seed = 1;
-  int objects = 12;
+  int objects = 12;                // 0 only with meshes
+  std::vector<std::string> kinds;  // the pile's kinds (GeneratedKindFromName); empty: all five
   int threads = 2;
   int samples = 1;
   double voxel_m = 0.25e-3;
   bool ideal_depth = false;
   bool compress_frames = false;
-  std::string sweep = "columns";
+  bool write_frames = true;  // false: no frames/ (experiments that only need the report)
+  std::string sweep = "coverage";
   std::vector<std::string> meshes;  // user meshes added to the pile, one object each
   double mesh_unit_m = 1e-3;
   std::string mesh_material = "bright";
@@ -81,10 +84,20 @@ struct ScanReport {
   std::string perturbation = "none";
   CalibrationErrors calibration_errors;
 
+  // The fusion box's heights (W z, m) and, from ground truth, the cells whose surface lies above
+  // or below it (what fusion could not hold): the report warns when any does.
+  double box_min_z_m = 0.0, box_max_z_m = 0.0;
+  int cells_above_box = 0, cells_below_box = 0;
+  std::optional<double> pile_top_m;  // the pile's top as the approach measured it (above the bin floor)
+
   cv::Mat height_m, gt_height_m, overview;
   sim::ScanStats scan_stats;
   sim::PickResult pick;
 };
+
+// Cells of a ground-truth height map (CV_32F, W z in m, NaN: nothing) whose surface lies above
+// max_z_m or below min_z_m: what a fusion box of those heights cannot hold.
+void CountCellsOutsideBox(const cv::Mat& gt_height_m, double min_z_m, double max_z_m, int* above, int* below);
 
 // Writes every output file of the run into dir (each atomically).
 void WriteScanOutputs(const std::filesystem::path& dir, const ScanReport& report);
@@ -97,6 +110,13 @@ struct ScanSummary {
   std::filesystem::path run_dir;
   ScanReport report;
 };
+
+// The paper's table 1 counts completeness after 1, 20 and 50 frames, from the first frame that
+// holds depth (>= 5 % valid pixels: the pile in the measurable range) over the whole region.
+inline constexpr int kTable1Frames[] = {1, 20, 50};
+int Table1FirstFrame(const ScanReport& report);
+// The completeness after `frames` frames so counted; nothing when the scan had fewer.
+std::optional<double> Table1Completeness(const ScanReport& report, int frames);
 
 // A few lines for the terminal: the paper's table 1, accuracy, pick, timings, where files are.
 std::string ScanSummaryText(const ScanSummary& summary);

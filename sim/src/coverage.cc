@@ -1,0 +1,215 @@
+#include "romunect/sim/coverage.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/Geometry>
+
+#include "path.h"
+#include "romunect/sensor/check.h"
+#include "romunect/sensor/errors.h"
+
+namespace romunect::sim {
+namespace {
+
+// A wide measurable range (the stock Kinect's 0.45-2.1 m) is used near its near end, where depth
+// noise (growing with Z^2) is lowest, with this much room for taller surfaces.
+constexpr double kWideRangeRoomM = 0.25;
+// Points this close to a wall are left out of the pile's height (the walls are the bin, not the pile).
+constexpr double kWallMarginM = 0.003;
+// The descent starts at least this far above the first level, so the pile's top comes into range
+// on the way down.
+constexpr double kDescentRoomM = 0.05;
+// The hand's turn for the second passes: short of 180 deg, as the last wrist joint stops at
+// +-3.14 rad; the baseline's shadows fall on the other side all the same.
+constexpr double kTurnRad = 170.0 * M_PI / 180.0;
+
+// The camera's distance to the surfaces of a band of `span_m`: the middle of a narrow range, near
+// the near end of a wide one, clamped so the whole band stays in [near, far].
+double PreferredDistance(const ApproachOptions& o, double span_m) {
+  const double mid = 0.5 * (o.focused_near_m + o.focused_far_m);
+  const double preferred = std::min(mid, o.focused_near_m + kWideRangeRoomM);
+  return std::clamp(preferred, o.focused_near_m + 0.5 * span_m, o.focused_far_m - 0.5 * span_m);
+}
+
+CoverageLevel LevelFor(const ApproachOptions& o, double low_m, double high_m) {
+  CoverageLevel level;
+  level.low_m = low_m;
+  level.high_m = high_m;
+  level.camera_height_m = 0.5 * (low_m + high_m) + PreferredDistance(o, high_m - low_m);
+  return level;
+}
+
+// Serpentine rows over a region (bin frame, centred) at one level: the footprint at the band's
+// far end tiles it, row centres evenly from edge to edge. `reverse` runs it backwards.
+// The outer rows and row ends lie at least over the walls (`min_end_m`, x and y): from further
+// in, a wall hides the table beside it.
+std::vector<Eigen::Vector2d> Serpentine(const CameraModel& camera, const Eigen::Vector2d& region_m, double distance_m,
+                                        bool reverse, const Eigen::Vector2d& min_end_m = Eigen::Vector2d::Zero()) {
+  const Eigen::Vector2d foot(distance_m * camera.width / camera.fx, distance_m * camera.height / camera.fy);
+  auto centres = [](double region, double foot_m, double min_end_m = 0.0) {
+    std::vector<double> c;
+    const double travel = std::max(region - foot_m, 2 * min_end_m);
+    // a strip narrower than a third of the footprint is left to the walls' shadow
+    if (travel <= foot_m / 3) return std::vector<double>{0.0};
+    const int n = static_cast<int>(std::ceil(travel / foot_m - 1e-9)) + 1;
+    for (int i = 0; i < n; ++i) c.push_back(-0.5 * travel + travel * i / (n - 1));
+    return c;
+  };
+  const std::vector<double> xs = centres(region_m.x(), foot.x(), min_end_m.x()),
+                            ys = centres(region_m.y(), foot.y(), min_end_m.y());
+  std::vector<Eigen::Vector2d> points;
+  for (size_t j = 0; j < ys.size(); ++j) {
+    // a row sweeps from one x end to the other: the first and last centre are enough
+    const bool forward = j % 2 == 0;
+    points.emplace_back(forward ? xs.front() : xs.back(), ys[j]);
+    if (xs.size() > 1) points.emplace_back(forward ? xs.back() : xs.front(), ys[j]);
+  }
+  if (reverse) std::reverse(points.begin(), points.end());
+  return points;
+}
+
+// Times a path of corners, rounds them and solves it for the arm's joints into `plan`.
+void Execute(const World& world, const ApproachOptions& o, const std::vector<PathPoint>& polyline, double speed_m_s,
+             double acceleration_m_s2, const World::ArmVector& q_seed, const IkOptions& ik, ApproachPlan* plan) {
+  for (size_t i = 1; i < polyline.size(); ++i) plan->length_m += (polyline[i] - polyline[i - 1]).norm();
+  std::vector<PathPoint> p_Bin = TimeParameterize(polyline, speed_m_s, acceleration_m_s2, plan->timestep_s);
+  p_Bin = Smooth(p_Bin, 2 * static_cast<int>(std::lround(o.corner_smoothing_s / plan->timestep_s / 2)) + 1);
+  std::vector<Pose> T_Bin_C;
+  for (const PathPoint& p : p_Bin) T_Bin_C.push_back(CameraPoseInBin(p));
+  SolvePath(world, T_Bin_C, q_seed, ik, plan);
+}
+
+}  // namespace
+
+std::vector<CoverageLevel> CoverageLevels(const ApproachOptions& o, double top_m, double rim_m) {
+  ROMUNECT_CHECK(o.focused_far_m > o.focused_near_m && o.focused_near_m > 0);
+  const double width = o.focused_far_m - o.focused_near_m;
+  const double low = o.surface_low_m;
+  // a range wide enough for the table and the rim at once measures both from one level
+  const double top = std::max(rim_m - low <= width ? std::max(top_m, rim_m) : top_m, low + 1e-3);
+  // bands from the table up to the top, each as wide as the range (the lowest, where most
+  // surfaces lie, holds as many as it can), evenly spaced, the last ending at the top
+  const int n = std::max(1, static_cast<int>(std::ceil((top - low) / width - 1e-9)));
+  std::vector<CoverageLevel> levels;
+  if (n == 1) levels.push_back(LevelFor(o, low, top));
+  for (int i = 0; n > 1 && i < n; ++i) {
+    const double band_low = low + (top - width - low) * i / (n - 1);
+    levels.push_back(LevelFor(o, band_low, band_low + width));
+  }
+  // the rim, when the bands stop below it: a band of its own centred on it
+  if (rim_m > top) levels.push_back(LevelFor(o, rim_m - 0.25 * width, rim_m + 0.25 * width));
+  return levels;
+}
+
+PileHeightMeter::PileHeightMeter(const Pose& T_W_Bin, const Eigen::Vector3d& bin_inner_size_m, int stride_px)
+    : T_Bin_W_(T_W_Bin.inverse()),
+      half_inner_m_(0.5 * bin_inner_size_m.head<2>() - Eigen::Vector2d::Constant(kWallMarginM)),
+      stride_px_(stride_px) {
+  ROMUNECT_CHECK(stride_px >= 1);
+}
+
+void PileHeightMeter::Add(const Frame& frame, const CameraModel& camera) {
+  if (frame.depth_m.empty() || !frame.T_W_C) return;
+  const Pose T_Bin_C = T_Bin_W_ * *frame.T_W_C;
+  for (int v = 0; v < frame.depth_m.rows; v += stride_px_) {
+    const float* row = frame.depth_m.ptr<float>(v);
+    for (int u = 0; u < frame.depth_m.cols; u += stride_px_) {
+      if (!(row[u] > 0)) continue;
+      const Eigen::Vector3d p_Bin = T_Bin_C * camera.Unproject(Eigen::Vector2d(u, v), row[u]);
+      if (std::abs(p_Bin.x()) > half_inner_m_.x() || std::abs(p_Bin.y()) > half_inner_m_.y()) continue;
+      heights_m_.push_back(static_cast<float>(p_Bin.z()));
+    }
+  }
+}
+
+std::optional<double> PileHeightMeter::TopM(int min_samples) const {
+  if (samples() < std::max(1, min_samples)) return std::nullopt;
+  std::vector<float> h = heights_m_;
+  const size_t k = static_cast<size_t>(0.995 * (h.size() - 1));
+  std::nth_element(h.begin(), h.begin() + k, h.end());
+  return h[k];
+}
+
+ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const ApproachOptions& o, const IkOptions& ik) {
+  ApproachPlan plan;
+  plan.timestep_s = world.timestep_s();
+  // the lowest level does not depend on the pile: its band starts at the table
+  const double rim = world.bin_inner_size_m().z();
+  // a band as wide as the range from the table up: a one-layer pile lies in it
+  const double one_layer_m = o.surface_low_m + (o.focused_far_m - o.focused_near_m);
+  const CoverageLevel first = CoverageLevels(o, std::min(one_layer_m, rim), rim).front();
+  plan.levels_m = {first.camera_height_m};
+  const double start = std::max(o.start_distance_m, first.camera_height_m + kDescentRoomM);
+  const std::vector<PathPoint> polyline = {PathPoint(0, 0, start, 0), PathPoint(0, 0, first.camera_height_m, 0)};
+  Execute(world, o, polyline, o.coverage_speed_m_s, o.coverage_acceleration_m_s2, ScanPostureSeed(world), ik, &plan);
+  (void)camera;
+  return plan;
+}
+
+namespace {
+
+ApproachPlan PlanCoverageTurning(const World& world, const CameraModel& camera, const ApproachOptions& o, double top_m,
+                                 const ApproachPlan& descent, const IkOptions& ik, double turn_rad) {
+  ROMUNECT_CHECK(!descent.T_W_C.empty());
+  ApproachPlan plan;
+  plan.timestep_s = world.timestep_s();
+  const double rim = world.bin_inner_size_m().z();
+  const std::vector<CoverageLevel> levels = CoverageLevels(o, std::max(top_m, 0.0), rim);
+  const Eigen::Vector3d start_Bin = (world.T_W_Bin().inverse() * descent.T_W_C.back()).translation();
+  std::vector<PathPoint> polyline = {PathPoint(start_Bin.x(), start_Bin.y(), start_Bin.z(), 0.0)};
+  // The lowest band (table, floor, a one-layer pile) covers the whole region, the bands above it
+  // the bin's inside, the rim's the bin's outline.
+  const Eigen::Vector2d inside = world.bin_inner_size_m().head<2>();
+  const Eigen::Vector2d outline = inside + Eigen::Vector2d::Constant(0.012);
+  // a serpentine at level i with the hand's turn going from turn0 to turn1 along it
+  auto sweep = [&](size_t i, double turn0_rad, double turn1_rad) {
+    const CoverageLevel& level = levels[i];
+    const bool rim_band = level.low_m <= rim && rim <= level.high_m;  // the band holding the rim
+    const Eigen::Vector2d region = i == 0 ? o.region_size_m : rim_band ? outline : inside;
+    const double distance = level.camera_height_m - level.low_m;  // the footprint at the band's far end
+    // run it from the end nearer to where the camera is
+    const Eigen::Vector2d at = polyline.back().head<2>();
+    const Eigen::Vector2d ends = i == 0 ? Eigen::Vector2d(0.5 * outline) : Eigen::Vector2d::Zero();
+    std::vector<Eigen::Vector2d> points = Serpentine(camera, region, distance, false, ends);
+    if ((points.back() - at).norm() < (points.front() - at).norm()) {
+      points = Serpentine(camera, region, distance, true, ends);
+    }
+    for (size_t k = 0; k < points.size(); ++k) {
+      const double a = points.size() > 1 ? static_cast<double>(k) / (points.size() - 1) : 1.0;
+      polyline.emplace_back(points[k].x(), points[k].y(), level.camera_height_m,
+                            kTurnRadiusM * (turn0_rad + a * (turn1_rad - turn0_rad)));
+    }
+  };
+  // Most surfaces lie in the lowest band: it first; then the bands above it and the rim's, the
+  // hand turning on the way; then the lowest band again, turned, so the baseline's shadows fall
+  // the other way; then the bands above it again, the hand turning back.
+  const double turned = o.turned_passes ? turn_rad : 0.0;
+  sweep(0, 0.0, 0.0);
+  const size_t upper = levels.size() - 1;
+  for (size_t i = 1; i < levels.size(); ++i) sweep(i, turned * (i - 1) / upper, turned * i / upper);
+  if (o.turned_passes) {
+    sweep(0, turned, turned);
+    // and back up through the bands above it, the hand turning back: their edges from both sides
+    for (size_t i = 1; i < levels.size(); ++i) sweep(i, turned * (upper - i + 1) / upper, turned * (upper - i) / upper);
+  }
+  plan.passes_x = plan.passes_y = 1;
+  for (auto it = levels.rbegin(); it != levels.rend(); ++it) plan.levels_m.push_back(it->camera_height_m);
+  Execute(world, o, polyline, o.coverage_speed_m_s, o.coverage_acceleration_m_s2, descent.q.back(), ik, &plan);
+  return plan;
+}
+
+}  // namespace
+
+ApproachPlan PlanCoverage(const World& world, const CameraModel& camera, const ApproachOptions& o, double top_m,
+                          const ApproachPlan& descent, const IkOptions& ik) {
+  // the wrist turns whichever way its joint limits allow
+  try {
+    return PlanCoverageTurning(world, camera, o, top_m, descent, ik, kTurnRad);
+  } catch (const InputError&) {
+    if (!o.turned_passes) throw;
+    return PlanCoverageTurning(world, camera, o, top_m, descent, ik, -kTurnRad);
+  }
+}
+
+}  // namespace romunect::sim

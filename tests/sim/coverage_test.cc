@@ -1,0 +1,109 @@
+#include "romunect/sim/coverage.h"
+
+#include <cmath>
+
+#include <gtest/gtest.h>
+#include <Eigen/Geometry>
+
+#include "romunect/sensor/rig.h"
+#include "romunect/sim/scanner.h"
+
+namespace romunect::sim {
+namespace {
+
+// Heights compared in metres: planning arithmetic only, no physics.
+constexpr double kPlanToleranceM = 1e-9;
+// The servos track within a few mm; the planned poses are exact, so 1 mm is generous.
+constexpr double kLevelToleranceM = 1e-3;
+
+ApproachOptions RangeOptions(const std::string& rig_name) {
+  const DepthRange range = MeasurableDepthRange(RigPreset(rig_name));
+  ApproachOptions options;
+  options.focused_near_m = range.near_m;
+  options.focused_far_m = range.far_m;
+  return options;
+}
+
+// Every band is measurable from its level, the bands stack without gaps (the last may overlap)
+// from the table to the measured top, and the rim lies in a band: no planned level leaves a surface of the measured
+// pile out of range, for the focused romunect rig and the stock Kinect alike.
+TEST(CoverageTest, EveryLevelHoldsItsBandInTheMeasurableRange) {
+  const double rim_m = 0.035;
+  for (const std::string rig : {"romunect", "kinect-v1"}) {
+    const ApproachOptions o = RangeOptions(rig);
+    for (const double top_m : {0.0, 0.012, 0.05, 0.104}) {
+      const std::vector<CoverageLevel> levels = CoverageLevels(o, top_m, rim_m);
+      ASSERT_FALSE(levels.empty());
+      EXPECT_NEAR(levels.front().low_m, o.surface_low_m, kPlanToleranceM) << rig;
+      bool rim_seen = false;
+      for (size_t i = 0; i < levels.size(); ++i) {
+        const CoverageLevel& l = levels[i];
+        EXPECT_GE(l.camera_height_m - l.high_m, o.focused_near_m - kPlanToleranceM) << rig << " top " << top_m;
+        EXPECT_LE(l.camera_height_m - l.low_m, o.focused_far_m + kPlanToleranceM) << rig << " top " << top_m;
+        rim_seen |= l.low_m <= rim_m && rim_m <= l.high_m;
+        if (i > 0 && levels[i - 1].high_m >= top_m) continue;  // the rim's own band may float above
+        if (i > 0) EXPECT_LE(l.low_m, levels[i - 1].high_m + kPlanToleranceM) << rig;  // no gap
+      }
+      EXPECT_TRUE(rim_seen) << rig << " top " << top_m;
+      double covered_to = levels.front().high_m;
+      for (const CoverageLevel& l : levels) covered_to = std::max(covered_to, l.high_m);
+      EXPECT_GE(covered_to, top_m - kPlanToleranceM) << rig;
+    }
+    // The stock range holds the whole one-layer bin from one level, from under a metre.
+    const std::vector<CoverageLevel> stock = CoverageLevels(RangeOptions("kinect-v1"), 0.02, rim_m);
+    EXPECT_EQ(stock.size(), 1u);
+    EXPECT_LT(stock.front().camera_height_m, 1.0);
+  }
+}
+
+// The planned approach over the default bin: the descent ends with the table in range, every sample
+// of the coverage leg lies between the lowest and the highest level, and the leg ends at one of
+// the levels.
+TEST(CoverageTest, PlannedFramesStayAtTheMeasuredPilesLevels) {
+  World world(WorldOptions{});
+  const Rig rig = RigPreset("romunect");
+  const ApproachOptions o = RangeOptions("romunect");
+  const double top_m = 0.012;
+  const ApproachPlan descent = PlanDescent(world, rig.camera, o);
+  const ApproachPlan leg = PlanCoverage(world, rig.camera, o, top_m, descent);
+  const std::vector<CoverageLevel> levels = CoverageLevels(o, top_m, world.bin_inner_size_m().z());
+  ASSERT_EQ(leg.levels_m.size(), levels.size());
+  const Pose T_Bin_W = world.T_W_Bin().inverse();
+  // the descent stops with the table and the floor in range (before the pile is known)
+  const double z_end = (T_Bin_W * descent.T_W_C.back()).translation().z();
+  EXPECT_LE(z_end - o.surface_low_m, o.focused_far_m + kLevelToleranceM);
+  EXPECT_GE(z_end, o.focused_near_m);
+  for (const Pose& T_W_C : leg.T_W_C) {
+    const double z = (T_Bin_W * T_W_C).translation().z();
+    ASSERT_GE(z, std::min(z_end, levels.front().camera_height_m) - kLevelToleranceM);
+    ASSERT_LE(z, levels.back().camera_height_m + kLevelToleranceM);
+  }
+  const double z_last = (T_Bin_W * leg.T_W_C.back()).translation().z();
+  bool at_a_level = false;
+  for (const CoverageLevel& l : levels) at_a_level |= std::abs(z_last - l.camera_height_m) < kLevelToleranceM;
+  EXPECT_TRUE(at_a_level) << z_last;
+  // The hand turns for the second passes: the camera's x points along the bin's +x then.
+  bool turned = false;
+  for (const Pose& T_W_C : leg.T_W_C) turned |= (T_Bin_W * T_W_C).linear().col(0).x() > 0.9;
+  EXPECT_TRUE(turned);
+}
+
+// A plane 12 mm above the bin floor seen from 200 mm: the meter's top is the plane's height.
+TEST(CoverageTest, PileHeightMeterMeasuresThePlanesHeight) {
+  World world(WorldOptions{});
+  const Rig rig = RigPreset("romunect");
+  const double plane_m = 0.012, camera_m = 0.2;
+  Frame frame;
+  frame.depth_m = cv::Mat(rig.camera.height, rig.camera.width, CV_32F, cv::Scalar(camera_m - plane_m));
+  Eigen::Matrix3d R_Bin_C;
+  R_Bin_C << -1, 0, 0, 0, 1, 0, 0, 0, -1;
+  frame.T_W_C = world.T_W_Bin() * MakePose(R_Bin_C, Eigen::Vector3d(0, 0, camera_m));
+  PileHeightMeter meter(world.T_W_Bin(), world.bin_inner_size_m());
+  EXPECT_FALSE(meter.TopM().has_value());  // nothing measured yet
+  meter.Add(frame, rig.camera);
+  ASSERT_TRUE(meter.TopM().has_value());
+  EXPECT_NEAR(*meter.TopM(), plane_m, 1e-5);  // float depth: micrometres
+}
+
+}  // namespace
+}  // namespace romunect::sim
