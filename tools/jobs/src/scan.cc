@@ -189,6 +189,7 @@ class ScanHooks : public FrameHooks {
   const sim::Scanner& scanner_;
   const bool interactive_ = isatty(fileno(stderr));
   const Stopwatch loop_;
+  int prepared_through_ = -1;
 };
 
 // The approach: frames fused as they arrive, the frame directory written beside.
