@@ -47,7 +47,8 @@ double ReadNumber(const cv::FileNode& node, const char* key, const std::string& 
 std::string CameraModel::Problem() const {
   std::ostringstream s;
   // Physical bounds: focal lengths for fields of view from ~0.1 to ~179 degrees, a principal point
-  // within a few image sizes of the image, distortion far beyond any lens's (|k| <= 100, |p| <= 1).
+  // within 10 image sizes or 10 focal lengths of the image (a window cut from a larger image, as
+  // the dataset check renders, keeps its optical axis outside it), distortion far beyond any lens's (|k| <= 100, |p| <= 1).
   const double side_px = std::max(width, height);
   if (width <= 0 || height <= 0) {
     s << "image size " << width << " x " << height << " must be positive";
@@ -62,8 +63,9 @@ std::string CameraModel::Problem() const {
       << 1000 * side_px << "] (0.005 to 1000 times the image's longer side)";
   } else if (!(std::isfinite(cx) && std::isfinite(cy))) {
     s << "principal point must be finite";
-  } else if (!(std::abs(cx) <= 10.0 * side_px && std::abs(cy) <= 10.0 * side_px)) {
-    s << "principal point (" << cx << ", " << cy << ") must lie within 10 image sizes of the image";
+  } else if (const double reach_px = 10.0 * std::max({side_px, fx, fy});
+             !(std::abs(cx) <= reach_px && std::abs(cy) <= reach_px)) {
+    s << "principal point (" << cx << ", " << cy << ") must lie within 10 image sizes or focal lengths of the image";
   } else {
     for (double k : distortion) {
       if (!std::isfinite(k)) return "distortion coefficients must be finite";

@@ -29,6 +29,9 @@ constexpr double kRomunectFocalPx = 2133.0;
 // The reference area's centre from the board's: both where the arm reaches; the area overlaps
 // the board's edge, which the depth planes' views (~1 m wide) barely see.
 constexpr double kLongRangeReferenceOffsetM = 0.7;
+// The distance a long-range rig is calibrated at: as far as the arm holds the camera above the
+// table (shoulder 0.4 m up, reach ~0.9 m), clear of a long range's near end.
+constexpr double kLongRangeWorkingM = 0.79;
 constexpr double kDepthPlaneSpan = 0.15;  // depth planes within +-15 % of the working distance
 constexpr IrMaterial kWhite{0.8f, 0.0f, 50.0f};
 constexpr IrMaterial kBlack{0.04f, 0.0f, 50.0f};
@@ -121,9 +124,13 @@ CalibrationRigOptions CalibrationRigOptionsFor(const Rig& rig) {
   // ~0.9 m) holds a camera there over the table.
   const double working_m = std::min(0.5 * (range.near_m + range.far_m), range.near_m);
   // Lengths in the image stay the romunect's: scale by (distance / focal length).
-  const double k = (working_m / rig.camera.fx) / (kRomunectWorkingDistanceM / kRomunectFocalPx);
+  double k = (working_m / rig.camera.fx) / (kRomunectWorkingDistanceM / kRomunectFocalPx);
   if (std::abs(k - 1.0) < 0.1) return o;  // the romunect's own calibration
-  o.working_distance_m = working_m;
+  // A long range's near end is where its chip loses the pattern's edges (few valid pixels on a
+  // plane): calibrate a little further out, where the arm still holds the camera above the table.
+  const double long_working_m = std::min(0.5 * (range.near_m + range.far_m), std::max(range.near_m, kLongRangeWorkingM));
+  k *= long_working_m / working_m;
+  o.working_distance_m = long_working_m;
   o.board.square_m = std::max(0.001, std::round(o.board.square_m * k * 1e3) * 1e-3);
   // The reference area fills the view at the far depth plane, tilted; it lies beside the board.
   const double far_m = CalibrationDepthRange(o).far_m;

@@ -8,6 +8,7 @@
 
 #include "romunect/sensor/errors.h"
 #include "romunect/sim/approach.h"
+#include "romunect/sim/coverage.h"
 #include "romunect/sim/ik.h"
 #include "romunect/sim/pile.h"
 #include "romunect/sim/scanner.h"
@@ -195,7 +196,17 @@ sim::ScanBox SceneRegion(const sim::World& world, const Rig& rig) {
 
 std::vector<View> ApproachViews(sim::World* world, const Rig& rig, int every) {
   const sim::ApproachOptions approach = ScanApproach(rig);
-  const sim::ApproachPlan plan = sim::PlanApproach(*world, rig.camera, approach);
+  sim::ApproachPlan plan = sim::PlanApproach(*world, rig.camera, approach);
+  if (approach.sweep == sim::ApproachOptions::Sweep::kCoverage && approach.focused_far_m > 0) {
+    // The scan plans its coverage leg from the pile its descent measured; the views here are
+    // chosen before any image is rendered, so the leg is planned for a bin filled to its rim.
+    const sim::ApproachPlan leg =
+        sim::PlanCoverage(*world, rig.camera, approach, world->bin_inner_size_m().z(), plan);
+    plan.T_W_C.insert(plan.T_W_C.end(), leg.T_W_C.begin() + 1, leg.T_W_C.end());
+    plan.q.insert(plan.q.end(), leg.q.begin() + 1, leg.q.end());
+    plan.levels_m = leg.levels_m;
+    plan.length_m += leg.length_m;
+  }
   sim::ApproachExecutor executor(world, plan, approach);
   executor.MoveToStart();
   const int count = static_cast<int>(std::floor(plan.duration_s() * rig.frame_rate_hz + 1e-9)) + 1;
