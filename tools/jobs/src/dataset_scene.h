@@ -65,7 +65,7 @@ std::vector<Model> BuildModels(const Settings& settings);
 // A file several shards may write at once with the same bytes (dataset.json, camera.json, the
 // models): written under ".<name>.tmp-<host>-<pid>-<n>" and renamed, so readers see it whole.
 void WriteShared(const std::filesystem::path& path, const std::string& text);
-// Removes the temporaries of WriteShared in `dir` that a killed process of this host left (its
+// Removes the temporaries of WriteShared in `dir` that a killed process on the local host left (its
 // pid is gone); other hosts' are theirs to finish.
 void RemoveStaleTemporaries(const std::filesystem::path& dir);
 
