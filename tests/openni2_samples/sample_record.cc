@@ -37,6 +37,7 @@ int main(int argc, char** argv) {
   openni::VideoFrameRef frame;
   if (depth.readFrame(&frame) != openni::STATUS_OK || !samples::CentreNear1m(frame)) return samples::Fail("playback");
   depth.stop();
+  depth.destroy();  // before the device: libOniFile's player thread may still touch a live stream
   file.close();
   openni::OpenNI::shutdown();
   return 0;
