@@ -97,6 +97,7 @@ void CheckYamlNesting(std::string_view text, const std::string& source) {
   bool at_line_start = true;
   char quote = 0;  // the open quote, or 0
   char last = 0;   // the last character outside quotes and spaces on this line, 0 at its start
+  int root_indent = -1;  // the first key's column (0-based), once seen
   auto fail = [&](const std::string& what, int limit) {
     throw InputError(source, "line " + std::to_string(line),
                      what + " deeper than " + std::to_string(limit) + " (the limit on nesting of romunect's YAML)");
@@ -114,6 +115,20 @@ void CheckYamlNesting(std::string_view text, const std::string& source) {
       size_t j = i;
       while (j < text.size() && (text[j] == ' ' || text[j] == '\t')) ++j;
       if (j - i > static_cast<size_t>(kMaxYamlIndent)) fail("indented", kMaxYamlIndent);
+      // No line of a document lies left of its first key: that is not YAML, and OpenCV 4.6's
+      // parser can loop forever on it (a 20-byte file did).
+      const bool content = j < text.size() && std::strchr("\n\r#", text[j]) == nullptr;
+      const bool marker = j == i && (text[j] == '%' || text.substr(j, 3) == "---" || text.substr(j, 3) == "...");
+      if (content && !marker) {
+        const int indent = static_cast<int>(j - i);
+        if (root_indent < 0) {
+          root_indent = indent;
+        } else if (indent < root_indent) {
+          throw InputError(source, "line " + std::to_string(line),
+                           "indented less than the document's first key (column " + std::to_string(root_indent + 1) +
+                               "): not valid YAML");
+        }
+      }
     }
     at_line_start = false;
     if (quote == '"') {

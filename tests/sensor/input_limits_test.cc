@@ -62,6 +62,16 @@ TEST(YamlNesting, QuotedBracketsAndCommentsDoNotCount) {
   EXPECT_NO_THROW(CheckYamlNesting(text, "a.yaml"));
 }
 
+// A line left of the document's first key is not YAML; OpenCV 4.6's parser looped forever on
+// this 20-byte file (a fuzzer's find), so the pre-scan refuses it.
+TEST(YamlNesting, ALineLeftOfTheFirstKeyIsRefusedBeforeOpenCvParses) {
+  ScratchDir dir("yaml_dedent");
+  testing::WriteText(dir / "dedent.yaml", "%YAML:1.\n s:1\n2, -\n1");
+  ExpectContains(InputErrorOf([&] { CameraModel::Load(dir / "dedent.yaml"); }),
+                 {"dedent.yaml", "line 3", "indented less than the document's first key (column 2)"});
+  EXPECT_NO_THROW(CheckYamlNesting("%YAML:1.0\n---\n  a: 1\n  b:\n    - 2\n# note\n  c: 3\n", "a.yaml"));
+}
+
 TEST(InputFile, OnlyRegularFilesAreRead) {
   ScratchDir dir("input_file");
   ASSERT_EQ(mkfifo((dir / "fifo").c_str(), 0600), 0);
