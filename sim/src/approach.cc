@@ -51,6 +51,13 @@ double TopSurface(const World& world, const ApproachOptions& options) {
 
 }  // namespace
 
+void ApproachPlan::Append(const ApproachPlan& leg) {
+  T_W_C.insert(T_W_C.end(), leg.T_W_C.begin() + 1, leg.T_W_C.end());
+  q.insert(q.end(), leg.q.begin() + 1, leg.q.end());
+  levels_m = leg.levels_m;
+  length_m += leg.length_m;
+}
+
 ScanBox ScanRegionBox(const World& world, const ApproachOptions& options) {
   const Eigen::Vector3d floor_W = world.T_W_Bin().translation();
   const Eigen::Vector2d half = options.region_size_m / 2;

@@ -294,11 +294,7 @@ void Scanner::Impl::PlanCoverageLeg() {
   }
   const double top = std::max(0.0, pile_top_m.value_or(0.0));
   const ApproachPlan leg = PlanCoverage(*world, options.rig.camera, options.approach, top, plan, options.ik);
-  // its first sample is the descent's last
-  plan.T_W_C.insert(plan.T_W_C.end(), leg.T_W_C.begin() + 1, leg.T_W_C.end());
-  plan.q.insert(plan.q.end(), leg.q.begin() + 1, leg.q.end());
-  plan.levels_m = leg.levels_m;
-  plan.length_m += leg.length_m;
+  plan.Append(leg);
   // the fusion box follows the measured pile (ScanRegionBox)
   options.approach.surface_height_m = std::max(world->bin_inner_size_m().z(), top) + options.approach.above_rim_m;
   count = static_cast<int>(std::floor(plan.duration_s() * options.rig.frame_rate_hz + 1e-9)) + 1;

@@ -200,12 +200,7 @@ std::vector<View> ApproachViews(sim::World* world, const Rig& rig, int every) {
   if (approach.sweep == sim::ApproachOptions::Sweep::kCoverage && approach.focused_far_m > 0) {
     // The scan plans its coverage leg from the pile its descent measured; the views here are
     // chosen before any image is rendered, so the leg is planned for a bin filled to its rim.
-    const sim::ApproachPlan leg =
-        sim::PlanCoverage(*world, rig.camera, approach, world->bin_inner_size_m().z(), plan);
-    plan.T_W_C.insert(plan.T_W_C.end(), leg.T_W_C.begin() + 1, leg.T_W_C.end());
-    plan.q.insert(plan.q.end(), leg.q.begin() + 1, leg.q.end());
-    plan.levels_m = leg.levels_m;
-    plan.length_m += leg.length_m;
+    plan.Append(sim::PlanCoverage(*world, rig.camera, approach, world->bin_inner_size_m().z(), plan));
   }
   sim::ApproachExecutor executor(world, plan, approach);
   executor.MoveToStart();

@@ -71,6 +71,9 @@ struct ApproachPlan {
   std::vector<double> levels_m;     // camera heights above the bin floor of the passes
   double length_m = 0.0;            // path length
   double duration_s() const { return T_W_C.empty() ? 0.0 : (T_W_C.size() - 1) * timestep_s; }
+  // Continues this plan with `leg`, whose first sample is this plan's last (coverage.h's
+  // PlanCoverage from a descent): the path grows, the levels become the leg's.
+  void Append(const ApproachPlan& leg);
 };
 
 // The box the scan measures, in W (axes of the bin frame): the region of interest centred on
