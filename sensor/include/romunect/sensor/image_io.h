@@ -49,6 +49,10 @@ std::optional<HeightMapGeometry> ReadHeightMapGeometry(const std::filesystem::pa
 cv::Mat ReadPng16(const std::filesystem::path& path, const std::optional<cv::Size>& expected = std::nullopt);
 cv::Mat DecodePng16(std::string_view bytes, const std::string& source,
                     const std::optional<cv::Size>& expected = std::nullopt);
+// For a PNG, JPEG (its first frame header) or BMP file's bytes, the size its header gives checked
+// against input_limits.h's bounds (InputError "image size"), before anything decodes it; other
+// formats pass unchecked.
+void CheckPictureHeader(std::string_view bytes, const std::string& source);
 
 // Writes a CV_16U Mat as a 16-bit PNG.
 void WritePng16(const std::filesystem::path& path, const cv::Mat& image,
