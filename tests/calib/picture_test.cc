@@ -16,12 +16,9 @@
 namespace romunect {
 namespace {
 namespace fs = std::filesystem;
+using testing::ExpectContains;
 using testing::InputErrorOf;
 using testing::ScratchDir;
-
-void ExpectContains(const std::string& message, std::initializer_list<std::string> fragments) {
-  for (const std::string& f : fragments) EXPECT_NE(message.find(f), std::string::npos) << message << "\n lacks " << f;
-}
 
 void PutBe32(std::string* s, size_t at, uint32_t v) {
   for (int i = 0; i < 4; ++i) (*s)[at + i] = static_cast<char>(v >> (8 * (3 - i)));

@@ -18,13 +18,9 @@
 namespace romunect {
 namespace {
 namespace fs = std::filesystem;
+using testing::ExpectContains;
 using testing::InputErrorOf;
 using testing::ScratchDir;
-
-void ExpectContains(const std::string& message, std::initializer_list<std::string> fragments) {
-  ASSERT_FALSE(message.empty()) << "expected an InputError";
-  for (const std::string& f : fragments) EXPECT_NE(message.find(f), std::string::npos) << f << " not in: " << message;
-}
 
 TEST(JsonNesting, DepthAtTheLimitPassesOneDeeperIsRefused) {
   const std::string at_limit = std::string(kMaxJsonDepth, '[') + std::string(kMaxJsonDepth, ']');
@@ -138,7 +134,6 @@ TEST(ImageBomb, ExrDataWindowIsCheckedBeforeDecoding) {
                    {"cut.exr", "not a readable OpenEXR file"});
   }
 }
-
 
 }  // namespace
 }  // namespace romunect

@@ -2,6 +2,7 @@
 #pragma once
 
 #include <filesystem>
+#include <initializer_list>
 #include <string>
 
 #include <gtest/gtest.h>
@@ -44,6 +45,12 @@ CommandResult RunRomunect(const std::string& arguments);
 // Writes text to a file (for crafting malformed inputs).
 void WriteText(const std::filesystem::path& path, const std::string& text);
 std::string ReadText(const std::filesystem::path& path);
+
+// Expects an error message (InputErrorOf's) that is not empty and holds every fragment.
+inline void ExpectContains(const std::string& message, std::initializer_list<std::string> fragments) {
+  ASSERT_FALSE(message.empty()) << "expected an InputError";
+  for (const std::string& f : fragments) EXPECT_NE(message.find(f), std::string::npos) << f << " not in: " << message;
+}
 
 // The message of the InputError that f() throws ("" when it throws none).
 template <typename F>
