@@ -47,9 +47,9 @@ CoverageLevel LevelFor(const ApproachOptions& o, double low_m, double high_m) {
 std::vector<Eigen::Vector2d> Serpentine(const CameraModel& camera, const Eigen::Vector2d& region_m, double distance_m,
                                         bool reverse, const Eigen::Vector2d& min_end_m = Eigen::Vector2d::Zero()) {
   const Eigen::Vector2d foot(distance_m * camera.width / camera.fx, distance_m * camera.height / camera.fy);
-  auto centres = [](double region, double foot_m, double min_end_m = 0.0) {
+  auto centres = [](double region, double foot_m, double end_m) {
     std::vector<double> c;
-    const double travel = std::max(region - foot_m, 2 * min_end_m);
+    const double travel = std::max(region - foot_m, 2 * end_m);
     // a strip narrower than a third of the footprint is left to the walls' shadow
     if (travel <= foot_m / 3) return std::vector<double>{0.0};
     const int n = static_cast<int>(std::ceil(travel / foot_m - 1e-9)) + 1;

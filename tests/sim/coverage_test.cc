@@ -42,7 +42,9 @@ TEST(CoverageTest, EveryLevelHoldsItsBandInTheMeasurableRange) {
         EXPECT_LE(l.camera_height_m - l.low_m, o.focused_far_m + kPlanToleranceM) << rig << " top " << top_m;
         rim_seen |= l.low_m <= rim_m && rim_m <= l.high_m;
         if (i > 0 && levels[i - 1].high_m >= top_m) continue;  // the rim's own band may float above
-        if (i > 0) EXPECT_LE(l.low_m, levels[i - 1].high_m + kPlanToleranceM) << rig;  // no gap
+        if (i > 0) {
+          EXPECT_LE(l.low_m, levels[i - 1].high_m + kPlanToleranceM) << rig;  // no gap
+        }
       }
       EXPECT_TRUE(rim_seen) << rig << " top " << top_m;
       double covered_to = levels.front().high_m;
