@@ -42,16 +42,6 @@ int ParseInt(const std::string& text, const std::string& option, const std::stri
   return n;
 }
 
-sim::ObjectKind ParseKind(const std::string& name) {
-  // the short names of the command line beside sim's own
-  const std::string full = name == "puzzle" ? "puzzle_piece" : name == "lego" ? "lego_brick" : name;
-  for (sim::ObjectKind kind : {sim::ObjectKind::kKey, sim::ObjectKind::kPillBox, sim::ObjectKind::kPuzzlePiece,
-                               sim::ObjectKind::kLegoBrick, sim::ObjectKind::kGear}) {
-    if (full == sim::ToString(kind)) return kind;
-  }
-  throw InputError("--kinds", "", "'" + name + "' is not one of key, pill_box, puzzle, lego, gear");
-}
-
 }  // namespace
 
 Settings ParseSettings(const DatasetOptions& o) {
@@ -59,7 +49,7 @@ Settings ParseSettings(const DatasetOptions& o) {
   s.seed = o.seed;
   Require(!o.kinds.empty(), "--kinds", "", "expected at least one kind");
   for (const std::string& k : o.kinds) {
-    const sim::ObjectKind kind = ParseKind(k);
+    const sim::ObjectKind kind = sim::GeneratedKindFromName(k, "--kinds");
     if (std::find(s.kinds.begin(), s.kinds.end(), kind) == s.kinds.end()) s.kinds.push_back(kind);
   }
   std::sort(s.kinds.begin(), s.kinds.end());  // the same settings however they are listed
