@@ -7,7 +7,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seconds="${1:-20}"
-targets=(frame_manifest exr png height_map camera calibration mesh pose_log rig)
+targets=(frame_manifest exr png height_map camera calibration mesh pose_log rig oni)
 
 bash scripts/setup.sh
 launcher=()

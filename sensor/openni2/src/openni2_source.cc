@@ -19,6 +19,7 @@
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/errors.h"
+#include "romunect/sensor/openni2/oni_file.h"
 #include "romunect/sensor/openni2/virtual_device.h"
 #include "virtual_device_uri.h"
 
@@ -385,14 +386,35 @@ namespace {
 
 bool IsOniPath(const std::string& uri) { return uri.size() > 4 && uri.compare(uri.size() - 4, 4, ".oni") == 0; }
 
+// How long a trial read of a recording may take: its decoding runs at well over 50 MB/s.
+double TrialReadLimitS(const std::string& path) {
+  std::error_code ec;
+  const auto bytes = std::filesystem::file_size(path, ec);
+  return 60.0 + (ec ? 0.0 : static_cast<double>(bytes) / 5e6);
+}
+
+// Reads what the caller will read, to its end or max_frames (the read of oni_file.h's child).
+void TrialRead(OpenNI2SourceOptions options) {
+  options.record_oni.clear();
+  OpenNI2Source source(options);
+  Frame frame;
+  std::string error;
+  while (source.Next(&frame, &error) != FrameStatus::kEndOfStream) {
+  }
+}
+
 // What can be said about the options and the URI before OpenNI2 is asked: OpenNI2 itself only
-// reports "not found".
+// reports "not found"; a recording is checked before libOpenNI2 reads it (oni_file.h).
 void CheckBeforeOpening(const OpenNI2SourceOptions& options) {
   const std::string problem = options.Problem();
   if (!problem.empty()) throw InputError("OpenNI2 source options", "", problem);
   if (IsOniPath(options.uri)) {
     std::error_code ec;
     if (!std::filesystem::is_regular_file(options.uri, ec)) throw InputError(options.uri, "", "no such .oni file");
+    if (!InOniCheckChild()) {
+      CheckOniStructure(options.uri);
+      ReadOniInChildProcess(options.uri, [&] { TrialRead(options); }, TrialReadLimitS(options.uri));
+    }
   }
   if (IsVirtualDeviceUri(options.uri)) {
     std::string why;
@@ -748,6 +770,12 @@ std::vector<DeviceListing> ListDevices() {
 }
 
 std::vector<std::string> ListVideoModes(const std::string& uri) {
+  if (IsOniPath(uri) && !InOniCheckChild()) {
+    std::error_code ec;
+    if (!std::filesystem::is_regular_file(uri, ec)) throw InputError(uri, "", "no such .oni file");
+    CheckOniStructure(uri);
+    ReadOniInChildProcess(uri, [&] { ListVideoModes(uri); }, TrialReadLimitS(uri));
+  }
   EnsureOpenNI();
   openni::Device device;
   const std::string name = uri.empty() ? "the first OpenNI2 device" : uri;
