@@ -1,6 +1,9 @@
 // `romunect scan`, the main job, through the real binary: bad input fails early with a clear
 // message and leaves nothing behind; a small scan runs end to end and reports its figures.
 #include <filesystem>
+#include <map>
+#include <string>
+#include <thread>
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
@@ -98,6 +101,57 @@ TEST(CliScan, NeverRemovesWhatTheOutputPathHolds) {
   ExpectFailsWith("--out " + (dir / "notes.txt" / "run").string(), "notes.txt is not a folder");
   EXPECT_EQ(testing::ReadText(dir / "mine" / "notes.txt"), "precious");
   EXPECT_FALSE(fs::exists(dir / "mine.incomplete"));
+}
+
+// Every file of a run folder by its relative path; report.json without the fields that time the
+// run (wall-clock seconds, memory, start time), report.html (which shows them) left out.
+std::map<std::string, std::string> RunFiles(const fs::path& run) {
+  std::map<std::string, std::string> files;
+  for (const auto& e : fs::recursive_directory_iterator(run)) {
+    if (!e.is_regular_file()) continue;
+    const std::string name = fs::relative(e.path(), run).string();
+    if (name == "report.html") continue;
+    std::string bytes = testing::ReadText(e.path());
+    if (name == "report.json") {
+      auto report = nlohmann::json::parse(bytes);
+      for (const char* timing : {"timings_s", "started_at", "realtime", "settle"}) report.erase(timing);
+      for (const char* timing : {"extract_ms", "peak_rss_mb", "insert_ms"}) report["fusion"].erase(timing);
+      bytes = report.dump();
+    }
+    files[name] = bytes;
+  }
+  return files;
+}
+
+// Two scans into one --out at once, ten times: one is refused before any work (before the pile
+// settles), the other's run folder holds the bytes of a lone run. Two such scans used to share
+// one .incomplete folder: a run reported finished held frames of both.
+TEST(CliScanIntegration, TwoScansAtOnceIntoOneOutOneIsRefusedBeforeAnyWork) {
+  ScratchDir dir("scan");
+  const std::string options = "scan --objects 1 --seed 4 --ideal-depth --voxel 0.002 --threads 1 --out ";
+  const auto lone = RunRomunect(options + (dir / "lone").string());
+  ASSERT_EQ(lone.exit_code, 0) << lone.output;
+  const auto expected = RunFiles(dir / "lone");
+  ASSERT_GT(expected.size(), 100u);  // every frame's files, the maps, the report
+  constexpr int kTrials = 10;        // each ~3 s; the run-folder unit test interleaves 200 in-process
+  for (int trial = 0; trial < kTrials; ++trial) {
+    const fs::path out = dir / ("run" + std::to_string(trial));
+    testing::CommandResult results[2];
+    std::thread a([&] { results[0] = RunRomunect(options + out.string()); });
+    std::thread b([&] { results[1] = RunRomunect(options + out.string()); });
+    a.join();
+    b.join();
+    const int winner = results[0].exit_code == 0 ? 0 : 1;
+    const testing::CommandResult& refused = results[1 - winner];
+    ASSERT_EQ(results[winner].exit_code, 0) << results[winner].output;
+    EXPECT_EQ(refused.exit_code, 2) << refused.output;
+    EXPECT_TRUE(refused.output.find("another run is writing into it (made by romunect scan") != std::string::npos ||
+                refused.output.find("holds a finished scan") != std::string::npos)
+        << refused.output;
+    EXPECT_EQ(refused.output.find("settling the pile"), std::string::npos) << refused.output;
+    EXPECT_TRUE(RunFiles(out) == expected) << "trial " << trial;
+    EXPECT_FALSE(fs::exists(out.string() + ".incomplete"));
+  }
 }
 
 // A user's part in the pile: a dark 18 mm cube (OBJ) dropped with two generated objects settles

@@ -322,6 +322,9 @@ ScanSummary RunScan(const ScanJobOptions& o) {
   report.started_at = std::time(nullptr);
   std::optional<calib::Calibration> calibration;
   const sim::ScanOptions options = SimulatorOptions(o, &calibration);
+  // The run folder is taken before the pile settles: a second run into the same --out is
+  // refused before it does any work.
+  run.Begin();
 
   if (o.saved_scene.empty()) {
     std::fprintf(stderr, "scan: loading the scene, dropping %d objects (seed %u) and settling the pile...\n",
@@ -333,7 +336,6 @@ ScanSummary RunScan(const ScanJobOptions& o) {
   std::fprintf(stderr, "scan: %s\n", scanner.stats().settle.BriefReport().c_str());
   report.depth_correction = SetUpImaging(o, calibration, &scanner);
 
-  run.Begin();
   // The settled pile, before the pick moves it: `--saved-scene` reloads it without settling.
   sim::SaveSettledScene(scanner.world(), run.work_dir() / "scene.json");
   FuseApproach(o, scanner, calibration, run.work_dir(), &report);
