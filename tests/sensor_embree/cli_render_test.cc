@@ -1,10 +1,13 @@
 // `romunect render` end to end, as a user runs it: both presets to frame directories with
 // pictures, and bad input that must end with a clear message and a non-zero exit.
+#include <sys/wait.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -159,6 +162,32 @@ TEST(CliRenderTest, BadInputEndsWithAMessageNamingTheFieldAndANonZeroExit) {
   // An existing frame directory is never overwritten.
   ASSERT_EQ(RunRomunect("render " + out + " --target plane").exit_code, 0);
   ExpectFailure("render " + out + " --target plane", {"frames.json"});
+}
+
+// A render into a disk that fills up: exit 2 with the system's reason, and nothing left on the
+// disk (the frame directory is built in OUT_DIR.incomplete, renamed when complete; before, a
+// partial OUT_DIR stayed). The disk is a 300 kB tmpfs in a user namespace of its own; one
+// 640 x 480 frame needs ~3 MB.
+TEST(CliRenderTest, AFullDiskLeavesNothingAndSaysWhy) {
+  auto shell = [](const std::string& line) {
+    std::string output;
+    FILE* pipe = popen(("(" + line + ") 2>&1").c_str(), "r");
+    if (pipe == nullptr) return std::pair{-1, output};
+    char buffer[4096];
+    for (size_t n; (n = fread(buffer, 1, sizeof(buffer), pipe)) > 0;) output.append(buffer, n);
+    const int status = pclose(pipe);
+    return std::pair{WIFEXITED(status) ? WEXITSTATUS(status) : -1, output};
+  };
+  if (shell("unshare -rm true").first != 0) GTEST_SKIP() << "no unprivileged mount namespaces here";
+  ScratchDir dir("render_full_disk");
+  const std::string disk = (dir / "disk").string();
+  fs::create_directories(disk);
+  const auto [code, output] = shell("unshare -rm sh -c 'mount -t tmpfs -o size=300k none " + disk + " && " +
+                                    testing::RomunectBinary().string() + " render " + disk +
+                                    "/plane; echo exit=$?; ls -A " + disk + "'");
+  EXPECT_NE(output.find("No space left on device"), std::string::npos) << output;
+  ASSERT_NE(output.find("exit=2"), std::string::npos) << output;
+  EXPECT_EQ(output.substr(output.find("exit=2") + 6), "\n") << output;  // `ls -A` lists nothing
 }
 
 }  // namespace

@@ -396,3 +396,54 @@ TEST(CliRecord, BadInputGivesClearMessages) {
 
 }  // namespace
 }  // namespace romunect::openni2
+
+namespace romunect::openni2 {
+namespace {
+
+// `record` into a disk that fills up: exit 2 with the system's reason, and no frame directory
+// (before, a frames.json listed the frames written before the disk filled and `info` called it
+// valid). The disk is a 200 kB tmpfs in a user namespace of its own: room for about 3 of the
+// 4 frames (each ~50 kB: depth and ground truth EXR, IR and raw PNG).
+TEST(CliRecord, AFullDiskLeavesNoFrameDirectoryAndSaysWhy) {
+  if (RunShell("unshare -rm true").exit_code != 0) GTEST_SKIP() << "no unprivileged mount namespaces here";
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 4, 31);
+  const std::string disk = (out / "disk").string();
+  std::filesystem::create_directories(disk);
+  const auto r = RunShell("unshare -rm sh -c " +
+                          Quote("mount -t tmpfs -o size=200k none " + disk + " && " +
+                                testing::RomunectBinary().string() + " record " + dir.path().string() + " " + disk +
+                                "/rec; echo exit=$?; ls -A " + disk));
+  EXPECT_NE(r.output.find("exit=2"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("cannot write file: No space left on device; no frame directory was written (the "),
+            std::string::npos)
+      << r.output;
+  // Nothing is left on the disk (`ls -A` lists nothing): the partial frames went with rec.incomplete.
+  EXPECT_EQ(r.output.substr(r.output.find("exit=2") + 6), "\n") << r.output;
+}
+
+// The frames go to OUT_DIR.incomplete and are renamed to OUT_DIR when the directory is
+// finished: a run killed mid-capture leaves no OUT_DIR, and the next run into it replaces what
+// the killed one left.
+TEST(CliRecord, AKilledCaptureLeavesNoOutDirAndTheNextRunReplacesItsWork) {
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 4, 37);
+  VirtualDeviceOptions looped;
+  looped.loop = true;
+  const std::string live = (out / "live").string();
+  RunShell(testing::RomunectBinary().string() + " record " + Quote(VirtualDeviceUri(dir.path(), looped)) + " " +
+           live + " >/dev/null & pid=$!; for i in $(seq 1 200); do [ -e " + live +
+           ".incomplete/depth/000003.exr ] && break; sleep 0.05; done; kill -9 $pid; wait $pid");
+  EXPECT_FALSE(std::filesystem::exists(live));
+  EXPECT_TRUE(std::filesystem::exists(live + ".incomplete/.romunect-run"));
+  const auto r = RunRomunect("record " + dir.path().string() + " " + live);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(live + ".incomplete"));
+  EXPECT_FALSE(std::filesystem::exists(live + "/.romunect-run"));
+  EXPECT_EQ(FrameDirectorySource(live).manifest().frames.size(), 4u);
+}
+
+}  // namespace
+}  // namespace romunect::openni2

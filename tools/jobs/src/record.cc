@@ -183,7 +183,9 @@ CameraModel FramesCamera(const RecordOptions& o, const Capture& c, const FrameSo
 }
 
 // The capture loop: until the source ends, --frames are written or Ctrl-C. Returns the skipped.
-int CaptureFrames(const RecordOptions& o, const Capture& c, FrameSource& source, FrameDirectoryWriter& writer) {
+// A frame that cannot be written (a full disk) sets *write_failed before its InputError goes on.
+int CaptureFrames(const RecordOptions& o, const Capture& c, FrameSource& source, FrameDirectoryWriter& writer,
+                  bool* write_failed) {
   // A copied directory's entries keep their unknown keys, found by frame index.
   std::map<int, std::string> entry_extra;
   if (const FrameDirectorySource* d = openni2::FindFrameDirectorySource(&source)) {
@@ -209,7 +211,12 @@ int CaptureFrames(const RecordOptions& o, const Capture& c, FrameSource& source,
       frame.depth_m = ApplyDepthCorrection(*c.depth_model->depth, frame.raw, c.depth_model->chip);
     }
     const auto entry = entry_extra.find(frame.index);
-    writer.Add(frame, entry != entry_extra.end() ? entry->second : "{}");
+    try {
+      writer.Add(frame, entry != entry_extra.end() ? entry->second : "{}");
+    } catch (const InputError&) {
+      *write_failed = true;
+      throw;
+    }
   }
   return skipped;
 }
@@ -221,13 +228,15 @@ RecordSummary Record(const RecordOptions& o) {
   if (o.out_dir.empty()) throw InputError("record", "OUT_DIR", "missing (the frame directory to write)");
   const Capture c = CaptureOptions(o);
   CheckFolderCanBeCreated(o.out_dir, "OUT_DIR");
-  const FolderLock lock(o.out_dir, "OUT_DIR", "record");  // a second run into OUT_DIR is refused here
   CheckOutputs(o, c.from_directory);
-  const bool out_dir_existed = fs::exists(o.out_dir);
+  // The frames go to OUT_DIR.incomplete, renamed to OUT_DIR when the directory is finished; a
+  // second run into OUT_DIR is refused here, before the source opens.
+  RunFolder run(o.out_dir, "OUT_DIR", "record");
+  run.Begin();
   std::unique_ptr<FrameSource> source = openni2::OpenSource(o.source, c.options);
   const std::string depth_from = DepthFrom(o, c);
   // A live device delivers 30 frames a second: uncompressed files keep up (image_io.h).
-  FrameDirectoryWriter writer(o.out_dir, FramesCamera(o, c, *source),
+  FrameDirectoryWriter writer(run.work_dir(), FramesCamera(o, c, *source),
                               o.compress_frames ? ImageCompression::kCompact : ImageCompression::kFast);
   // A frame directory's region carries over while its poses do (no pose log gives others).
   if (const FrameDirectorySource* d = openni2::FindFrameDirectorySource(source.get());
@@ -238,13 +247,22 @@ RecordSummary Record(const RecordOptions& o) {
   RecordSummary s;
   g_interrupted = 0;
   auto previous = std::signal(SIGINT, OnInterrupt);
+  bool write_failed = false;
   try {
-    s.skipped = CaptureFrames(o, c, *source, writer);
+    s.skipped = CaptureFrames(o, c, *source, writer, &write_failed);
   } catch (const InputError& e) {
-    // The device is gone: keep what arrived, say so in the directory, then report the error.
     std::signal(SIGINT, previous);
+    // A frame that could not be written (a full disk): no frames.json claims the capture, and
+    // the partial directory goes with the run (~RunFolder), freeing the disk.
+    if (write_failed) {
+      throw InputError(e.source(), e.field(),
+                       e.problem() + "; no frame directory was written (the " + std::to_string(writer.size()) +
+                           " frames written before are removed)");
+    }
+    // The device is gone: keep what arrived, say so in the directory, then report the error.
     writer.SetExtraJson(ExtraJson(o, *source, e.what(), depth_from));
     writer.Finish();
+    run.Commit();
     std::fprintf(stderr, "romunect: kept %zu frames in %s\n", writer.size(), o.out_dir.c_str());
     throw;
   }
@@ -254,15 +272,14 @@ RecordSummary Record(const RecordOptions& o) {
     s.dropped = ", " + std::to_string(d->stats().dropped_frames) + " dropped by the device";
   }
   if (writer.size() == 0) {
-    // No frame directory claims a capture that holds nothing; a folder this run made is removed.
-    std::error_code ec;
-    if (!out_dir_existed) fs::remove(o.out_dir, ec);
+    // No frame directory claims a capture that holds nothing: the run folder is not committed.
     throw InputError(o.source, "",
                      "recorded no frames (" + std::to_string(s.skipped) + " skipped" + s.dropped + "); " + o.out_dir +
                          " was not written" + (o.oni.empty() ? "" : "; the streams are in " + o.oni));
   }
   writer.SetExtraJson(ExtraJson(o, *source, g_interrupted ? "interrupted" : "", depth_from));
   writer.Finish();
+  run.Commit();
   s.frames = writer.size();
   return s;
 }

@@ -184,10 +184,13 @@ RenderSummary Render(const RenderJobOptions& o) {
   const Rig rig = LoadRigArgument(o.rig);
   const CameraModel& camera = rig.camera;
   CheckOptions(o);
-  const FolderLock lock(o.out_dir, "OUT_DIR", "render");  // a second run into OUT_DIR is refused here
+  // The frame directory is built in OUT_DIR.incomplete and renamed to OUT_DIR when complete; a
+  // second run into OUT_DIR is refused here.
+  FrameDirectoryWriter::CheckCanWrite(o.out_dir);
+  RunFolder run(o.out_dir, "OUT_DIR", "render");
   RenderSummary s;
   s.out_dir = o.out_dir;
-  s.pictures = fs::path(o.out_dir) / "pictures";
+  s.pictures = run.work_dir() / "pictures";
   s.rig_name = rig.name;
   s.width = camera.width;
   s.height = camera.height;
@@ -197,13 +200,15 @@ RenderSummary Render(const RenderJobOptions& o) {
   const TriangleMesh mesh = o.mesh.empty() ? MakeBuiltinTarget(o.target, s.distance_m, size_m, "--target")
                                            : LoadMesh(o.mesh, o.mesh_unit_m);
   s.triangles = mesh.triangle_count();
-  // The frame directory refuses an existing frames.json before anything is rendered.
-  FrameDirectoryWriter writer(o.out_dir, camera);
+  run.Begin();
+  FrameDirectoryWriter writer(run.work_dir(), camera);
   cv::Mat chip_depth_m;
   const Frame frame = RenderFrame(o, rig, mesh, &s, &chip_depth_m);
   writer.Add(frame);
   writer.Finish();
   WritePictures(rig, frame, chip_depth_m, &s);
+  run.Commit();
+  s.pictures = fs::path(o.out_dir) / "pictures";
   return s;
 }
 
