@@ -53,7 +53,7 @@ class RunFolder {
 };
 
 // An exclusive lock for a run that writes into an output folder in place (calibrate's --out, which
-// may hold the calibration it updates; record's and render's OUT_DIR): the lock file
+// may hold the calibration it updates): the lock file
 // `<folder>.lock` beside the folder is created and locked (flock) for the lock's life, and removed
 // when it is released. Throws InputError, before any work, when another run holds it. A lock file
 // a killed run left is taken over.
