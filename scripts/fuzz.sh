@@ -3,11 +3,11 @@
 # they need), then runs each over its seed corpus (fuzz/corpus/<target>/) for a bounded time and
 # prints the executions per target. Exits non-zero when any target finds a crash, a leak, a hang
 # or a sanitizer report; the input that did it is left in build-fuzz/findings/.
-#   scripts/fuzz.sh [seconds per target]   (default 20: nine targets in ~3 minutes)
+#   scripts/fuzz.sh [seconds per target]   (default 20: eleven targets in ~4 minutes)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seconds="${1:-20}"
-targets=(frame_manifest exr png height_map camera calibration mesh pose_log rig oni)
+targets=(frame_manifest exr png height_map camera calibration mesh pose_log rig oni scene)
 
 bash scripts/setup.sh
 launcher=()

@@ -263,7 +263,7 @@ bool g_in_check_child = false;
 std::string OniStructureProblem(const uint8_t* data, size_t size) {
   return WalkContainer(size, [&](uint64_t offset, size_t n, uint8_t* dst) {
     if (offset > size || n > size - offset) return false;
-    std::memcpy(dst, data + offset, n);
+    if (n > 0) std::memcpy(dst, data + offset, n);  // an empty payload's buffer may be null
     return true;
   });
 }
