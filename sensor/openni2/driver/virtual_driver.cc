@@ -5,12 +5,13 @@
 // folder without opening a romunect device maps no more than this small library.
 #include <dlfcn.h>
 
+#include <atomic>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <map>
 #include <mutex>
-#include <set>
 #include <string>
 
 #include "backend_abi.h"  // OpenNI2's driver API
@@ -53,9 +54,30 @@ void SetLastOpenError(const std::string& message) {
   g_last_open_error = message;
 }
 
+class VirtualDriver;
+// The one driver OpenNI2 creates, for the backend's end-of-source callback.
+std::atomic<VirtualDriver*> g_driver{nullptr};
+void SourceEnded(const char* uri);
+
 class VirtualDriver : public oni::driver::DriverBase {
  public:
-  explicit VirtualDriver(OniDriverServices* services) : DriverBase(services) {}
+  explicit VirtualDriver(OniDriverServices* services) : DriverBase(services) { g_driver = this; }
+  ~VirtualDriver() override { g_driver = nullptr; }
+
+  // A finite source has ended: as OpenNI2's file player, the device's state becomes EOF; and as a
+  // PS1080 whose cable is pulled, it is disconnected (a later open announces it again).
+  void Ended(const std::string& uri) {
+    OniDeviceInfo info{};
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      const auto it = announced_.find(uri);
+      if (it == announced_.end()) return;
+      info = it->second;
+      announced_.erase(it);
+    }
+    deviceStateChanged(&info, ONI_DEVICE_STATE_EOF);
+    deviceDisconnected(&info);
+  }
 
   OniStatus initialize(oni::driver::DeviceConnectedCallback connected,
                        oni::driver::DeviceDisconnectedCallback disconnected,
@@ -82,7 +104,7 @@ class VirtualDriver : public oni::driver::DriverBase {
       return ONI_STATUS_ERROR;
     }
     std::lock_guard<std::mutex> lock(mutex_);
-    if (announced_.insert(uri).second) {
+    if (!announced_.count(uri)) {
       OniDeviceInfo info{};
       std::snprintf(info.uri, sizeof(info.uri), "%s", uri);
       if (parsed->options.impersonate_ps1080) {
@@ -94,6 +116,7 @@ class VirtualDriver : public oni::driver::DriverBase {
         std::snprintf(info.vendor, sizeof(info.vendor), "romunect");
         std::snprintf(info.name, sizeof(info.name), parsed->feed ? "romunect live feed" : "romunect virtual sensor");
       }
+      announced_[uri] = info;
       deviceConnected(&info);
     }
     return ONI_STATUS_OK;
@@ -114,7 +137,7 @@ class VirtualDriver : public oni::driver::DriverBase {
       return nullptr;
     }
     char error[2048] = "";
-    oni::driver::DeviceBase* device = open(uri, &getServices(), error, sizeof(error));
+    oni::driver::DeviceBase* device = open(uri, &getServices(), &SourceEnded, error, sizeof(error));
     if (device == nullptr) {
       ReportOpenError(error);
       return nullptr;
@@ -161,8 +184,12 @@ class VirtualDriver : public oni::driver::DriverBase {
   }
 
   std::mutex mutex_;
-  std::set<std::string> announced_;
+  std::map<std::string, OniDeviceInfo> announced_;  // by URI
 };
+
+void SourceEnded(const char* uri) {
+  if (VirtualDriver* driver = g_driver.load()) driver->Ended(uri);
+}
 
 }  // namespace
 }  // namespace romunect::openni2
