@@ -61,6 +61,7 @@ DeviceContent OpenFeedLibrary(const std::string& library, const std::string& que
   DeviceContent content;
   content.has_depth = info.has_depth != 0;
   content.has_ir = info.has_ir != 0;
+  content.color_camera = feed->color_camera();
   content.frame_count = info.frame_count;
   content.fps = info.fps;
   content.source = std::move(feed);  // times count from the feed's first frame already
