@@ -13,8 +13,9 @@ namespace romunect::openni2 {
 inline constexpr const char* kVirtualBackendFile = "libRomunectVirtualBackend.so";
 
 // Called once when a device's finite source has sent its last frame, with the URI it was opened
-// by, from the device's producer thread (or the application's, in step pace), no lock held: the
-// driver raises OpenNI2's end-of-file state and device-disconnected events.
+// by, from the device's producer thread (or the application's, in step pace), maybe with the
+// device's lock held: the driver queues it and raises OpenNI2's end-of-file state and
+// device-disconnected events on a thread of its own.
 using VirtualBackendEndedFn = void (*)(const char* uri);
 
 // oni::driver::DeviceBase* romunect_virtual_backend_open(uri, services, ended, error, error_size):

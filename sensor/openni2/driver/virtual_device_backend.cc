@@ -243,13 +243,7 @@ class VirtualDevice : public oni::driver::DeviceBase {
       closing_ = true;
     }
     wake_.notify_all();
-    if (!producer_.joinable()) return;
-    // Closed from an end-of-source listener on the producer's own thread: it ends by itself.
-    if (producer_.get_id() == std::this_thread::get_id()) {
-      producer_.detach();
-    } else {
-      producer_.join();
-    }
+    if (producer_.joinable()) producer_.join();
   }
 
   OniStatus getSensorInfoList(OniSensorInfo** infos, int* count) override {
@@ -469,12 +463,7 @@ class VirtualDevice : public oni::driver::DeviceBase {
     while (!closing_) {
       if (!AnyStartedLocked() || !CanSendLocked() || !FetchLocked()) {
         running = false;
-        if (TakeEndLocked()) {
-          lock.unlock();  // the listeners it reaches may call back into this device
-          ended_callback_(uri_.c_str());
-          lock.lock();
-          continue;
-        }
+        if (TakeEndLocked()) ended_callback_(uri_.c_str());  // queued: the driver raises the events
         if (auto* hook = g_before_wait_hook.load()) hook();
         wake_.wait(lock);
         continue;

@@ -6,6 +6,8 @@
 #include <dlfcn.h>
 
 #include <atomic>
+#include <condition_variable>
+#include <deque>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -13,6 +15,7 @@
 #include <map>
 #include <mutex>
 #include <string>
+#include <thread>
 
 #include "backend_abi.h"  // OpenNI2's driver API
 #include "virtual_device_uri.h"
@@ -62,21 +65,20 @@ void SourceEnded(const char* uri);
 class VirtualDriver : public oni::driver::DriverBase {
  public:
   explicit VirtualDriver(OniDriverServices* services) : DriverBase(services) { g_driver = this; }
-  ~VirtualDriver() override { g_driver = nullptr; }
+  ~VirtualDriver() override {
+    StopEvents();
+    g_driver = nullptr;
+  }
 
   // A finite source has ended: as OpenNI2's file player, the device's state becomes EOF; and as a
-  // PS1080 whose cable is pulled, it is disconnected (a later open announces it again).
+  // PS1080 whose cable is pulled, it is disconnected. The events are raised on the driver's own
+  // thread, so a listener may close the device (which waits for the device's producer) at once.
   void Ended(const std::string& uri) {
-    OniDeviceInfo info{};
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      const auto it = announced_.find(uri);
-      if (it == announced_.end()) return;
-      info = it->second;
-      announced_.erase(it);
-    }
-    deviceStateChanged(&info, ONI_DEVICE_STATE_EOF);
-    deviceDisconnected(&info);
+    std::lock_guard<std::mutex> lock(events_mutex_);
+    if (stopping_) return;
+    ended_.push_back(uri);
+    if (!events_.joinable()) events_ = std::thread([this] { RaiseEvents(); });
+    events_wake_.notify_one();
   }
 
   OniStatus initialize(oni::driver::DeviceConnectedCallback connected,
@@ -148,7 +150,7 @@ class VirtualDriver : public oni::driver::DriverBase {
 
   void deviceClose(oni::driver::DeviceBase* device) override { delete device; }
 
-  void shutdown() override {}
+  void shutdown() override { StopEvents(); }
 
  private:
   // OpenNI2 passes a driver's log on to no one: the reason is kept for OpenNI2Source
@@ -183,8 +185,49 @@ class VirtualDriver : public oni::driver::DriverBase {
     }
   }
 
+  void RaiseEvents() {
+    std::unique_lock<std::mutex> lock(events_mutex_);
+    for (;;) {
+      events_wake_.wait(lock, [this] { return stopping_ || !ended_.empty(); });
+      if (stopping_) return;
+      const std::string uri = ended_.front();
+      ended_.pop_front();
+      lock.unlock();
+      OniDeviceInfo info{};
+      bool known = false;
+      {
+        std::lock_guard<std::mutex> announced_lock(mutex_);
+        if (const auto it = announced_.find(uri); it != announced_.end()) {
+          info = it->second;
+          announced_.erase(it);
+          known = true;
+        }
+      }
+      if (known) {
+        deviceStateChanged(&info, ONI_DEVICE_STATE_EOF);
+        deviceDisconnected(&info);
+      }
+      lock.lock();
+    }
+  }
+
+  void StopEvents() {
+    {
+      std::lock_guard<std::mutex> lock(events_mutex_);
+      stopping_ = true;
+    }
+    events_wake_.notify_all();
+    if (events_.joinable()) events_.join();
+  }
+
   std::mutex mutex_;
   std::map<std::string, OniDeviceInfo> announced_;  // by URI
+
+  std::mutex events_mutex_;  // guards ended_ and stopping_
+  std::condition_variable events_wake_;
+  std::deque<std::string> ended_;  // URIs whose sources ended, not yet raised
+  bool stopping_ = false;
+  std::thread events_;
 };
 
 void SourceEnded(const char* uri) {
