@@ -254,5 +254,43 @@ TEST(VirtualDeviceEnd, AFiniteSourceEndsWithEndOfFileAndADisconnect) {
   openni::OpenNI::removeDeviceStateChangedListener(&listener);
 }
 
+// A program that closes the device from its disconnect listener, as one does for an unplugged
+// sensor: the events come on the driver's own thread, so the close (which waits for the device's
+// producer) neither deadlocks nor leaves a thread on a freed device.
+class ClosingListener : public openni::OpenNI::DeviceDisconnectedListener {
+ public:
+  ClosingListener(openni::Device* device, openni::VideoStream* stream) : device_(device), stream_(stream) {}
+  void onDeviceDisconnected(const openni::DeviceInfo* /*info*/) override {
+    stream_->stop();
+    stream_->destroy();
+    device_->close();
+    closed = true;
+  }
+  std::atomic<bool> closed{false};
+
+ private:
+  openni::Device* device_;
+  openni::VideoStream* stream_;
+};
+
+TEST(VirtualDeviceEnd, TheDisconnectListenerMayCloseTheDevice) {
+  ScratchDir dir("frames");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 2, 44);
+  ASSERT_EQ(openni::OpenNI::initialize(), openni::STATUS_OK);
+  openni::Device device;
+  openni::VideoStream depth;
+  ClosingListener listener(&device, &depth);
+  ASSERT_EQ(openni::OpenNI::addDeviceDisconnectedListener(&listener), openni::STATUS_OK);
+  ASSERT_EQ(device.open(VirtualDeviceUri(dir.path()).c_str()), openni::STATUS_OK);
+  ASSERT_EQ(depth.create(device, openni::SENSOR_DEPTH), openni::STATUS_OK);
+  ASSERT_EQ(depth.start(), openni::STATUS_OK);
+  for (int i = 0; i < 2 * kFrameWaitMs && !listener.closed; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  EXPECT_TRUE(listener.closed);
+  EXPECT_FALSE(device.isValid());
+  openni::OpenNI::removeDeviceDisconnectedListener(&listener);
+}
+
 }  // namespace
 }  // namespace romunect::openni2
