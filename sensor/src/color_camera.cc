@@ -40,8 +40,7 @@ CameraModel ScaledCamera(const CameraModel& camera, int width, int height) {
 
 cv::Mat RegisterDepthToColor(const cv::Mat& depth_m, const CameraModel& depth_camera, const ColorCamera& color,
                              const cv::Size& out_size) {
-  ROMUNECT_CHECK(depth_m.type() == CV_32F && depth_m.cols == depth_camera.width &&
-                 depth_m.rows == depth_camera.height);
+  ROMUNECT_CHECK(depth_m.type() == CV_32F && depth_m.cols == depth_camera.width && depth_m.rows == depth_camera.height);
   const CameraModel target = ScaledCamera(color.camera, out_size.width, out_size.height);
   const cv::Mat rays = depth_camera.RayTable();
   const Pose T_RGB_C = color.T_C_RGB.inverse();

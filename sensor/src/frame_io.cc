@@ -70,8 +70,8 @@ std::optional<ColorCamera> ReadColorCamera(const Field& root, const std::string&
 }
 
 json CameraJson(const CameraModel& c) {
-  return {{"width", c.width}, {"height", c.height}, {"fx", c.fx},
-          {"fy", c.fy},       {"cx", c.cx},         {"cy", c.cy}, {"distortion", c.distortion}};
+  return {{"width", c.width}, {"height", c.height},        {"fx", c.fx}, {"fy", c.fy}, {"cx", c.cx},
+          {"cy", c.cy},       {"distortion", c.distortion}};
 }
 
 std::string ReadImagePath(const Field& entry, const std::string& key) {

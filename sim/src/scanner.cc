@@ -333,8 +333,8 @@ bool Scanner::Render(ScanWork* work) {
   if (const std::optional<ColorCamera>& rgb = s.options.color_camera) {
     embree::RenderOptions pinhole;  // a plain shading: one ray a pixel, no defocus
     pinhole.threads = s.render_options.threads;
-    s.renderer.Render(s.scene, rgb->camera, T_W_C * rgb->T_C_RGB, rgb->T_C_RGB.inverse() * s.options.rig.T_C_P,
-                      pinhole, &s.color_geometry);
+    s.renderer.Render(s.scene, rgb->camera, T_W_C * rgb->T_C_RGB, rgb->T_C_RGB.inverse() * s.options.rig.T_C_P, pinhole,
+                      &s.color_geometry);
     frame.color = ShadeColorImage(s.color_geometry, s.options.rig.optics.focus_distance_m);
   }
   s.stats.render_s += render.seconds();

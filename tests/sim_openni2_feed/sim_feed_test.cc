@@ -5,8 +5,8 @@
 
 #include <cmath>
 #include <cstring>
-#include <vector>
 #include <string>
+#include <vector>
 
 #include <OpenNI.h>
 #include <gmock/gmock.h>

@@ -55,8 +55,8 @@ void FeedLibrarySource::CreateFeed(const std::string& query) {
   RomunectFeedInfo info{};
   feed_ = create_(query.c_str(), &info, error, sizeof(error));
   if (feed_ == nullptr) throw std::runtime_error(path_ + ": " + error);
-  if ((info.abi_version != 1 && info.abi_version != ROMUNECT_FEED_ABI_VERSION) || info.width <= 0 ||
-      info.height <= 0 || !(info.fx > 0.0 && info.fy > 0.0)) {
+  if ((info.abi_version != 1 && info.abi_version != ROMUNECT_FEED_ABI_VERSION) || info.width <= 0 || info.height <= 0 ||
+      !(info.fx > 0.0 && info.fy > 0.0)) {
     destroy_(feed_);
     throw std::runtime_error(path_ + ": unsupported feed (ABI version " + std::to_string(info.abi_version) + ", size " +
                              std::to_string(info.width) + "x" + std::to_string(info.height) + ")");
@@ -72,7 +72,8 @@ void FeedLibrarySource::CreateFeed(const std::string& query) {
   rgb.camera.cy = info.color_cy;
   std::array<double, 16> T;
   std::copy(std::begin(info.T_C_RGB), std::end(info.T_C_RGB), T.begin());
-  const std::string matrix_problem = RigidityProblem(Eigen::Map<const Eigen::Matrix<double, 4, 4, Eigen::RowMajor>>(T.data()));
+  const std::string matrix_problem = RigidityProblem(
+      Eigen::Map<const Eigen::Matrix<double, 4, 4, Eigen::RowMajor>>(T.data()));
   if (!matrix_problem.empty()) {
     destroy_(feed_);
     throw std::runtime_error(path_ + ": the feed's T_C_RGB is not rigid: " + matrix_problem);

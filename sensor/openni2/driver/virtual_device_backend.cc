@@ -102,9 +102,7 @@ int BytesPerPixel(OniPixelFormat format) {
   }
 }
 
-bool IsYuv(OniPixelFormat format) {
-  return format == ONI_PIXEL_FORMAT_YUV422 || format == ONI_PIXEL_FORMAT_YUYV;
-}
+bool IsYuv(OniPixelFormat format) { return format == ONI_PIXEL_FORMAT_YUV422 || format == ONI_PIXEL_FORMAT_YUYV; }
 
 template <typename T>
 OniStatus Answer(const T& value, void* data, int* size) {
@@ -480,8 +478,8 @@ class VirtualDevice : public oni::driver::DeviceBase {
         }
         time_shift_s_ = std::chrono::duration<double>(start - *first_start).count() + first_t_s - start_t_s;
       }
-      auto due = start + std::chrono::duration_cast<SteadyClock::duration>(
-                             std::chrono::duration<double>(t_s - start_t_s));
+      auto due = start +
+                 std::chrono::duration_cast<SteadyClock::duration>(std::chrono::duration<double>(t_s - start_t_s));
       const double late_s = std::chrono::duration<double>(SteadyClock::now() - due).count();
       const int skipped = late_s >= period_s ? static_cast<int>(std::floor(late_s / period_s)) : 0;
       if (skipped > 0) {
@@ -620,7 +618,7 @@ void VirtualStream::Send(const cv::Mat& full, int frame_index, uint64_t timestam
 // Where a depth pixel of this stream's mode lands in the colour stream's image (its mode's size),
 // from the depth and colour cameras (the image registration's own geometry).
 OniStatus VirtualStream::convertDepthToColorCoordinates(StreamBase* color_stream, int depth_x, int depth_y,
-                                                         OniDepthPixel depth_z, int* color_x, int* color_y) {
+                                                        OniDepthPixel depth_z, int* color_x, int* color_y) {
   const auto* color = static_cast<VirtualStream*>(color_stream);
   const std::optional<ColorCamera>& camera = device_->color_camera();
   if (type_ != ONI_SENSOR_DEPTH || color == nullptr || color->type() != ONI_SENSOR_COLOR || !camera ||

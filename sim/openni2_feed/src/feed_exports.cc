@@ -3,9 +3,9 @@
 #include <algorithm>
 #include <array>
 #include <cstdio>
-#include <optional>
 #include <exception>
 #include <memory>
+#include <optional>
 
 #include "romunect/sensor/openni2/feed_abi.h"
 #include "romunect/sim/openni2_feed/sim_feed.h"

@@ -64,7 +64,8 @@ Goals GoalsFor(const sim::CalibrationRigOptions& rig_options) {
   g.hand_eye_mm = kGoalHandEyeMm * z_m / kRomunectWorkingM;
   g.depth_mm = 1.25 * std::hypot(noise_mm, step_mm / std::sqrt(12.0));
   g.basis = Format("a long-range sensor's goals at its %.2f m working distance (depth: the stock sensor's own "
-                   "noise and quantization there)", z_m);
+                   "noise and quantization there)",
+                   z_m);
   return g;
 }
 
@@ -157,7 +158,8 @@ void JudgeGoals(Measured* m) {
   m->met_mapping = truth.mapping.rms_px <= m->goals.mapping_px;
   // the goal's condition is "intrinsics known": the step re-run with the true camera
   const PoseError& known = truth.hand_eye_known_intrinsics;
-  m->met_hand_eye = known.angle_rad / kDeg <= m->goals.hand_eye_deg && 1e3 * known.translation_m <= m->goals.hand_eye_mm;
+  m->met_hand_eye = known.angle_rad / kDeg <= m->goals.hand_eye_deg &&
+                    1e3 * known.translation_m <= m->goals.hand_eye_mm;
   m->met_homography = m->homography_px >= 0 && m->homography_px <= m->goals.homography_px &&
                       r.homography.captures <= m->goals.homography_captures;
   m->met_depth = m->depth_mm >= 0 && m->depth_mm <= m->goals.depth_mm;
@@ -300,15 +302,16 @@ std::string GoalsTable(const Measured& m) {
   const ChainResult& r = m.r;
   const sim::ChainTruthErrors& t = m.truth;
   const PoseError& known = t.hand_eye_known_intrinsics;
-  std::string table = "Goals: " + m.goals.basis + ".\n\n| step | goal | measured against truth | |\n| --- | --- | --- | --- |\n";
+  std::string table = "Goals: " + m.goals.basis +
+                      ".\n\n| step | goal | measured against truth | |\n| --- | --- | --- | --- |\n";
   table += Format("| intrinsics, %zu views, full-image mapping error | <= %.2f px "
                   "| %.3f px (max %.3f; Zhang alone %.3f) | %s |\n",
                   r.view_names.size(), m.goals.mapping_px, t.mapping.rms_px, t.mapping.max_px, t.mapping_zhang.rms_px,
                   Yes(m.met_mapping).c_str());
   table += Format("| hand-eye, %d stations, intrinsics known (the step on the same captures with the true camera) "
                   "| <= %.2f deg, <= %.2f mm | %.4f deg, %.3f mm | %s |\n",
-                  r.stations_used, m.goals.hand_eye_deg, m.goals.hand_eye_mm, known.angle_rad / kDeg, 1e3 * known.translation_m,
-                  Yes(m.met_hand_eye).c_str());
+                  r.stations_used, m.goals.hand_eye_deg, m.goals.hand_eye_mm, known.angle_rad / kDeg,
+                  1e3 * known.translation_m, Yes(m.met_hand_eye).c_str());
   table += Format("| hand-eye end to end (estimated intrinsics): T_H_C alone | | %.4f deg, %.3f mm | |\n",
                   t.hand_eye.angle_rad / kDeg, 1e3 * t.hand_eye.translation_m);
   table += Format("| hand-eye end to end: lines of sight in H (T_H_C with its camera) | <= %.2f deg "
