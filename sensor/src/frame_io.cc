@@ -45,6 +45,35 @@ std::optional<WorldBox> ReadRegion(const Field& root, const std::string& key) {
   return box;
 }
 
+CameraModel ReadCamera(const Field& cam) {
+  CameraModel camera;
+  camera.width = cam["width"].Int();
+  camera.height = cam["height"].Int();
+  camera.fx = cam["fx"].Number();
+  camera.fy = cam["fy"].Number();
+  camera.cx = cam["cx"].Number();
+  camera.cy = cam["cy"].Number();
+  camera.distortion = cam["distortion"].Numbers<5>();
+  if (const std::string problem = camera.Problem(); !problem.empty()) cam.Fail(problem);
+  return camera;
+}
+
+std::optional<ColorCamera> ReadColorCamera(const Field& root, const std::string& key) {
+  if (!root.Has(key)) return std::nullopt;
+  const Field field = root[key];
+  if (!field.value().is_object()) field.Fail("expected an object: the camera's keys and T_C_RGB");
+  ColorCamera color;
+  color.camera = ReadCamera(field);
+  if (!field.Has("T_C_RGB")) field["T_C_RGB"];  // throws "missing (required)"
+  color.T_C_RGB = *ReadPose(field, "T_C_RGB");
+  return color;
+}
+
+json CameraJson(const CameraModel& c) {
+  return {{"width", c.width}, {"height", c.height},        {"fx", c.fx}, {"fy", c.fy}, {"cx", c.cx},
+          {"cy", c.cy},       {"distortion", c.distortion}};
+}
+
 std::string ReadImagePath(const Field& entry, const std::string& key) {
   if (!entry.Has(key)) return "";
   const Field field = entry[key];
@@ -139,17 +168,10 @@ FrameDirectoryManifest ReadFrameDirectoryManifest(const fs::path& dir) {
   }
 
   FrameDirectoryManifest manifest;
-  const Field cam = root["camera"];
-  manifest.camera.width = cam["width"].Int();
-  manifest.camera.height = cam["height"].Int();
-  manifest.camera.fx = cam["fx"].Number();
-  manifest.camera.fy = cam["fy"].Number();
-  manifest.camera.cx = cam["cx"].Number();
-  manifest.camera.cy = cam["cy"].Number();
-  manifest.camera.distortion = cam["distortion"].Numbers<5>();
-  if (const std::string problem = manifest.camera.Problem(); !problem.empty()) cam.Fail(problem);
+  manifest.camera = ReadCamera(root["camera"]);
   manifest.region_W = ReadRegion(root, "region_W");
-  manifest.extra_json = ExtraKeys(document, {"format", "version", "camera", "frames", "region_W"});
+  manifest.color_camera = ReadColorCamera(root, "color_camera");
+  manifest.extra_json = ExtraKeys(document, {"format", "version", "camera", "frames", "region_W", "color_camera"});
 
   const Field frames = root["frames"];
   std::set<int> indices;
@@ -170,13 +192,17 @@ FrameDirectoryManifest ReadFrameDirectoryManifest(const fs::path& dir) {
     record.ir = ReadImagePath(entry, "ir");
     record.raw = ReadImagePath(entry, "raw");
     record.gt_depth = ReadImagePath(entry, "gt_depth");
+    record.color = ReadImagePath(entry, "color");
+    if (!record.color.empty() && !manifest.color_camera) {
+      entry["color"].Fail("a colour image needs the top-level \"color_camera\" (its size, pinhole and T_C_RGB)");
+    }
     if (record.depth.empty() && record.raw.empty()) {
       entry["depth"];  // throws "missing (required)" naming the field
     }
     record.T_W_C = ReadPose(entry, "T_W_C");
     record.T_B_H = ReadPose(entry, "T_B_H");
     record.extra_json = ExtraKeys(entry.value(),
-                                  {"index", "time_s", "depth", "ir", "raw", "gt_depth", "T_W_C", "T_B_H"});
+                                  {"index", "time_s", "depth", "ir", "raw", "gt_depth", "color", "T_W_C", "T_B_H"});
     manifest.frames.push_back(std::move(record));
   }
   return manifest;
@@ -230,6 +256,11 @@ Frame LoadFrame(const fs::path& dir, const FrameDirectoryManifest& manifest, siz
     frame.raw = ReadPng16(ImageInside(dir, record.raw), size);
     CheckImage(frame.raw, manifest.camera, CV_16U, dir / record.raw);
   }
+  if (!record.color.empty()) {
+    const CameraModel& color_camera = manifest.color_camera->camera;
+    frame.color = ReadPngRgb8(ImageInside(dir, record.color), cv::Size(color_camera.width, color_camera.height));
+    CheckImage(frame.color, color_camera, CV_8UC3, dir / record.color);
+  }
   return frame;
 }
 
@@ -237,9 +268,12 @@ void WriteFrameDirectoryManifest(const fs::path& dir, const FrameDirectoryManife
   json document = json::parse(manifest.extra_json);
   document["format"] = kFrameDirectoryFormat;
   document["version"] = kFrameDirectoryVersion;
-  const CameraModel& c = manifest.camera;
-  document["camera"] = {{"width", c.width}, {"height", c.height},        {"fx", c.fx}, {"fy", c.fy}, {"cx", c.cx},
-                        {"cy", c.cy},       {"distortion", c.distortion}};
+  document["camera"] = CameraJson(manifest.camera);
+  if (const std::optional<ColorCamera>& color = manifest.color_camera) {
+    json camera = CameraJson(color->camera);
+    camera["T_C_RGB"] = Row(color->T_C_RGB);
+    document["color_camera"] = std::move(camera);
+  }
   if (const std::optional<WorldBox>& r = manifest.region_W) {
     document["region_W"] = {r->min_W.x(), r->min_W.y(), r->min_W.z(), r->max_W.x(), r->max_W.y(), r->max_W.z()};
   }
@@ -252,6 +286,7 @@ void WriteFrameDirectoryManifest(const fs::path& dir, const FrameDirectoryManife
     if (!r.ir.empty()) entry["ir"] = r.ir;
     if (!r.raw.empty()) entry["raw"] = r.raw;
     if (!r.gt_depth.empty()) entry["gt_depth"] = r.gt_depth;
+    if (!r.color.empty()) entry["color"] = r.color;
     if (r.T_W_C) entry["T_W_C"] = Row(*r.T_W_C);
     if (r.T_B_H) entry["T_B_H"] = Row(*r.T_B_H);
     frames.push_back(std::move(entry));
@@ -284,6 +319,11 @@ void FrameDirectoryWriter::SetRegion(const WorldBox& region_W) {
   manifest_.region_W = region_W;
 }
 
+void FrameDirectoryWriter::SetColorCamera(const ColorCamera& color_camera) {
+  ROMUNECT_CHECK_MSG(color_camera.Problem().empty(), color_camera.Problem().c_str());
+  manifest_.color_camera = color_camera;
+}
+
 void FrameDirectoryWriter::Add(const Frame& frame, const std::string& extra_json) {
   ROMUNECT_CHECK(!finished_);
   const CameraModel& c = manifest_.camera;
@@ -295,6 +335,12 @@ void FrameDirectoryWriter::Add(const Frame& frame, const std::string& extra_json
   check(frame.depth_m, CV_32F);
   check(frame.gt_depth_m, CV_32F);
   ROMUNECT_CHECK(!frame.depth_m.empty() || !frame.raw.empty());
+  if (!frame.color.empty()) {
+    ROMUNECT_CHECK_MSG(manifest_.color_camera.has_value(), "a colour image needs SetColorCamera first");
+    const CameraModel& cc = manifest_.color_camera->camera;
+    ROMUNECT_CHECK_MSG(frame.color.cols == cc.width && frame.color.rows == cc.height && frame.color.type() == CV_8UC3,
+                       Describe(frame.color).c_str());
+  }
 
   FrameRecord record;
   record.index = frame.index;
@@ -316,6 +362,11 @@ void FrameDirectoryWriter::Add(const Frame& frame, const std::string& extra_json
   write(frame.ir, "ir", "png", &record.ir);
   write(frame.raw, "raw", "png", &record.raw);
   write(frame.gt_depth_m, "gt_depth", "exr", &record.gt_depth);
+  if (!frame.color.empty()) {
+    record.color = FrameFile("color", frame.index, "png");
+    fs::create_directories(dir_ / "color");
+    WritePngRgb8(dir_ / record.color, frame.color);
+  }
   manifest_.frames.push_back(std::move(record));
 }
 

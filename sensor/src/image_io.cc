@@ -577,6 +577,40 @@ cv::Mat ReadPng16(const fs::path& path, const std::optional<cv::Size>& expected)
   return DecodePng16(ReadInputFile(path, kMaxImageFileBytes, "PNG file"), path.string(), expected);
 }
 
+cv::Mat DecodePngRgb8(std::string_view bytes, const std::string& source, const std::optional<cv::Size>& expected) {
+  static constexpr char kSignature[] = "\x89PNG\r\n\x1a\n";
+  if (bytes.size() < 33 || bytes.compare(0, 8, kSignature) != 0 || bytes.compare(12, 4, "IHDR") != 0) {
+    throw InputError(source, "", "not a readable PNG image (no PNG signature and header)");
+  }
+  CheckHeaderSize({static_cast<int64_t>(Be32(bytes, 16)), static_cast<int64_t>(Be32(bytes, 20))}, expected, source);
+  const int bit_depth = static_cast<unsigned char>(bytes[24]);
+  const int colour_type = static_cast<unsigned char>(bytes[25]);
+  if (bit_depth != 8 || (colour_type != 2 && colour_type != 6)) {
+    throw InputError(source, "pixel type",
+                     "expected an 8-bit RGB (or RGBA) PNG, found bit depth " + std::to_string(bit_depth) +
+                         " and colour type " + std::to_string(colour_type));
+  }
+  png_image png{};
+  png.version = PNG_IMAGE_VERSION;
+  if (png_image_begin_read_from_memory(&png, bytes.data(), bytes.size()) == 0) {
+    const std::string why = png.message;
+    png_image_free(&png);
+    throw InputError(source, "", "not a readable PNG image (" + why + ")");
+  }
+  png.format = PNG_FORMAT_RGB;  // an alpha channel is dropped (composited on black)
+  cv::Mat image(static_cast<int>(png.height), static_cast<int>(png.width), CV_8UC3);
+  if (png_image_finish_read(&png, nullptr, image.data, static_cast<png_int_32>(image.step[0]), nullptr) == 0) {
+    const std::string why = png.message;
+    png_image_free(&png);
+    throw InputError(source, "", "cannot be decoded: " + why);
+  }
+  return image;
+}
+
+cv::Mat ReadPngRgb8(const fs::path& path, const std::optional<cv::Size>& expected) {
+  return DecodePngRgb8(ReadInputFile(path, kMaxImageFileBytes, "PNG file"), path.string(), expected);
+}
+
 void CheckPictureHeader(std::string_view bytes, const std::string& source) {
   if (const std::optional<cv::Size2l> size = PictureHeaderSize(bytes)) {
     CheckImageDimensions(size->width, size->height, source);
@@ -584,16 +618,16 @@ void CheckPictureHeader(std::string_view bytes, const std::string& source) {
 }
 
 namespace {
-// 16-bit grey, 8-bit grey or 8-bit BGR through libpng's simplified writer, in its fast setting
+// 16-bit grey, 8-bit grey or 8-bit BGR (RGB with rgb) through libpng's simplified writer, in its fast setting
 // (no filters, a low zlib level): frame files are written at frame rate.
-void WritePng(const fs::path& path, const cv::Mat& image) {
+void WritePng(const fs::path& path, const cv::Mat& image, bool rgb = false) {
   WriteAtomically(path, [&](const fs::path& tmp) {
     png_image png{};
     png.version = PNG_IMAGE_VERSION;
     png.width = static_cast<png_uint_32>(image.cols);
     png.height = static_cast<png_uint_32>(image.rows);
     png.format = image.type() == CV_16UC1  ? PNG_FORMAT_LINEAR_Y
-                 : image.type() == CV_8UC3 ? PNG_FORMAT_BGR
+                 : image.type() == CV_8UC3 ? (rgb ? PNG_FORMAT_RGB : PNG_FORMAT_BGR)
                                            : PNG_FORMAT_GRAY;
     png.flags = PNG_IMAGE_FLAG_FAST;
     // Row strides are in components (samples), not bytes.
@@ -613,6 +647,11 @@ void WritePng16(const fs::path& path, const cv::Mat& image, ImageCompression com
     return;
   }
   WritePng(path, image);
+}
+
+void WritePngRgb8(const fs::path& path, const cv::Mat& image) {
+  ROMUNECT_CHECK(image.type() == CV_8UC3 && !image.empty());
+  WritePng(path, image, true);
 }
 
 void WritePicture(const fs::path& path, const cv::Mat& image) {

@@ -90,6 +90,9 @@ std::string ScanOptions::Problem() const {
     return "samples_per_pixel = " + std::to_string(samples_per_pixel) + ": must be 1 or 4";
   }
   if (threads < 1) return "threads = " + std::to_string(threads) + ": must be >= 1";
+  if (color_camera) {
+    if (const std::string p = color_camera->Problem(); !p.empty()) return "color_camera." + p;
+  }
   return "";
 }
 
@@ -157,6 +160,7 @@ struct Scanner::Impl {
   std::vector<Pose> T_W_G;
   embree::GeometryRenderer renderer;
   embree::RenderOptions render_options;
+  GeometryBuffer color_geometry;  // ScanOptions::color_camera's, reused frame to frame
   std::unique_ptr<FrameImager> imager;
   ScanStats stats;
   int next = 0;
@@ -326,6 +330,13 @@ bool Scanner::Render(ScanWork* work) {
   frame.T_W_C = T_W_C;
   frame.T_B_H = world.T_B_H();
   frame.gt_depth_m = embree::GroundTruthDepth(*work->geometry);
+  if (const std::optional<ColorCamera>& rgb = s.options.color_camera) {
+    embree::RenderOptions pinhole;  // a plain shading: one ray a pixel, no defocus
+    pinhole.threads = s.render_options.threads;
+    s.renderer.Render(s.scene, rgb->camera, T_W_C * rgb->T_C_RGB, rgb->T_C_RGB.inverse() * s.options.rig.T_C_P, pinhole,
+                      &s.color_geometry);
+    frame.color = ShadeColorImage(s.color_geometry, s.options.rig.optics.focus_distance_m);
+  }
   s.stats.render_s += render.seconds();
   s.stats.tracking = s.executor->tracking();
   s.stats.simulated_s = t;

@@ -2,11 +2,12 @@
 // libOpenNI2 from the virtual device (step pace: the driver loads each frame from disk) and from
 // an .oni recording (OpenNI2's file driver), and the depth conversion kernel alone. The sensor
 // delivers 30 Hz; these must stay well above that. Real time: the work runs on OpenNI2's and the
-// driver's threads as well as the caller's.
+// driver's threads as well as the caller's. Depth-to-colour registration of a VGA frame alone.
 #include <filesystem>
 
 #include <benchmark/benchmark.h>
 
+#include "romunect/sensor/color_camera.h"
 #include "romunect/sensor/openni2/depth_units.h"
 #include "romunect/sensor/openni2/openni2_source.h"
 #include "romunect/sensor/openni2/virtual_device.h"
@@ -80,6 +81,24 @@ void BM_DequantizeDepthVga(benchmark::State& state) {
   state.SetItemsProcessed(state.iterations() * counts.total());
 }
 BENCHMARK(BM_DequantizeDepthVga)->Unit(benchmark::kMicrosecond);
+
+// Depth-to-colour registration of one VGA frame (the stock IR camera's 1 m plane, with a tilt so
+// every row lands differently), as the virtual device does for each depth frame when it is on.
+void BM_RegisterDepthToColorVga(benchmark::State& state) {
+  CameraModel ir;
+  ir.fx = ir.fy = 580.0;
+  cv::Mat depth(480, 640, CV_32F);
+  for (int v = 0; v < depth.rows; ++v) {
+    for (int u = 0; u < depth.cols; ++u) depth.at<float>(v, u) = 1.0f + 2e-4f * static_cast<float>(u);
+  }
+  const ColorCamera color = StockColorCamera();
+  for (auto _ : state) {
+    cv::Mat registered = RegisterDepthToColor(depth, ir, color, depth.size());
+    benchmark::DoNotOptimize(registered.data);
+  }
+  state.SetItemsProcessed(state.iterations() * depth.total());
+}
+BENCHMARK(BM_RegisterDepthToColorVga)->Unit(benchmark::kMillisecond);
 
 }  // namespace
 }  // namespace romunect::openni2

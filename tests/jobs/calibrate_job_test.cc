@@ -51,6 +51,7 @@ TEST(CalibrateJob, InTheLoopWritesTheFileTheReportsAndTheGoals) {
   ASSERT_TRUE(calibration.depth.has_value());
   EXPECT_GT(calibration.residuals.hand_eye_rms_px, 0.0);
   EXPECT_THAT(summary.goals_table, HasSubstr("| whole chain, compute only"));
+  EXPECT_THAT(summary.goals_table, HasSubstr("Goals: the paper's goals"));
   for (const char* name : {"report.json", "report.md", "depth_residual.png", "reprojection_errors.png"}) {
     EXPECT_TRUE(fs::exists(fs::path(o.out) / name)) << name;
   }
@@ -84,16 +85,18 @@ TEST(CalibrateJob, InTheLoopWritesTheFileTheReportsAndTheGoals) {
 TEST(CalibrateJob, InTheLoopWithTheStockKinectSizedForItsRange) {
   // The sensor's own figures at the evaluation planes' ~0.79 m (fidelity tests F2, F3): Nguyen's
   // axial noise 1.2 + 1.9 (z - 0.4)^2 mm = 1.5 mm, and the 11-bit raw's step 3.1 mm (z / 1 m)^2
-  // = 1.9 mm. The corrected depth, through the file's camera (refined by the hand-eye fit from
-  // 7 stations), is within 2.2 times their sum in quadrature (the planes at +-5 mm sample the
-  // quantization unevenly): millimetres, against the romunect's 0.1 mm.
+  // = 1.9 mm. The corrected depth, through the file's camera, is within 1.25 times their sum in
+  // quadrature (the planes at +-5 mm sample the quantization unevenly): millimetres, against the
+  // romunect's 0.1 mm, and the report's own goal for this rig.
   const double z_m = 0.786;
   const double noise_m = 1.2e-3 + 1.9e-3 * (z_m - 0.4) * (z_m - 0.4);
   const double step_m = 3.1e-3 * z_m * z_m;
-  const double kStockDepthRmsM = 2.2 * std::hypot(noise_m, step_m / std::sqrt(12.0));
-  // The file's camera: intrinsics from ~7 one-sample views, then refined by the hand-eye fit from
-  // 7 stations: three times the 20-view goal of 0.25 px.
-  constexpr double kMappingPx = 0.75;
+  const double kStockDepthRmsM = 1.25 * std::hypot(noise_m, step_m / std::sqrt(12.0));
+  // The file's camera, refined by the hand-eye fit from the stations, meets the 20-view goal of
+  // 0.25 px from ~6 views once the board images are antialiased (3 x 3 samples): one sample a pixel
+  // aliases the corners of squares a few pixels wide at 0.79 m, and that bias, not the refinement,
+  // cost the camera (Zhang alone is worse in either case).
+  constexpr double kMappingPx = 0.25;
   ScratchDir dir("job_loop_kinect");
   InTheLoopOptions o;
   o.out = (dir / "run").string();
@@ -101,12 +104,20 @@ TEST(CalibrateJob, InTheLoopWithTheStockKinectSizedForItsRange) {
   o.views = 10;
   o.stations = 10;
   o.planes = 4;
-  o.board_samples = 1;
+  o.board_samples = 3;
   const InTheLoopSummary summary = CalibrateInTheLoop(o);
   const auto report = nlohmann::json::parse(romunect::testing::ReadText(fs::path(o.out) / "report.json"));
   EXPECT_EQ(report["rig"], "kinect-v1");
-  EXPECT_GE(report["intrinsics"]["views_used"].get<int>(), 7) << report["intrinsics"].dump();
+  // Judged against its own range's goals, not the romunect's 0.1 mm.
+  EXPECT_THAT(report["goals"]["basis"].get<std::string>(), HasSubstr("long-range"));
+  EXPECT_NEAR(report["goals"]["depth_rms_mm"]["goal"].get<double>(), 1e3 * kStockDepthRmsM, 0.05);
+  EXPECT_TRUE(report["goals"]["depth_rms_mm"]["met"].get<bool>()) << report["goals"].dump();
+  EXPECT_TRUE(report["goals"]["intrinsics_mapping_px"]["met"].get<bool>()) << report["goals"].dump();
+  EXPECT_GE(report["intrinsics"]["views_used"].get<int>(), 5) << report["intrinsics"].dump();
   EXPECT_LE(report["goals"]["intrinsics_mapping_px"]["value"].get<double>(), kMappingPx);
+  // The robot's motion improves on Zhang's camera from the same views.
+  EXPECT_LE(report["goals"]["intrinsics_mapping_px"]["value"].get<double>(),
+            report["intrinsics"]["truth_mapping_zhang_rms_px"].get<double>());
   const auto& planes = report["depth"]["truth_planes"];
   ASSERT_EQ(planes.size(), 4u) << report["depth"].dump();
   for (const auto& plane : planes) EXPECT_NEAR(plane["distance_m"].get<double>(), z_m, 0.01) << plane.dump();

@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "romunect/sensor/color_camera.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/image_io.h"
 #include "romunect/testing/test_support.h"
@@ -105,6 +106,53 @@ TEST(FrameDirectory, RegionIsWrittenAndReadBackAndOptional) {
   WriteFrameDirectoryManifest(copy.path(), manifest);
   EXPECT_EQ(json::parse(testing::ReadText(copy / "frames.json"))["region_W"],
             json::array({0.375, -0.04, -0.004, 0.525, 0.04, 0.065}));
+}
+
+// A colour image per frame (R, G, B bytes) and the colour camera it comes from: written, read back
+// bit for bit, and refused where it does not fit.
+TEST(FrameDirectory, ColourImagesAndTheirCameraRoundTripAndAreValidated) {
+  ScratchDir dir("frames");
+  const CameraModel camera = testing::SmallCamera();
+  ColorCamera color = StockColorCamera();
+  color.camera = ScaledCamera(color.camera, 32, 24);
+  Frame frame = testing::SampleFrames(camera, 1, 7)[0];
+  frame.color = cv::Mat(24, 32, CV_8UC3);
+  cv::randu(frame.color, 0, 256);
+  {
+    FrameDirectoryWriter writer(dir.path(), camera);
+    writer.SetColorCamera(color);
+    writer.Add(frame);
+    writer.Finish();
+  }
+  const FrameDirectoryManifest manifest = ReadFrameDirectoryManifest(dir.path());
+  ASSERT_TRUE(manifest.color_camera.has_value());
+  EXPECT_EQ(*manifest.color_camera, color);
+  EXPECT_EQ(manifest.frames[0].color, "color/000000.png");
+  const Frame back = LoadFrame(dir.path(), manifest, 0);
+  EXPECT_TRUE(testing::ImagesBitEqual(back.color, frame.color));
+
+  const json good = json::parse(testing::ReadText(dir / "frames.json"));
+  auto expect_refused = [&](const json& doc, std::initializer_list<std::string> fragments) {
+    testing::WriteText(dir / "frames.json", doc.dump());
+    ExpectInputError([&] { LoadFrame(dir.path(), ReadFrameDirectoryManifest(dir.path()), 0); }, fragments);
+  };
+  json no_camera = good;
+  no_camera.erase("color_camera");
+  expect_refused(no_camera, {"frames[0].color", "color_camera"});
+  json no_pose = good;
+  no_pose["color_camera"].erase("T_C_RGB");
+  expect_refused(no_pose, {"color_camera.T_C_RGB", "missing"});
+  json not_rigid = good;
+  not_rigid["color_camera"]["T_C_RGB"][0] = 2.0;
+  expect_refused(not_rigid, {"color_camera.T_C_RGB", "rigid"});
+  json other_size = good;
+  other_size["color_camera"]["width"] = 64;
+  expect_refused(other_size, {"color/000000.png", "expected 64 x 24"});
+  json grey = good;
+  grey["frames"][0]["color"] = "ir/000000.png";
+  grey["color_camera"]["width"] = camera.width;
+  grey["color_camera"]["height"] = camera.height;
+  expect_refused(grey, {"ir/000000.png", "8-bit RGB"});
 }
 
 TEST(FrameDirectory, WriterRefusesToOverwriteAFinishedDirectory) {

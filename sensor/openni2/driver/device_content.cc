@@ -39,6 +39,7 @@ DeviceContent OpenFrameDirectory(const std::filesystem::path& dir, bool loop) {
   content.has_depth = EveryFrameHas(frames, &FrameRecord::depth);
   content.has_ir = EveryFrameHas(frames, &FrameRecord::ir);
   content.has_raw = EveryFrameHas(frames, &FrameRecord::raw);
+  if (EveryFrameHas(frames, &FrameRecord::color)) content.color_camera = manifest.color_camera;
   content.frame_count = loop ? 0 : static_cast<int>(frames.size());
   content.fps = MedianFps(frames);
   content.extra_json = manifest.extra_json;
@@ -60,6 +61,7 @@ DeviceContent OpenFeedLibrary(const std::string& library, const std::string& que
   DeviceContent content;
   content.has_depth = info.has_depth != 0;
   content.has_ir = info.has_ir != 0;
+  content.color_camera = feed->color_camera();
   content.frame_count = info.frame_count;
   content.fps = info.fps;
   content.source = std::move(feed);  // times count from the feed's first frame already

@@ -3,8 +3,10 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <string>
 
+#include "romunect/sensor/color_camera.h"
 #include "romunect/sensor/frame_source.h"
 #include "virtual_device_uri.h"
 
@@ -13,6 +15,7 @@ namespace romunect::openni2 {
 struct DeviceContent {
   std::unique_ptr<FrameSource> source;
   bool has_depth = false, has_ir = false, has_raw = false;  // the images every frame holds
+  std::optional<ColorCamera> color_camera;                  // when every frame holds a colour image
   int frame_count = 0;                                      // frames the source will deliver; 0 = endless
   double fps = 0.0;                                         // the source's own rate; 0 = unknown
   std::string extra_json;      // frames.json's unknown top-level keys (the chip's "ps1080")

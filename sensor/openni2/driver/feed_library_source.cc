@@ -2,6 +2,8 @@
 
 #include <dlfcn.h>
 
+#include <algorithm>
+#include <array>
 #include <filesystem>
 #include <stdexcept>
 
@@ -53,13 +55,35 @@ void FeedLibrarySource::CreateFeed(const std::string& query) {
   RomunectFeedInfo info{};
   feed_ = create_(query.c_str(), &info, error, sizeof(error));
   if (feed_ == nullptr) throw std::runtime_error(path_ + ": " + error);
-  if (info.abi_version != ROMUNECT_FEED_ABI_VERSION || info.width <= 0 || info.height <= 0 ||
+  if ((info.abi_version != 1 && info.abi_version != ROMUNECT_FEED_ABI_VERSION) || info.width <= 0 || info.height <= 0 ||
       !(info.fx > 0.0 && info.fy > 0.0)) {
     destroy_(feed_);
     throw std::runtime_error(path_ + ": unsupported feed (ABI version " + std::to_string(info.abi_version) + ", size " +
                              std::to_string(info.width) + "x" + std::to_string(info.height) + ")");
   }
   info_ = info;
+  if (info.abi_version < 2 || info.has_color == 0) return;
+  ColorCamera rgb;
+  rgb.camera.width = info.color_width;
+  rgb.camera.height = info.color_height;
+  rgb.camera.fx = info.color_fx;
+  rgb.camera.fy = info.color_fy;
+  rgb.camera.cx = info.color_cx;
+  rgb.camera.cy = info.color_cy;
+  std::array<double, 16> T;
+  std::copy(std::begin(info.T_C_RGB), std::end(info.T_C_RGB), T.begin());
+  const std::string matrix_problem = RigidityProblem(
+      Eigen::Map<const Eigen::Matrix<double, 4, 4, Eigen::RowMajor>>(T.data()));
+  if (!matrix_problem.empty()) {
+    destroy_(feed_);
+    throw std::runtime_error(path_ + ": the feed's T_C_RGB is not rigid: " + matrix_problem);
+  }
+  rgb.T_C_RGB = PoseFromRowMajor(T);
+  if (const std::string problem = rgb.Problem(); !problem.empty()) {
+    destroy_(feed_);
+    throw std::runtime_error(path_ + ": the feed's colour camera: " + problem);
+  }
+  color_camera_ = rgb;
 }
 
 FeedLibrarySource::~FeedLibrarySource() {
@@ -94,6 +118,11 @@ FrameStatus FeedLibrarySource::Next(Frame* frame, std::string* error) {
   const int h = info_.height, w = info_.width;
   if (f.depth_m != nullptr) frame->depth_m = cv::Mat(h, w, CV_32F, const_cast<float*>(f.depth_m)).clone();
   if (f.ir != nullptr) frame->ir = cv::Mat(h, w, CV_16U, const_cast<uint16_t*>(f.ir)).clone();
+  if (color_camera_ && f.color_rgb != nullptr) {
+    frame->color = cv::Mat(color_camera_->camera.height, color_camera_->camera.width, CV_8UC3,
+                           const_cast<uint8_t*>(f.color_rgb))
+                       .clone();
+  }
   return FrameStatus::kOk;
 }
 

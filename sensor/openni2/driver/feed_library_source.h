@@ -2,9 +2,11 @@
 // as a FrameSource: the driver plug-in dlopens it and presents its frames as a device.
 #pragma once
 
+#include <optional>
 #include <string>
 
 #include "romunect/sensor/camera_model.h"
+#include "romunect/sensor/color_camera.h"
 #include "romunect/sensor/frame.h"
 #include "romunect/sensor/frame_source.h"
 #include "romunect/sensor/openni2/feed_abi.h"
@@ -28,6 +30,8 @@ class FeedLibrarySource : public FrameSource {
   FrameStatus Next(Frame* frame, std::string* error) override;
 
   const RomunectFeedInfo& info() const { return info_; }
+  // The feed's colour camera (ABI version 2), when its frames carry colour images.
+  const std::optional<ColorCamera>& color_camera() const { return color_camera_; }
 
  private:
   void LoadLibrary(const std::string& path);
@@ -41,6 +45,7 @@ class FeedLibrarySource : public FrameSource {
   void* feed_ = nullptr;
   RomunectFeedInfo info_{};
   CameraModel camera_;
+  std::optional<ColorCamera> color_camera_;
   int produced_ = 0;  // Next calls that produced a frame or a failure
   bool ended_ = false;
 };

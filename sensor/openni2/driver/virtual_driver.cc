@@ -5,13 +5,17 @@
 // folder without opening a romunect device maps no more than this small library.
 #include <dlfcn.h>
 
+#include <atomic>
+#include <condition_variable>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <deque>
 #include <filesystem>
+#include <map>
 #include <mutex>
-#include <set>
 #include <string>
+#include <thread>
 
 #include "backend_abi.h"  // OpenNI2's driver API
 #include "virtual_device_uri.h"
@@ -53,9 +57,29 @@ void SetLastOpenError(const std::string& message) {
   g_last_open_error = message;
 }
 
+class VirtualDriver;
+// The one driver OpenNI2 creates, for the backend's end-of-source callback.
+std::atomic<VirtualDriver*> g_driver{nullptr};
+void SourceEnded(const char* uri);
+
 class VirtualDriver : public oni::driver::DriverBase {
  public:
-  explicit VirtualDriver(OniDriverServices* services) : DriverBase(services) {}
+  explicit VirtualDriver(OniDriverServices* services) : DriverBase(services) { g_driver = this; }
+  ~VirtualDriver() override {
+    StopEvents();
+    g_driver = nullptr;
+  }
+
+  // A finite source has ended: as OpenNI2's file player, the device's state becomes EOF; and as a
+  // PS1080 whose cable is pulled, it is disconnected. The events are raised on the driver's own
+  // thread, so a listener may close the device (which waits for the device's producer) at once.
+  void Ended(const std::string& uri) {
+    std::lock_guard<std::mutex> lock(events_mutex_);
+    if (stopping_) return;
+    ended_.push_back(uri);
+    if (!events_.joinable()) events_ = std::thread([this] { RaiseEvents(); });
+    events_wake_.notify_one();
+  }
 
   OniStatus initialize(oni::driver::DeviceConnectedCallback connected,
                        oni::driver::DeviceDisconnectedCallback disconnected,
@@ -82,7 +106,7 @@ class VirtualDriver : public oni::driver::DriverBase {
       return ONI_STATUS_ERROR;
     }
     std::lock_guard<std::mutex> lock(mutex_);
-    if (announced_.insert(uri).second) {
+    if (!announced_.count(uri)) {
       OniDeviceInfo info{};
       std::snprintf(info.uri, sizeof(info.uri), "%s", uri);
       if (parsed->options.impersonate_ps1080) {
@@ -94,6 +118,7 @@ class VirtualDriver : public oni::driver::DriverBase {
         std::snprintf(info.vendor, sizeof(info.vendor), "romunect");
         std::snprintf(info.name, sizeof(info.name), parsed->feed ? "romunect live feed" : "romunect virtual sensor");
       }
+      announced_[uri] = info;
       deviceConnected(&info);
     }
     return ONI_STATUS_OK;
@@ -114,7 +139,7 @@ class VirtualDriver : public oni::driver::DriverBase {
       return nullptr;
     }
     char error[2048] = "";
-    oni::driver::DeviceBase* device = open(uri, &getServices(), error, sizeof(error));
+    oni::driver::DeviceBase* device = open(uri, &getServices(), &SourceEnded, error, sizeof(error));
     if (device == nullptr) {
       ReportOpenError(error);
       return nullptr;
@@ -125,7 +150,7 @@ class VirtualDriver : public oni::driver::DriverBase {
 
   void deviceClose(oni::driver::DeviceBase* device) override { delete device; }
 
-  void shutdown() override {}
+  void shutdown() override { StopEvents(); }
 
  private:
   // OpenNI2 passes a driver's log on to no one: the reason is kept for OpenNI2Source
@@ -160,9 +185,54 @@ class VirtualDriver : public oni::driver::DriverBase {
     }
   }
 
+  void RaiseEvents() {
+    std::unique_lock<std::mutex> lock(events_mutex_);
+    for (;;) {
+      events_wake_.wait(lock, [this] { return stopping_ || !ended_.empty(); });
+      if (stopping_) return;
+      const std::string uri = ended_.front();
+      ended_.pop_front();
+      lock.unlock();
+      OniDeviceInfo info{};
+      bool known = false;
+      {
+        std::lock_guard<std::mutex> announced_lock(mutex_);
+        if (const auto it = announced_.find(uri); it != announced_.end()) {
+          info = it->second;
+          announced_.erase(it);
+          known = true;
+        }
+      }
+      if (known) {
+        deviceStateChanged(&info, ONI_DEVICE_STATE_EOF);
+        deviceDisconnected(&info);
+      }
+      lock.lock();
+    }
+  }
+
+  void StopEvents() {
+    {
+      std::lock_guard<std::mutex> lock(events_mutex_);
+      stopping_ = true;
+    }
+    events_wake_.notify_all();
+    if (events_.joinable()) events_.join();
+  }
+
   std::mutex mutex_;
-  std::set<std::string> announced_;
+  std::map<std::string, OniDeviceInfo> announced_;  // by URI
+
+  std::mutex events_mutex_;  // guards ended_ and stopping_
+  std::condition_variable events_wake_;
+  std::deque<std::string> ended_;  // URIs whose sources ended, not yet raised
+  bool stopping_ = false;
+  std::thread events_;
 };
+
+void SourceEnded(const char* uri) {
+  if (VirtualDriver* driver = g_driver.load()) driver->Ended(uri);
+}
 
 }  // namespace
 }  // namespace romunect::openni2

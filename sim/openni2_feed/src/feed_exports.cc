@@ -1,8 +1,11 @@
 // libRomunectSimFeed.so's C ABI (romunect/sensor/openni2/feed_abi.h) over SimFeed. No exception
 // crosses it: each becomes a message in the caller's buffer.
+#include <algorithm>
+#include <array>
 #include <cstdio>
 #include <exception>
 #include <memory>
+#include <optional>
 
 #include "romunect/sensor/openni2/feed_abi.h"
 #include "romunect/sim/openni2_feed/sim_feed.h"
@@ -41,6 +44,17 @@ __attribute__((visibility("default"))) void* romunect_feed_create(const char* qu
     info->frame_count = feed->sim->frame_count();
     info->has_depth = 1;
     info->has_ir = feed->sim->has_ir() ? 1 : 0;
+    if (const std::optional<romunect::ColorCamera>& rgb = feed->sim->color_camera()) {
+      info->has_color = 1;
+      info->color_width = rgb->camera.width;
+      info->color_height = rgb->camera.height;
+      info->color_fx = rgb->camera.fx;
+      info->color_fy = rgb->camera.fy;
+      info->color_cx = rgb->camera.cx;
+      info->color_cy = rgb->camera.cy;
+      const std::array<double, 16> T = romunect::PoseToRowMajor(rgb->T_C_RGB);
+      std::copy(T.begin(), T.end(), info->T_C_RGB);
+    }
     return feed.release();
   } catch (const std::exception& e) {
     Say(e.what(), error, error_size);
@@ -62,6 +76,7 @@ __attribute__((visibility("default"))) int romunect_feed_next(void* handle, Romu
   frame->depth_m = feed->frame.depth_m.empty() ? nullptr : feed->frame.depth_m.ptr<float>();
   frame->ir = feed->frame.ir.empty() ? nullptr : feed->frame.ir.ptr<uint16_t>();
   frame->time_s = feed->frame.time_s;
+  frame->color_rgb = feed->frame.color.empty() ? nullptr : feed->frame.color.ptr<uint8_t>();
   return 1;
 }
 

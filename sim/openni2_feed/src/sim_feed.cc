@@ -64,10 +64,12 @@ SimFeedOptions SimFeedOptions::Parse(const std::string& query) {
       o.frames = static_cast<int>(ParseInteger(key, value));
     } else if (key == "threads") {
       o.threads = static_cast<int>(ParseInteger(key, value));
+    } else if (key == "color" && (value == "1" || value == "0")) {
+      o.color = value == "1";
     } else {
       throw InputError("sim feed", key,
                        "unknown or malformed key '" + item +
-                           "' (expected seed, objects, rig, scale, depth=sensor|ideal, frames, threads)");
+                           "' (expected seed, objects, rig, scale, depth=sensor|ideal, frames, threads, color=1|0)");
     }
   }
   if (const std::string p = o.Problem(); !p.empty()) throw InputError("sim feed", "", p);
@@ -83,6 +85,11 @@ sim::ScanOptions ScanOptionsFor(const SimFeedOptions& options) {
   scan.pile.seed = static_cast<uint32_t>(options.seed);
   scan.seed = options.seed;
   scan.threads = options.threads;
+  if (options.color) {
+    ColorCamera rgb = StockColorCamera();
+    rgb.camera = ScaledCamera(rgb.camera, rgb.camera.width / options.scale, rgb.camera.height / options.scale);
+    scan.color_camera = rgb;
+  }
   return scan;
 }
 

@@ -15,6 +15,7 @@ FrameDirectoryInfo InspectFrameDirectory(const std::filesystem::path& dir) {
   info.camera = manifest.camera;
   info.frames = manifest.frames.size();
   info.region_W = manifest.region_W;
+  info.color_camera = manifest.color_camera;
   if (info.frames > 0) {
     info.first_time_s = manifest.frames.front().time_s;
     info.last_time_s = manifest.frames.back().time_s;
@@ -30,6 +31,7 @@ FrameDirectoryInfo InspectFrameDirectory(const std::filesystem::path& dir) {
     info.with_ir += !r.ir.empty();
     info.with_raw += !r.raw.empty();
     info.with_gt_depth += !r.gt_depth.empty();
+    info.with_color += !r.color.empty();
     info.with_hand_pose += r.T_B_H.has_value();
     if (!frame.depth_m.empty()) {
       const double valid = static_cast<double>(cv::countNonZero(frame.depth_m)) / frame.depth_m.total();
@@ -67,8 +69,15 @@ std::string FrameDirectoryInfoText(const FrameDirectoryInfo& info) {
     if (info.frames > 1 && t1 > t0) text += Format(" (%.1f Hz)", (info.frames - 1) / (t1 - t0));
   }
   text += "\n";
-  text += Format("images: depth %zu, ir %zu, raw %zu, gt_depth %zu; poses T_W_C %zu, T_B_H %zu\n", info.with_depth,
-                 info.with_ir, info.with_raw, info.with_gt_depth, info.with_pose, info.with_hand_pose);
+  if (const std::optional<ColorCamera>& rgb = info.color_camera) {
+    const Eigen::Vector3d t = rgb->T_C_RGB.translation();
+    text += Format("colour camera: %d x %d px, fx %.3f fy %.3f cx %.3f cy %.3f, at (%.4f, %.4f, %.4f) m in C\n",
+                   rgb->camera.width, rgb->camera.height, rgb->camera.fx, rgb->camera.fy, rgb->camera.cx,
+                   rgb->camera.cy, t.x(), t.y(), t.z());
+  }
+  text += Format("images: depth %zu, ir %zu, raw %zu, gt_depth %zu, color %zu; poses T_W_C %zu, T_B_H %zu\n",
+                 info.with_depth, info.with_ir, info.with_raw, info.with_gt_depth, info.with_color, info.with_pose,
+                 info.with_hand_pose);
   if (info.with_depth > 0) {
     text += Format("valid depth pixels: mean %.1f %% (min %.1f %%, max %.1f %%)\n", 100.0 * info.valid_mean,
                    100.0 * info.valid_min, 100.0 * info.valid_max);

@@ -8,6 +8,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "romunect/sensor/color_camera.h"
 #include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/embree/ray_scene.h"
 #include "romunect/sensor/embree/renderer.h"
@@ -109,6 +110,18 @@ DepthErrors ErrorsOf(const cv::Mat& measured_m, const cv::Mat& truth_m) {
   return e;
 }
 
+// The colour camera's image (the stock colour camera beside the rig's depth camera, with C at the
+// world origin), shaded for a surface at the target's distance to show at mid grey.
+cv::Mat RenderColor(const embree::RayScene& scene, const Rig& rig, int threads, double distance_m,
+                    embree::GeometryRenderer* renderer) {
+  const ColorCamera color = StockColorCamera();
+  embree::RenderOptions options;
+  options.threads = threads;
+  GeometryBuffer geometry;
+  renderer->Render(scene, color.camera, color.T_C_RGB, color.T_C_RGB.inverse() * rig.T_C_P, options, &geometry);
+  return ShadeColorImage(geometry, distance_m);
+}
+
 // The frame of `mesh` seen by the rig: geometry, IR, the depth engine's output (its chip depth
 // in *chip_depth) and metric depth.
 Frame RenderFrame(const RenderJobOptions& o, const Rig& rig, const TriangleMesh& mesh, RenderSummary* s,
@@ -161,6 +174,7 @@ Frame RenderFrame(const RenderJobOptions& o, const Rig& rig, const TriangleMesh&
   }
   frame.gt_depth_m = embree::GroundTruthDepth(geometry);
   frame.T_W_C = Pose::Identity();
+  frame.color = RenderColor(scene, rig, o.threads, s->distance_m, &renderer);
   *chip_depth_m = depth.depth_m;
   return frame;
 }
@@ -171,6 +185,9 @@ void WritePictures(const Rig& rig, const Frame& frame, const cv::Mat& chip_depth
   WritePicture(s->pictures / "ir.png", IrPicture(frame.ir, rig.optics.MaxDn()));
   WritePicture(s->pictures / "depth.png", DepthPicture(frame.depth_m, &s->lo_m, &s->hi_m));
   WritePicture(s->pictures / "gt_depth.png", DepthPicture(frame.gt_depth_m, &s->gt_lo_m, &s->gt_hi_m));
+  cv::Mat color_bgr;
+  cv::cvtColor(frame.color, color_bgr, cv::COLOR_RGB2BGR);
+  WritePicture(s->pictures / "color.png", color_bgr);
   s->metric = ErrorsOf(frame.depth_m, frame.gt_depth_m);
   s->chip = ErrorsOf(chip_depth_m, frame.gt_depth_m);
   // Full colour at the 95th percentile of |error|: outliers at edges do not wash it out.
@@ -202,6 +219,7 @@ RenderSummary Render(const RenderJobOptions& o) {
   s.triangles = mesh.triangle_count();
   run.Begin();
   FrameDirectoryWriter writer(run.work_dir(), camera);
+  writer.SetColorCamera(StockColorCamera());
   cv::Mat chip_depth_m;
   const Frame frame = RenderFrame(o, rig, mesh, &s, &chip_depth_m);
   writer.Add(frame);
@@ -224,7 +242,7 @@ std::string RenderSummaryText(const RenderSummary& s) {
                  1e3 * s.error_scale_m);
   text += Format("chip depth (uncorrected) - true depth: median %.3f mm, RMS %.3f mm\n", 1e3 * s.chip.median,
                  1e3 * s.chip.rms);
-  text += Format("wrote %s (frames.json, ir, raw, depth, gt_depth) and %s/{ir,depth,gt_depth,error}.png\n",
+  text += Format("wrote %s (frames.json, ir, raw, depth, gt_depth, color) and %s/{ir,depth,gt_depth,error,color}.png\n",
                  s.out_dir.string().c_str(), s.pictures.string().c_str());
   return text;
 }

@@ -19,6 +19,9 @@ struct Frame {
   cv::Mat raw;         // CV_16U, device raw depth (see depth_engine.h); 2047 = invalid
   cv::Mat depth_m;     // CV_32F, metric depth along the optical axis (m), 0 = no measurement
   cv::Mat gt_depth_m;  // CV_32F, ground-truth depth (m) where the source knows it, 0 = none
+  // CV_8UC3, the colour camera's image (color_camera.h), R, G, B order, its own size; empty
+  // without a colour camera.
+  cv::Mat color;
 
   std::optional<Pose> T_W_C;  // camera to world, when known
   std::optional<Pose> T_B_H;  // hand (flange) to robot base, when known

@@ -6,11 +6,13 @@
 //                             "distortion": [k1, k2, p1, p2, k3]},
 //                  "frames": [{"index", "time_s", "depth": "depth/000000.exr",
 //                              "T_W_C": [16 numbers, row-major 4x4, camera to world],
-//                              optional "ir", "raw", "gt_depth", "T_B_H"}],
-//                  optional "region_W": [xmin, ymin, zmin, xmax, ymax, zmax]}
+//                              optional "ir", "raw", "gt_depth", "color", "T_B_H"}],
+//                  optional "region_W": [xmin, ymin, zmin, xmax, ymax, zmax],
+//                  optional "color_camera": {the camera's keys, "T_C_RGB": [16 numbers]}}
 //   depth/*.exr   metric depth, float32 EXR channel "Z", metres along the optical axis, 0 = none
 //   ir/*.png      IR image, 16-bit PNG          raw/*.png  device raw depth, 16-bit PNG
 //   gt_depth/*.exr ground-truth depth, like depth/
+//   color/*.png   colour image, 8-bit RGB PNG of the color_camera's size (needs "color_camera")
 //
 // Unknown keys are kept (and written back by the writer) and otherwise ignored.
 #pragma once
@@ -22,6 +24,7 @@
 #include <vector>
 
 #include "romunect/sensor/camera_model.h"
+#include "romunect/sensor/color_camera.h"
 #include "romunect/sensor/frame.h"
 #include "romunect/sensor/frame_source.h"
 #include "romunect/sensor/image_io.h"
@@ -36,7 +39,7 @@ inline constexpr int kFrameDirectoryVersion = 1;
 struct FrameRecord {
   int index = 0;
   double time_s = 0.0;
-  std::string depth, ir, raw, gt_depth;
+  std::string depth, ir, raw, gt_depth, color;
   std::optional<Pose> T_W_C;
   std::optional<Pose> T_B_H;
   std::string extra_json = "{}";  // unknown keys of this entry, kept verbatim
@@ -48,6 +51,8 @@ struct FrameDirectoryManifest {
   // The region the capture was taken of ("region_W"): `romunect fuse` fuses over it unless told
   // otherwise. `romunect scan` records its fusion box; captures without one leave it out.
   std::optional<WorldBox> region_W;
+  // The colour camera beside the depth camera ("color_camera"), when frames carry colour images.
+  std::optional<ColorCamera> color_camera;
   std::string extra_json = "{}";  // unknown top-level keys, kept verbatim
 };
 
@@ -81,9 +86,9 @@ class FrameDirectoryWriter {
   // InputError if `dir` already holds a frames.json.
   static void CheckCanWrite(const std::filesystem::path& dir);
 
-  // Writes the frame's present images (ir, raw, depth_m, gt_depth_m) and records it, with the
-  // entry's unknown keys (a JSON object text: a copied entry keeps its own). Images must be
-  // camera-sized and of the types frame.h documents.
+  // Writes the frame's present images (ir, raw, depth_m, gt_depth_m, color) and records it, with
+  // the entry's unknown keys (a JSON object text: a copied entry keeps its own). Images must be
+  // camera-sized (color: the colour camera's size, set first) and of the types frame.h documents.
   void Add(const Frame& frame, const std::string& extra_json = "{}");
 
   // Writes frames.json; the directory is complete from then on. Call once.
@@ -93,6 +98,8 @@ class FrameDirectoryWriter {
   void SetExtraJson(const std::string& extra_json);
   // The region the frames are of (frames.json's "region_W"). min < max on every axis.
   void SetRegion(const WorldBox& region_W);
+  // The colour camera of the frames' colour images (frames.json's "color_camera"). Valid.
+  void SetColorCamera(const ColorCamera& color_camera);
 
   const std::filesystem::path& dir() const { return dir_; }
   size_t size() const { return manifest_.frames.size(); }

@@ -49,6 +49,11 @@ std::optional<HeightMapGeometry> ReadHeightMapGeometry(const std::filesystem::pa
 cv::Mat ReadPng16(const std::filesystem::path& path, const std::optional<cv::Size>& expected = std::nullopt);
 cv::Mat DecodePng16(std::string_view bytes, const std::string& source,
                     const std::optional<cv::Size>& expected = std::nullopt);
+// Reads an 8-bit RGB PNG (an RGBA one loses its alpha) into a CV_8UC3 Mat in R, G, B order (a
+// colour image, frame.h), not OpenCV's usual B, G, R.
+cv::Mat ReadPngRgb8(const std::filesystem::path& path, const std::optional<cv::Size>& expected = std::nullopt);
+cv::Mat DecodePngRgb8(std::string_view bytes, const std::string& source,
+                      const std::optional<cv::Size>& expected = std::nullopt);
 // For a PNG, JPEG (its first frame header) or BMP file's bytes, the size its header gives checked
 // against input_limits.h's bounds (InputError "image size"), before anything decodes it; other
 // formats pass unchecked.
@@ -57,6 +62,8 @@ void CheckPictureHeader(std::string_view bytes, const std::string& source);
 // Writes a CV_16U Mat as a 16-bit PNG.
 void WritePng16(const std::filesystem::path& path, const cv::Mat& image,
                 ImageCompression compression = ImageCompression::kCompact);
+// Writes a colour image (CV_8UC3 in R, G, B order) as an 8-bit RGB PNG.
+void WritePngRgb8(const std::filesystem::path& path, const cv::Mat& image);
 // Writes an 8-bit picture (CV_8UC1 or CV_8UC3, BGR) as PNG, for people to look at.
 void WritePicture(const std::filesystem::path& path, const cv::Mat& image);
 

@@ -19,6 +19,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "romunect/sensor/color_camera.h"
 #include "romunect/sensor/frame_pipeline.h"
 #include "romunect/sensor/frame_source.h"
 #include "romunect/sensor/geometry_buffer.h"
@@ -73,6 +74,9 @@ struct ScanOptions {
   int samples_per_pixel = 1;  // renderer: 1 (pinhole) or 4 (thin lens, defocus)
   int threads = 2;            // renderer threads
   uint64_t seed = 1;          // per-frame imaging seeds derive from it
+  // When set, each frame also carries this colour camera's image (frame.color, color_camera.h),
+  // rendered beside the IR camera and shaded for a surface at the rig's focus distance.
+  std::optional<ColorCamera> color_camera;
 
   std::string Problem() const;  // "" when valid; otherwise "field = value: rule"
 };

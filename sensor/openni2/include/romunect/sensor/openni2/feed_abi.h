@@ -6,6 +6,8 @@
  * A feed library exports three functions named as below. The driver calls them from one
  * thread at a time per feed. Frames: depth in metres along the optical axis (0 = none), IR as
  * 16-bit counts, both row-major width x height; time in seconds since the feed's first frame.
+ * Version 2 adds a colour camera (its image 8-bit R, G, B, row-major color_width x color_height);
+ * the driver zeroes both structs before a call, so a version 1 feed simply has no colour.
  */
 #ifndef ROMUNECT_OPENNI2_FEED_ABI_H_
 #define ROMUNECT_OPENNI2_FEED_ABI_H_
@@ -16,7 +18,7 @@
 extern "C" {
 #endif
 
-#define ROMUNECT_FEED_ABI_VERSION 1
+#define ROMUNECT_FEED_ABI_VERSION 2
 
 typedef struct RomunectFeedInfo {
   int abi_version;       /* ROMUNECT_FEED_ABI_VERSION of the feed */
@@ -25,12 +27,20 @@ typedef struct RomunectFeedInfo {
   double fps;            /* frame rate (Hz) */
   int frame_count;       /* frames the feed will deliver; 0 = endless */
   int has_depth, has_ir; /* which images every frame holds */
+  /* Version 2: a colour camera beside the depth camera (has_color = 1 when every frame holds its
+   * image): its size and pinhole (px, no distortion) and its pose in the depth camera's frame
+   * (row-major 4x4, rigid, colour camera to depth camera). */
+  int has_color;
+  int color_width, color_height;
+  double color_fx, color_fy, color_cx, color_cy;
+  double T_C_RGB[16];
 } RomunectFeedInfo;
 
 typedef struct RomunectFeedFrame {
   const float* depth_m; /* width * height, or NULL without depth */
   const uint16_t* ir;   /* width * height, or NULL without IR */
   double time_s;
+  const uint8_t* color_rgb; /* version 2: color_width * color_height * 3, or NULL */
 } RomunectFeedFrame;
 
 /* Creates a feed from its query ("key=value&..."; the keys are the feed's own) and fills *info.

@@ -17,8 +17,11 @@
 //   romunect-sim:?[driver keys above except loop][&feed=/abs/libX.so][&the feed's own keys]
 // The driver keys are read by the driver; every other key is handed to the feed.
 // As a PS1080: depth in ONI_PIXEL_FORMAT_DEPTH_1_MM and DEPTH_100_UM and IR in GRAY16, each at
-// half the directory's resolution (the default, 1 mm: the PS1080's QVGA) and at it; mirroring
-// and cropping as stream properties; a frame directory opens in one process at a time
+// half the directory's resolution (the default, 1 mm: the PS1080's QVGA) and at it; colour, when
+// the frames carry it, in RGB888 (VGA first), YUV422 and YUYV at the colour camera's size and half
+// of it, with depth-to-colour registration; mirroring and cropping as stream properties; frames a
+// slow source misses dropped, not delayed; the end of a finite source raised as OpenNI2's EOF state
+// and device-disconnected events; a frame directory opens in one process at a time
 // (docs/hardware.md). Any OpenNI2 program opens the device named by the environment
 // variable ROMUNECT_VIRTUAL_DEVICE (a URI or a plain directory) as its first device. romunect's
 // programs resolve a relative directory there against their working directory; in other programs

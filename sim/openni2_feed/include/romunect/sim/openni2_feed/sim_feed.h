@@ -13,6 +13,8 @@
 //   depth=ideal    ground-truth depth, no IR (fast)
 //   frames=N       stop after N frames (default 0: the whole approach)
 //   threads=N      renderer and imaging threads (default 2)
+//   color=1|0      also render the stock colour camera (StockColorCamera, scaled as the images),
+//                  as a PS1080's colour stream (default 1)
 #pragma once
 
 #include <cstdint>
@@ -32,6 +34,7 @@ struct SimFeedOptions {
   bool ideal_depth = false;
   int frames = 0;
   int threads = 2;
+  bool color = true;
 
   std::string Problem() const;  // "" when valid; otherwise "field = value: rule"
   // Reads a query; throws InputError("sim feed", key, problem) for unknown keys or bad values.
@@ -49,6 +52,7 @@ class SimFeed {
   double fps() const { return rig_fps_; }
   int frame_count() const;  // frames it will deliver
   bool has_ir() const { return !options_.ideal_depth; }
+  const std::optional<ColorCamera>& color_camera() const { return scanner_->options().color_camera; }
   // The next frame; false at the end. Throws InputError where the Scanner does.
   bool Next(Frame* frame);
 

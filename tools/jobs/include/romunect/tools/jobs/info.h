@@ -9,6 +9,7 @@
 #include <Eigen/Core>
 
 #include "romunect/sensor/camera_model.h"
+#include "romunect/sensor/color_camera.h"
 #include "romunect/sensor/world_box.h"
 
 namespace romunect::jobs {
@@ -18,7 +19,8 @@ struct FrameDirectoryInfo {
   CameraModel camera;
   size_t frames = 0;
   double first_time_s = 0.0, last_time_s = 0.0;
-  size_t with_depth = 0, with_ir = 0, with_raw = 0, with_gt_depth = 0, with_pose = 0;
+  size_t with_depth = 0, with_ir = 0, with_raw = 0, with_gt_depth = 0, with_color = 0, with_pose = 0;
+  std::optional<ColorCamera> color_camera;  // frames.json's color_camera
   size_t with_hand_pose = 0;  // frames with the robot's T_B_H (what calibrate hand-eye and depth read)
   double valid_mean = 0.0, valid_min = 1.0, valid_max = 0.0;  // share of valid depth pixels per frame
   Eigen::Vector3d cameras_min_W = Eigen::Vector3d::Zero(), cameras_max_W = Eigen::Vector3d::Zero();
