@@ -50,7 +50,8 @@ class PileHeightMeter {
  public:
   PileHeightMeter(const Pose& T_W_Bin, const Eigen::Vector3d& bin_inner_size_m, int stride_px = 4);
   void Add(const Frame& frame, const CameraModel& camera);  // frames without depth or pose add nothing
-  // The pile's top: the 99.5th percentile of the heights (a few stray matches do not raise it);
+  // The pile's top: the height with 50 measured points or 0.1 % of them above it, whichever is
+  // more (a few stray matches do not raise it);
   // nothing when fewer than min_samples points were measured.
   std::optional<double> TopM(int min_samples = 200) const;
   int samples() const { return static_cast<int>(heights_m_.size()); }
