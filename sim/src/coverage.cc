@@ -27,6 +27,9 @@ constexpr double kTurnRad = 170.0 * M_PI / 180.0;
 // 200 mm) or this share of them above it: a few stray matches do not raise it.
 constexpr size_t kTopRank = 50;
 constexpr double kTopShare = 0.001;
+// A frame adds its points when at least this share of its sampled pixels measured a point over
+// the inner floor (a pill box's top is about 5 % of the footprint).
+constexpr double kMinFrameShare = 0.01;
 // The descent's run at the first level ends this far beyond the bin's inner end (over the wall).
 constexpr double kRunBeyondWallM = 0.006;
 
@@ -118,15 +121,20 @@ PileHeightMeter::PileHeightMeter(const Pose& T_W_Bin, const Eigen::Vector3d& bin
 void PileHeightMeter::Add(const Frame& frame, const CameraModel& camera) {
   if (frame.depth_m.empty() || !frame.T_W_C) return;
   const Pose T_Bin_C = T_Bin_W_ * *frame.T_W_C;
+  std::vector<float> heights_m;
   for (int v = 0; v < frame.depth_m.rows; v += stride_px_) {
     const float* row = frame.depth_m.ptr<float>(v);
     for (int u = 0; u < frame.depth_m.cols; u += stride_px_) {
       if (!(row[u] > 0)) continue;
       const Eigen::Vector3d p_Bin = T_Bin_C * camera.Unproject(Eigen::Vector2d(u, v), row[u]);
       if (std::abs(p_Bin.x()) > half_inner_m_.x() || std::abs(p_Bin.y()) > half_inner_m_.y()) continue;
-      heights_m_.push_back(static_cast<float>(p_Bin.z()));
+      heights_m.push_back(static_cast<float>(p_Bin.z()));
     }
   }
+  // a frame far above the measurable range holds only stray matches of the blurred pattern
+  const size_t samples = static_cast<size_t>(frame.depth_m.rows / stride_px_) * (frame.depth_m.cols / stride_px_);
+  if (heights_m.size() < kMinFrameShare * samples) return;
+  heights_m_.insert(heights_m_.end(), heights_m.begin(), heights_m.end());
 }
 
 std::optional<double> PileHeightMeter::TopM(int min_samples) const {

@@ -102,6 +102,12 @@ TEST(CoverageTest, PileHeightMeterMeasuresThePlanesHeight) {
   frame.T_W_C = world.T_W_Bin() * MakePose(R_Bin_C, Eigen::Vector3d(0, 0, camera_m));
   PileHeightMeter meter(world.T_W_Bin(), world.bin_inner_size_m());
   EXPECT_FALSE(meter.TopM().has_value());  // nothing measured yet
+  // a frame with 100 stray points and nothing else (far above the range) adds nothing
+  Frame stray = frame;
+  stray.depth_m = cv::Mat(rig.camera.height, rig.camera.width, CV_32F, cv::Scalar(0.0f));
+  stray.depth_m(cv::Rect(300, 200, 40, 40)).setTo(camera_m - 0.15);
+  meter.Add(stray, rig.camera);
+  EXPECT_EQ(meter.samples(), 0);
   meter.Add(frame, rig.camera);
   ASSERT_TRUE(meter.TopM().has_value());
   EXPECT_NEAR(*meter.TopM(), plane_m, 1e-5);  // float depth: micrometres

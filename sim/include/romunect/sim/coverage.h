@@ -45,7 +45,9 @@ struct CoverageLevel {
 std::vector<CoverageLevel> CoverageLevels(const ApproachOptions& options, double top_m, double rim_m);
 
 // Collects the heights above the bin floor of measured points over the bin's inner floor (walls
-// left out), every `stride_px` pixel of each frame's depth_m at its T_W_C. Not thread safe.
+// left out), every `stride_px` pixel of each frame's depth_m at its T_W_C; a frame where fewer
+// than 1 % of them measured a point over the floor adds nothing (far above the measurable range,
+// the blurred pattern gives a few stray matches). Not thread safe.
 class PileHeightMeter {
  public:
   PileHeightMeter(const Pose& T_W_Bin, const Eigen::Vector3d& bin_inner_size_m, int stride_px = 4);
