@@ -161,13 +161,12 @@ ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const Ap
   // Frame 1 is the first frame with the pile in range: it holds the whole footprint when the
   // frame before it was still above the pile. The descent therefore comes down at full speed
   // (a frame period apart: 30 mm at 0.9 m/s and 30 Hz) and turns at the first level into a
-  // run along the bin's middle row, braking there: a frame falls on the turn (its band holds
+  // run towards a corner of the bin, braking there: a frame falls on the turn (its band holds
   // the table, the floor and a one-layer pile), and the frames after it add new area instead
   // of braking on one spot. The start is raised so that a whole number of frame periods
   // brings the camera to the turn: on the cruise, s(t) = v t - v^2 / (2 a).
   const double T = o.frame_period_s;
   const double brake_m = 0.5 * v * v / a;
-  // the run ends over the bin's end wall, as the serpentine's rows do
   // the run ends at a corner of the lowest band's serpentine (over the bin's walls, Serpentine's
   // min_end_m), where the coverage leg then starts its first row
   const Eigen::Vector2d corner = 0.5 * world.bin_inner_size_m().head<2>() + Eigen::Vector2d::Constant(kRunBeyondWallM);

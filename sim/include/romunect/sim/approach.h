@@ -58,8 +58,8 @@ struct ApproachOptions {
   // path), off the walls they were placed over; the arm's servos round what is left.
   double coverage_corner_smoothing_s = 1.0 / 30;
   // kCoverage: the sensor's frame period (the Scanner sets it from the rig; 0: unknown). The
-  // descent is then timed so that frames fall on its braking ramp where the ramp's frames are
-  // furthest apart (coverage.h, PlanDescent).
+  // descent is then timed so that a frame falls on its turn at the first level (coverage.h,
+  // PlanDescent).
   double frame_period_s = 0.0;
   bool turned_passes = true;  // kCoverage: the bands again with the hand turned 180 deg
   double focused_near_m = 0.0;

@@ -5,7 +5,7 @@
 //
 // The approach has two legs. The descent (PlanDescent) comes straight down over the bin's
 // centre to the lowest stand-off level, the one whose measurable band holds the table and the
-// bin floor. On the way, a PileHeightMeter collects the heights of the measured points over the
+// bin floor, and runs on at it towards a corner of the bin. On the way, a PileHeightMeter collects the heights of the measured points over the
 // bin's inner floor. The coverage leg (PlanCoverage) then starts where the descent stopped:
 // measurable bands stacked from the table up to the measured top, one more for the bin's rim
 // when it lies above them, a serpentine per band whose rows tile the band's area with the
@@ -66,7 +66,10 @@ class PileHeightMeter {
 };
 
 // The descent: from options.start_distance_m (raised to the first level plus 5 cm when lower)
-// straight down over the bin's centre to the lowest coverage level, at speed_m_s.
+// straight down over the bin's centre to the lowest coverage level at coverage_speed_m_s. With
+// options.frame_period_s it turns there without braking into a run towards a corner of the bin
+// and stops at its end; the start is raised so that a frame falls on the turn (the frame before
+// it a full period's travel higher, above a one-layer pile). Without, it stops at the level.
 ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const ApproachOptions& options,
                          const IkOptions& ik = {});
 
