@@ -34,6 +34,9 @@ std::string ApproachOptions::Problem() const {
   }
   if (!(surface_height_m >= 0)) return "surface_height_m = " + Num(surface_height_m) + ": must be >= 0";
   if (!(above_rim_m >= 0)) return "above_rim_m = " + Num(above_rim_m) + ": must be >= 0";
+  if (!(coverage_corner_smoothing_s >= 0))
+    return "coverage_corner_smoothing_s = " + Num(coverage_corner_smoothing_s) + ": must be >= 0";
+  if (!(frame_period_s >= 0) || frame_period_s > 1.0) return "frame_period_s = " + Num(frame_period_s) + ": must be in [0, 1]";
   if (!(coverage_speed_m_s > 0) || coverage_speed_m_s > 2.0)
     return "coverage_speed_m_s = " + Num(coverage_speed_m_s) + ": must be in (0, 2]";
   if (!(coverage_acceleration_m_s2 > 0))

@@ -23,6 +23,15 @@ constexpr double kDescentRoomM = 0.05;
 // The hand's turn for the second passes: short of 180 deg, as the last wrist joint stops at
 // +-3.14 rad; the baseline's shadows fall on the other side all the same.
 constexpr double kTurnRad = 170.0 * M_PI / 180.0;
+// The pile's top is the height with this many measured points (every 4th pixel: about 5 mm^2 at
+// 200 mm) or this share of them above it: a few stray matches do not raise it.
+constexpr size_t kTopRank = 50;
+constexpr double kTopShare = 0.001;
+// A frame adds its points when at least this share of its sampled pixels measured a point over
+// the inner floor (a pill box's top is about 5 % of the footprint).
+constexpr double kMinFrameShare = 0.01;
+// The descent's run at the first level ends this far beyond the bin's inner end (over the wall).
+constexpr double kRunBeyondWallM = 0.006;
 
 // The camera's distance to the surfaces of a band of `span_m`: the middle of a narrow range, near
 // the near end of a wide one, clamped so the whole band stays in [near, far].
@@ -70,11 +79,11 @@ std::vector<Eigen::Vector2d> Serpentine(const CameraModel& camera, const Eigen::
 }
 
 // Times a path of corners, rounds them and solves it for the arm's joints into `plan`.
-void Execute(const World& world, const ApproachOptions& o, const std::vector<PathPoint>& polyline, double speed_m_s,
-             double acceleration_m_s2, const World::ArmVector& q_seed, const IkOptions& ik, ApproachPlan* plan) {
+void Execute(const World& world, const std::vector<PathPoint>& polyline, double speed_m_s, double acceleration_m_s2,
+             double smoothing_s, const World::ArmVector& q_seed, const IkOptions& ik, ApproachPlan* plan) {
   for (size_t i = 1; i < polyline.size(); ++i) plan->length_m += (polyline[i] - polyline[i - 1]).norm();
   std::vector<PathPoint> p_Bin = TimeParameterize(polyline, speed_m_s, acceleration_m_s2, plan->timestep_s);
-  p_Bin = Smooth(p_Bin, 2 * static_cast<int>(std::lround(o.corner_smoothing_s / plan->timestep_s / 2)) + 1);
+  p_Bin = Smooth(p_Bin, 2 * static_cast<int>(std::lround(smoothing_s / plan->timestep_s / 2)) + 1);
   std::vector<Pose> T_Bin_C;
   for (const PathPoint& p : p_Bin) T_Bin_C.push_back(CameraPoseInBin(p));
   SolvePath(world, T_Bin_C, q_seed, ik, plan);
@@ -112,21 +121,29 @@ PileHeightMeter::PileHeightMeter(const Pose& T_W_Bin, const Eigen::Vector3d& bin
 void PileHeightMeter::Add(const Frame& frame, const CameraModel& camera) {
   if (frame.depth_m.empty() || !frame.T_W_C) return;
   const Pose T_Bin_C = T_Bin_W_ * *frame.T_W_C;
+  std::vector<float> heights_m;
   for (int v = 0; v < frame.depth_m.rows; v += stride_px_) {
     const float* row = frame.depth_m.ptr<float>(v);
     for (int u = 0; u < frame.depth_m.cols; u += stride_px_) {
       if (!(row[u] > 0)) continue;
       const Eigen::Vector3d p_Bin = T_Bin_C * camera.Unproject(Eigen::Vector2d(u, v), row[u]);
       if (std::abs(p_Bin.x()) > half_inner_m_.x() || std::abs(p_Bin.y()) > half_inner_m_.y()) continue;
-      heights_m_.push_back(static_cast<float>(p_Bin.z()));
+      heights_m.push_back(static_cast<float>(p_Bin.z()));
     }
   }
+  // a frame far above the measurable range holds only stray matches of the blurred pattern
+  const size_t samples = static_cast<size_t>(frame.depth_m.rows / stride_px_) * (frame.depth_m.cols / stride_px_);
+  if (heights_m.size() < kMinFrameShare * samples) return;
+  heights_m_.insert(heights_m_.end(), heights_m.begin(), heights_m.end());
 }
 
 std::optional<double> PileHeightMeter::TopM(int min_samples) const {
   if (samples() < std::max(1, min_samples)) return std::nullopt;
   std::vector<float> h = heights_m_;
-  const size_t k = static_cast<size_t>(0.995 * (h.size() - 1));
+  // a count, not a share: the descent's frames at the lowest level add many low points, and a
+  // tall object's top is in range for one frame only
+  const size_t from_top = std::max<size_t>(kTopRank, static_cast<size_t>(kTopShare * (h.size() - 1)));
+  const size_t k = h.size() - 1 - std::min(from_top, h.size() - 1);
   std::nth_element(h.begin(), h.begin() + k, h.end());
   return h[k];
 }
@@ -140,9 +157,29 @@ ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const Ap
   const double one_layer_m = o.surface_low_m + (o.focused_far_m - o.focused_near_m);
   const CoverageLevel first = CoverageLevels(o, std::min(one_layer_m, rim), rim).front();
   plan.levels_m = {first.camera_height_m};
-  const double start = std::max(o.start_distance_m, first.camera_height_m + kDescentRoomM);
-  const std::vector<PathPoint> polyline = {PathPoint(0, 0, start, 0), PathPoint(0, 0, first.camera_height_m, 0)};
-  Execute(world, o, polyline, o.coverage_speed_m_s, o.coverage_acceleration_m_s2, ScanPostureSeed(world), ik, &plan);
+  const double v = o.coverage_speed_m_s, a = o.coverage_acceleration_m_s2;
+  // Frame 1 is the first frame with the pile in range: it holds the whole footprint when the
+  // frame before it was still above the pile. The descent therefore comes down at full speed
+  // (a frame period apart: 30 mm at 0.9 m/s and 30 Hz) and turns at the first level into a
+  // run towards a corner of the bin, braking there: a frame falls on the turn (its band holds
+  // the table, the floor and a one-layer pile), and the frames after it add new area instead
+  // of braking on one spot. The start is raised so that a whole number of frame periods
+  // brings the camera to the turn: on the cruise, s(t) = v t - v^2 / (2 a).
+  const double T = o.frame_period_s;
+  const double brake_m = 0.5 * v * v / a;
+  // the run ends at a corner of the lowest band's serpentine (over the bin's walls, Serpentine's
+  // min_end_m), where the coverage leg then starts its first row
+  const Eigen::Vector2d corner = 0.5 * world.bin_inner_size_m().head<2>() + Eigen::Vector2d::Constant(kRunBeyondWallM);
+  const double run_m = corner.norm();
+  double start = std::max(o.start_distance_m, first.camera_height_m + kDescentRoomM);
+  const bool timed = T > 0 && start - first.camera_height_m > brake_m && run_m > brake_m;
+  if (timed) {
+    const int periods = static_cast<int>(std::ceil((start - first.camera_height_m + brake_m) / (v * T) - 1e-9));
+    start = first.camera_height_m + periods * v * T - brake_m;
+  }
+  std::vector<PathPoint> polyline = {PathPoint(0, 0, start, 0), PathPoint(0, 0, first.camera_height_m, 0)};
+  if (timed) polyline.emplace_back(-corner.x(), -corner.y(), first.camera_height_m, 0);
+  Execute(world, polyline, v, a, o.coverage_corner_smoothing_s, ScanPostureSeed(world), ik, &plan);
   (void)camera;
   return plan;
 }
@@ -195,7 +232,8 @@ ApproachPlan PlanCoverageTurning(const World& world, const CameraModel& camera, 
   }
   plan.passes_x = plan.passes_y = 1;
   for (auto it = levels.rbegin(); it != levels.rend(); ++it) plan.levels_m.push_back(it->camera_height_m);
-  Execute(world, o, polyline, o.coverage_speed_m_s, o.coverage_acceleration_m_s2, descent.q.back(), ik, &plan);
+  Execute(world, polyline, o.coverage_speed_m_s, o.coverage_acceleration_m_s2, o.coverage_corner_smoothing_s,
+          descent.q.back(), ik, &plan);
   return plan;
 }
 

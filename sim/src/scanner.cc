@@ -237,6 +237,7 @@ Scanner::Scanner(const ScanOptions& options) : impl_(std::make_unique<Impl>()) {
     s.options.approach.focused_near_m = range.near_m;
     s.options.approach.focused_far_m = range.far_m;
   }
+  if (s.options.approach.frame_period_s == 0) s.options.approach.frame_period_s = 1.0 / options.rig.frame_rate_hz;
   s.plan = PlanApproach(world, options.rig.camera, s.options.approach, options.ik);
   s.executor = std::make_unique<ApproachExecutor>(&world, s.plan, s.options.approach);
   s.stats.move_to_start_s = s.executor->MoveToStart();

@@ -102,9 +102,58 @@ TEST(CoverageTest, PileHeightMeterMeasuresThePlanesHeight) {
   frame.T_W_C = world.T_W_Bin() * MakePose(R_Bin_C, Eigen::Vector3d(0, 0, camera_m));
   PileHeightMeter meter(world.T_W_Bin(), world.bin_inner_size_m());
   EXPECT_FALSE(meter.TopM().has_value());  // nothing measured yet
+  // a frame with 100 stray points and nothing else (far above the range) adds nothing
+  Frame stray = frame;
+  stray.depth_m = cv::Mat(rig.camera.height, rig.camera.width, CV_32F, cv::Scalar(0.0f));
+  stray.depth_m(cv::Rect(300, 200, 40, 40)).setTo(camera_m - 0.15);
+  meter.Add(stray, rig.camera);
+  EXPECT_EQ(meter.samples(), 0);
   meter.Add(frame, rig.camera);
   ASSERT_TRUE(meter.TopM().has_value());
   EXPECT_NEAR(*meter.TopM(), plane_m, 1e-5);  // float depth: micrometres
+  // 30 stray points 40 mm higher (every 4th pixel of a 20 x 24 block) do not raise the top...
+  const double tall_m = 0.052;
+  frame.depth_m(cv::Rect(300, 200, 20, 24)).setTo(camera_m - tall_m);
+  meter.Add(frame, rig.camera);
+  EXPECT_NEAR(*meter.TopM(), plane_m, 1e-5);
+  // ... a small object's top does, even among two frames of the plane (100 points of ~38000)
+  frame.depth_m(cv::Rect(300, 200, 40, 40)).setTo(camera_m - tall_m);
+  meter.Add(frame, rig.camera);
+  EXPECT_NEAR(*meter.TopM(), tall_m, 1e-5);
+}
+
+// With the sensor's frame period known, a frame of the descent falls on its turn at the first
+// level, whose band holds the table and the floor, and the frame before it is a full frame
+// period's travel higher: the first frame with a one-layer pile in range sees the whole
+// footprint. The frames after it run on at that level, then the descent stops.
+TEST(CoverageTest, DescentPutsAFrameOnItsTurnAtTheFirstLevel) {
+  World world(WorldOptions{});
+  const Rig rig = RigPreset("romunect");
+  ApproachOptions o = RangeOptions("romunect");
+  o.frame_period_s = 1.0 / rig.frame_rate_hz;
+  const ApproachPlan descent = PlanDescent(world, rig.camera, o);
+  const Pose T_Bin_W = world.T_W_Bin().inverse();
+  auto at = [&](int frame) -> Eigen::Vector3d {
+    const size_t i = static_cast<size_t>(std::lround(frame * o.frame_period_s / descent.timestep_s));
+    return (T_Bin_W * descent.T_W_C.at(std::min(i, descent.T_W_C.size() - 1))).translation();
+  };
+  const int frames = static_cast<int>(descent.duration_s() / o.frame_period_s);
+  const double level_m = descent.levels_m.front();
+  int turn = -1;
+  for (int k = 0; k <= frames && turn < 0; ++k) {
+    if (at(k).z() < level_m + 0.5 * (o.focused_far_m - o.focused_near_m)) turn = k;
+  }
+  ASSERT_GT(turn, 0);
+  // The turn's frame: the first band (table to one range width above it) in range. The corner
+  // filter (one frame period) lifts it by a quarter of a period's travel: 7.5 mm allowed.
+  const Eigen::Vector3d p = at(turn);
+  EXPECT_NEAR(p.z(), level_m, 0.0075);
+  EXPECT_LT(p.head<2>().norm(), 0.01);  // over the bin's middle
+  // the frame before: at full speed, 30 mm higher (the ramp's planning: 0.1 mm)
+  EXPECT_NEAR(at(turn - 1).z() - p.z(), o.coverage_speed_m_s * o.frame_period_s, 0.004);
+  // the frames after run at the level towards a corner over the walls
+  for (int k = turn + 1; k <= frames; ++k) EXPECT_NEAR(at(k).z(), level_m, 0.0075) << k;
+  EXPECT_GT(at(frames).head<2>().norm(), 0.06);
 }
 
 }  // namespace

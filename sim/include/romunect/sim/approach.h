@@ -53,6 +53,14 @@ struct ApproachOptions {
   // need a short exposure).
   double coverage_speed_m_s = 0.9;
   double coverage_acceleration_m_s2 = 8.0;
+  // kCoverage: box filter over the coverage path's corners. One frame period: a wider filter
+  // pulls the serpentine's row ends and outer rows inwards (0.1 s at 0.9 m/s averages 90 mm of
+  // path), off the walls they were placed over; the arm's servos round what is left.
+  double coverage_corner_smoothing_s = 1.0 / 30;
+  // kCoverage: the sensor's frame period (the Scanner sets it from the rig; 0: unknown). The
+  // descent is then timed so that a frame falls on its turn at the first level (coverage.h,
+  // PlanDescent).
+  double frame_period_s = 0.0;
   bool turned_passes = true;  // kCoverage: the bands again with the hand turned 180 deg
   double focused_near_m = 0.0;
   double focused_far_m = 0.0;

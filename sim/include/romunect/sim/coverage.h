@@ -5,7 +5,7 @@
 //
 // The approach has two legs. The descent (PlanDescent) comes straight down over the bin's
 // centre to the lowest stand-off level, the one whose measurable band holds the table and the
-// bin floor. On the way, a PileHeightMeter collects the heights of the measured points over the
+// bin floor, and runs on at it towards a corner of the bin. On the way, a PileHeightMeter collects the heights of the measured points over the
 // bin's inner floor. The coverage leg (PlanCoverage) then starts where the descent stopped:
 // measurable bands stacked from the table up to the measured top, one more for the bin's rim
 // when it lies above them, a serpentine per band whose rows tile the band's area with the
@@ -45,12 +45,15 @@ struct CoverageLevel {
 std::vector<CoverageLevel> CoverageLevels(const ApproachOptions& options, double top_m, double rim_m);
 
 // Collects the heights above the bin floor of measured points over the bin's inner floor (walls
-// left out), every `stride_px` pixel of each frame's depth_m at its T_W_C. Not thread safe.
+// left out), every `stride_px` pixel of each frame's depth_m at its T_W_C; a frame where fewer
+// than 1 % of them measured a point over the floor adds nothing (far above the measurable range,
+// the blurred pattern gives a few stray matches). Not thread safe.
 class PileHeightMeter {
  public:
   PileHeightMeter(const Pose& T_W_Bin, const Eigen::Vector3d& bin_inner_size_m, int stride_px = 4);
   void Add(const Frame& frame, const CameraModel& camera);  // frames without depth or pose add nothing
-  // The pile's top: the 99.5th percentile of the heights (a few stray matches do not raise it);
+  // The pile's top: the height with 50 measured points or 0.1 % of them above it, whichever is
+  // more (a few stray matches do not raise it);
   // nothing when fewer than min_samples points were measured.
   std::optional<double> TopM(int min_samples = 200) const;
   int samples() const { return static_cast<int>(heights_m_.size()); }
@@ -63,7 +66,10 @@ class PileHeightMeter {
 };
 
 // The descent: from options.start_distance_m (raised to the first level plus 5 cm when lower)
-// straight down over the bin's centre to the lowest coverage level, at speed_m_s.
+// straight down over the bin's centre to the lowest coverage level at coverage_speed_m_s. With
+// options.frame_period_s it turns there without braking into a run towards a corner of the bin
+// and stops at its end; the start is raised so that a frame falls on the turn (the frame before
+// it a full period's travel higher, above a one-layer pile). Without, it stops at the level.
 ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const ApproachOptions& options,
                          const IkOptions& ik = {});
 
