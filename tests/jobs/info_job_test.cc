@@ -1,4 +1,8 @@
 // The info job in-process on a frame directory written by the test.
+#include <cstdlib>
+#include <filesystem>
+#include <string>
+
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
@@ -62,6 +66,28 @@ TEST(InfoJob, ReportsRawValidityAndRefusesRawThatIsNotElevenBits) {
   } catch (const InputError& e) {
     testing::ExpectContains(e.what(), {"raw32", ".png", "raw depth is 11 bits", "found 65504", "divided back"});
   }
+}
+
+// docs/frame-directory.md's Python recipe, as written there, makes a directory info accepts (with
+// Debian 12's python3-opencv and python3-numpy; skipped where they are not installed).
+TEST(InfoJob, TheDocsPythonRecipeWritesADirectoryInfoAccepts) {
+  if (std::system("/usr/bin/python3 -c 'import cv2, numpy' >/dev/null 2>&1") != 0) {
+    GTEST_SKIP() << "python3-opencv / python3-numpy not installed";
+  }
+  const std::string doc = testing::ReadText(std::filesystem::path(ROMUNECT_SOURCE_DIR) / "docs" / "frame-directory.md");
+  const size_t begin = doc.find("```python\n", doc.find("## Writing one from another tool (Python)"));
+  ASSERT_NE(begin, std::string::npos);
+  const size_t code = begin + 10, end = doc.find("```", code);
+  testing::ScratchDir dir("info_job_python_recipe");
+  testing::WriteText(dir / "recipe.py", doc.substr(code, end - code));
+  const std::string command = "cd '" + dir.path().string() + "' && /usr/bin/python3 recipe.py";
+  ASSERT_EQ(std::system(command.c_str()), 0) << command;
+  const FrameDirectoryInfo info = InspectFrameDirectory(dir / "scan");
+  EXPECT_EQ(info.frames, 3u);
+  EXPECT_EQ(info.with_depth, 3u);
+  EXPECT_EQ(info.with_raw, 3u);
+  EXPECT_DOUBLE_EQ(info.valid_mean, 1.0);
+  EXPECT_DOUBLE_EQ(info.raw_valid_mean, 1.0);
 }
 
 }  // namespace
