@@ -36,7 +36,8 @@ void AddFuseCommand(CLI::App& app) {
                                       ".oni/device: seconds added to frame times to get pose-log times");
   cmd->add_option("--calibration", o->calibration,
                   ".oni/device: romunect calibration file: T_H_C turns flange poses into camera poses (world = robot "
-                  "base), and its camera is the frames' camera");
+                  "base), and its camera is the frames' camera. Frame directory: its depth model applied to the "
+                  "frames' raw images (the directory's camera and poses stay)");
   cmd->add_option("--camera", o->camera, ".oni/device: camera model (OpenCV YAML/JSON) replacing the calibration's");
   cmd->add_flag("--device-depth", o->device_depth,
                 ".oni/device: fuse the device's metric depth, not the calibration's depth model applied to raw shifts");

@@ -225,6 +225,9 @@ DepthEngine::DepthEngine(const DepthEngineOptions& options, const cv::Mat& refer
     }
     return true;
   };
+  if (options_.disparity_distortion.Active()) {
+    distortion_beta_ = DisparityDistortionBeta(options_.disparity_distortion, W, reference_ir.rows);
+  }
   clean_begin_ = 0;
   while (clean_begin_ < W && !clean(clean_begin_)) ++clean_begin_;
   clean_end_ = clean_begin_;
@@ -314,6 +317,12 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
   args.shift_px = out->shift_px.ptr<float>();
   args.float_step = out->depth_m.step1();
   ROMUNECT_CHECK(out->shift_px.step1() == args.float_step);
+  if (!distortion_beta_.empty()) {
+    ROMUNECT_CHECK(distortion_beta_.isContinuous() && distortion_beta_.step1() == args.float_step);
+    args.distortion_beta = distortion_beta_.ptr<float>();
+    args.distortion_alpha0 = static_cast<float>(options_.disparity_distortion.alpha0);
+    args.distortion_alpha1 = static_cast<float>(options_.disparity_distortion.alpha1);
+  }
   const internal::MatchRowsFn match_rows = KernelFor(isa_)->match_rows;
   std::vector<internal::KernelStats> thread_stats(threads);
   ParallelRows(threads, rows, [&](int row_begin, int row_end) {

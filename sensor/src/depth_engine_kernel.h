@@ -64,6 +64,10 @@ struct KernelArgs {
   float* depth_m = nullptr;
   float* shift_px = nullptr;
   size_t float_step = 0;       // in floats, depth and shift
+  // The fixed-pattern disparity distortion (disparity_distortion.h): beta per pixel, rows of
+  // float_step, added as beta exp(alpha0 - alpha1 raw) to the unrounded raw; nullptr: none.
+  const float* distortion_beta = nullptr;
+  float distortion_alpha0 = 0.f, distortion_alpha1 = 0.f;
   int16_t* scratch = nullptr;  // KernelScratchSize(width, blocks) values
   int y_begin = 0, y_end = 0;
 };

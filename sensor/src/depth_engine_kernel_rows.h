@@ -22,10 +22,12 @@ enum PixelCode : int16_t { kCandidate, kBorder, kFlat, kWeak, kAmbiguous, kEdgeO
 
 // The second pass over one row: the sub-pixel refinement (parabola through the neighbours'
 // costs) and the raw value, with the float arithmetic of depth_engine.h and the reference
-// matcher. Writes every pixel of the row and counts it.
+// matcher. Writes every pixel of the row and counts it. kDistorted: beta_row holds the
+// disparity distortion's beta (the undistorted rows compile without it).
+template <bool kDistorted>
 inline void RefineRow(const KernelArgs& a, const int16_t* code, const int16_t* best_cost, const int16_t* best_j,
-                      const int16_t* cost_minus, const int16_t* cost_plus, uint16_t* raw_row, float* depth_row,
-                      float* shift_row, KernelStats* stats) {
+                      const int16_t* cost_minus, const int16_t* cost_plus, const float* beta_row, uint16_t* raw_row,
+                      float* depth_row, float* shift_row, KernelStats* stats) {
   const float nan = std::numeric_limits<float>::quiet_NaN();
   for (int x = 0; x < a.width; ++x) {
     raw_row[x] = kRawNone;
@@ -42,8 +44,11 @@ inline void RefineRow(const KernelArgs& a, const int16_t* code, const int16_t* b
     const float c0 = best_cost[x], cm = cost_minus[x], cp = cost_plus[x];
     const float denom = 2.f * (cm + cp - 2.f * c0);
     const float delta = denom > 0.f ? (cm - cp) / denom : 0.f;
-    const long s8 = static_cast<long>(
-        std::floor(8.f * (static_cast<float>(a.min_shift_px + best_j[x]) + delta) + 0.5f));
+    float s8f = 8.f * (static_cast<float>(a.min_shift_px + best_j[x]) + delta);
+    if constexpr (kDistorted) {  // the distortion raises raw: lowers the shift
+      s8f -= beta_row[x] * std::exp(a.distortion_alpha0 - a.distortion_alpha1 * (a.raw_at_reference - s8f));
+    }
+    const long s8 = static_cast<long>(std::floor(s8f + 0.5f));
     const long raw = a.raw_at_reference - s8;
     if (raw < 0 || raw >= a.raw_limit) {
       ++stats->out_of_range;
@@ -233,8 +238,14 @@ void MatchRows(const KernelArgs& args, KernelStats* stats_out) {
         }
       }
     }
-    RefineRow(a, search.code, search.best_cost, search.best_j, search.cost_minus, search.cost_plus,
-              a.raw + y * a.raw_step, a.depth_m + y * a.float_step, a.shift_px + y * a.float_step, &stats);
+    if (a.distortion_beta == nullptr) {
+      RefineRow<false>(a, search.code, search.best_cost, search.best_j, search.cost_minus, search.cost_plus, nullptr,
+                       a.raw + y * a.raw_step, a.depth_m + y * a.float_step, a.shift_px + y * a.float_step, &stats);
+    } else {
+      RefineRow<true>(a, search.code, search.best_cost, search.best_j, search.cost_minus, search.cost_plus,
+                      a.distortion_beta + y * a.float_step, a.raw + y * a.raw_step, a.depth_m + y * a.float_step,
+                      a.shift_px + y * a.float_step, &stats);
+    }
   }
   AddStats(stats, stats_out);
 }

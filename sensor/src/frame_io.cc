@@ -145,6 +145,22 @@ std::string FrameFile(const char* folder, int index, const char* extension) {
   return name;
 }
 
+// Raw depth is the chip's 11-bit value (2047 = none, depth_engine.h). Larger values are another
+// encoding (drivers that shift it left, say by 5 bits to fill 16): refused, not read as depths
+// that then fuse nothing.
+void CheckRawIs11Bits(const cv::Mat& raw, const std::filesystem::path& path) {
+  double hi = 0.0;
+  cv::Point at;
+  cv::minMaxLoc(raw, nullptr, &hi, nullptr, &at);
+  if (hi <= 2047) return;
+  std::ostringstream s;
+  s << "raw depth is 11 bits (0..2046, 2047 = no measurement), found " << hi << " at pixel (" << at.x << ", "
+    << at.y << ")";
+  const int bits = static_cast<int>(std::ceil(std::log2(hi + 1.0)));
+  if (bits > 11) s << "; the values fill " << bits << " bits: scaled (by 2^" << bits - 11 << "?) raw must be divided back";
+  throw InputError(path.string(), "raw", s.str());
+}
+
 }  // namespace
 
 FrameDirectoryManifest ReadFrameDirectoryManifest(const fs::path& dir) {
@@ -255,6 +271,7 @@ Frame LoadFrame(const fs::path& dir, const FrameDirectoryManifest& manifest, siz
   if (!record.raw.empty()) {
     frame.raw = ReadPng16(ImageInside(dir, record.raw), size);
     CheckImage(frame.raw, manifest.camera, CV_16U, dir / record.raw);
+    CheckRawIs11Bits(frame.raw, dir / record.raw);
   }
   if (!record.color.empty()) {
     const CameraModel& color_camera = manifest.color_camera->camera;

@@ -428,16 +428,28 @@ cv::Mat DecodeDepthExr(std::string_view bytes, const std::string& source, const 
     const int width = window.max.x - window.min.x + 1;
     const int height = window.max.y - window.min.y + 1;
     CheckHeaderSize({width, height}, expected, source);  // OpenEXR's own reading of the header agrees
-    const Imf::Channel* channel = file.header().channels().findChannel("Z");
+    // Depth is the channel "Z"; a file whose one channel is "Y" (what OpenCV writes for a
+    // single-channel float image) is read the same.
+    std::string name = "Z";
+    const Imf::ChannelList& channels = file.header().channels();
+    const Imf::Channel* channel = channels.findChannel("Z");
+    int count = 0;
+    for (auto it = channels.begin(); it != channels.end(); ++it) ++count;
+    if (channel == nullptr && count == 1 && std::string(channels.begin().name()) == "Y") {
+      name = "Y";
+      channel = &channels.begin().channel();
+    }
     if (channel == nullptr) {
       std::string names;
-      for (auto it = file.header().channels().begin(); it != file.header().channels().end(); ++it) {
+      for (auto it = channels.begin(); it != channels.end(); ++it) {
         names += std::string(names.empty() ? "" : ", ") + it.name();
       }
-      throw InputError(source, "channel Z", "missing (expected one float32 channel named Z; found: " + names + ")");
+      throw InputError(source, "channel Z",
+                       "missing (expected one float32 channel named Z, or a single channel Y as OpenCV writes; "
+                       "found: " + names + ")");
     }
     if (channel->type != Imf::FLOAT) {
-      throw InputError(source, "channel Z", "must be float32 (found half or uint)");
+      throw InputError(source, "channel " + name, "must be float32 (found half or uint)");
     }
     cv::Mat depth(height, width, CV_32F);
     Imf::FrameBuffer buffer;
@@ -445,7 +457,7 @@ cv::Mat DecodeDepthExr(std::string_view bytes, const std::string& source, const 
     char* base = reinterpret_cast<char*>(depth.ptr<float>()) -
                  (static_cast<ptrdiff_t>(window.min.x) + static_cast<ptrdiff_t>(window.min.y) * width) *
                      static_cast<ptrdiff_t>(sizeof(float));
-    buffer.insert("Z", Imf::Slice(Imf::FLOAT, base, sizeof(float), sizeof(float) * width));
+    buffer.insert(name, Imf::Slice(Imf::FLOAT, base, sizeof(float), sizeof(float) * width));
     file.setFrameBuffer(buffer);
     file.readPixels(window.min.y, window.max.y);
     return depth;

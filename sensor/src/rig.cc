@@ -237,6 +237,14 @@ FieldProblem DepthEngineOptions::Check() const {
       << ", " << raw_max << "], outside the 11-bit range [0, 2046]";
     return {"search_range_px", s.str()};
   }
+  if (FieldProblem p = disparity_distortion.Check()) return Prefixed("disparity_distortion", p);
+  // A real chip's fixed pattern is a few codes; beyond 8 px it would move matches out of the search.
+  if (const double worst = disparity_distortion.WorstCaseCodes(raw_min); worst > 64) {
+    return Bad("disparity_distortion",
+               "(4 x pattern_rms_codes + |corner_codes|) x exp(alpha0 - alpha1 x the search's smallest raw value) "
+               "must be at most 64 raw codes (8 px)",
+               worst);
+  }
   return {};
 }
 
@@ -309,6 +317,8 @@ Rig KinectV1() {
   // 0.47 m .. 3.8 m: the stock range needs more than the default 64 px.
   rig.depth_engine.min_shift_px = -32;
   rig.depth_engine.search_range_px = 96;
+  // The stock unit's fixed-pattern error after its own raw-to-depth mapping.
+  rig.depth_engine.disparity_distortion = KinectV1DisparityDistortion();
   return rig;
 }
 
@@ -503,6 +513,29 @@ PatternSpec ReadPattern(const Field& f) {
   return p;
 }
 
+json DistortionJson(const DisparityDistortion& d) {
+  return {{"seed", d.seed},
+          {"alpha0", d.alpha0},
+          {"alpha1", d.alpha1},
+          {"pattern_rms_codes", d.pattern_rms_codes},
+          {"pattern_scale_px", d.pattern_scale_px},
+          {"corner_codes", d.corner_codes}};
+}
+
+DisparityDistortion ReadDistortion(const Field& f) {
+  DisparityDistortion d;
+  const Field seed = f["seed"];
+  if (!seed.value().is_number_unsigned()) seed.Fail("expected a non-negative integer");
+  d.seed = seed.value().get<uint64_t>();
+  d.alpha0 = f["alpha0"].Number();
+  d.alpha1 = f["alpha1"].Number();
+  d.pattern_rms_codes = f["pattern_rms_codes"].Number();
+  d.pattern_scale_px = f["pattern_scale_px"].Number();
+  d.corner_codes = f["corner_codes"].Number();
+  if (const FieldProblem problem = d.Check()) FailProblem(f, problem);
+  return d;
+}
+
 json EngineJson(const DepthEngineOptions& o) {
   const ChipGeometry& c = o.chip;
   return {{"chip",
@@ -520,7 +553,8 @@ json EngineJson(const DepthEngineOptions& o) {
           {"max_cost", o.max_cost},
           {"uniqueness", o.uniqueness},
           {"prefilter_px", o.prefilter_px},
-          {"threads", o.threads}};
+          {"threads", o.threads},
+          {"disparity_distortion", DistortionJson(o.disparity_distortion)}};
 }
 
 DepthEngineOptions ReadEngine(const Field& f) {
@@ -541,6 +575,7 @@ DepthEngineOptions ReadEngine(const Field& f) {
   o.uniqueness = f["uniqueness"].Number();
   o.prefilter_px = f["prefilter_px"].Int();
   o.threads = f["threads"].Int();
+  if (f.Has("disparity_distortion")) o.disparity_distortion = ReadDistortion(f["disparity_distortion"]);
   if (const FieldProblem problem = o.Check()) FailProblem(f, problem);
   return o;
 }

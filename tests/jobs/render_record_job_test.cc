@@ -8,6 +8,7 @@
 
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
+#include "romunect/sensor/rig.h"
 #include "romunect/testing/test_support.h"
 #include "romunect/tools/jobs/record.h"
 #include "romunect/tools/jobs/render.h"
@@ -40,6 +41,30 @@ TEST(RenderJob, WritesOneFrameAndItsPicturesWithDepthErrors) {
   o.samples = "2";
   EXPECT_THROW(Render(o), InputError);
   EXPECT_FALSE(fs::exists(dir / "other"));
+}
+
+TEST(RenderJob, ErrorPictureScaleIsNeverDegenerate) {
+  // One raw code at 1 m on the stock chip: 1^2 / (8 x 580 x 0.075) = 2.87 mm.
+  const double step_m = 1.0 / (8.0 * 580.0 * 0.075);
+  EXPECT_DOUBLE_EQ(ErrorPictureScaleM(0.0, 1.0, 580.0, 0.075), step_m) << "every pixel on its exact code";
+  EXPECT_DOUBLE_EQ(ErrorPictureScaleM(0.01, 1.0, 580.0, 0.075), 0.01) << "a real spread wins";
+  EXPECT_GT(ErrorPictureScaleM(0.0, 0.0, 580.0, 0.0), 0.0) << "no truth, no baseline: still positive";
+  // A frame where most pixels hit the exact code: the stock chip on a camera-facing plane at
+  // 1 m, raw exactly 742. The scale is one code, not a saturating 95th percentile, and the
+  // report says how it was chosen.
+  ScratchDir dir("render_job_scale");
+  Rig rig = RigPreset("kinect-v1");
+  rig.depth_engine.disparity_distortion = DisparityDistortion{};
+  SaveRig(dir / "kinect.json", rig);
+  RenderJobOptions o;
+  o.out_dir = (dir / "plane").string();
+  o.rig = (dir / "kinect.json").string();
+  o.distance_m = 1.0;
+  const RenderSummary s = Render(o);
+  EXPECT_NEAR(s.code_step_m, step_m, 0.01 * step_m);  // 1 %: the median true depth is 1 m within 5 mm
+  EXPECT_GE(s.error_scale_m, s.code_step_m);
+  EXPECT_GE(s.error_scale_m, s.metric.p95);
+  EXPECT_THAT(RenderSummaryText(s), HasSubstr("one raw code's depth step at the median true depth"));
 }
 
 TEST(RecordJob, CopiesAFrameDirectoryAndSaysWhereItCameFrom) {

@@ -377,11 +377,20 @@ TEST_F(BadFrameDirectory, SourceReportsBadFrameAndGoesOn) {
   EXPECT_EQ(source.Next(&frame, &error), FrameStatus::kEndOfStream);
 }
 
-TEST(ImageIo, ExrWithoutZChannelIsRejected) {
+TEST(ImageIo, ExrFromOpenCvWithItsOneYChannelIsReadAndOthersWithoutZAreRejected) {
   ScratchDir dir("exr");
-  cv::Mat m(4, 4, CV_32F, cv::Scalar(1.0));
+  cv::Mat m(4, 5, CV_32F, cv::Scalar(0.0));
+  m.at<float>(1, 2) = 1.25f;
+  m.at<float>(3, 4) = 0.5f;
   ASSERT_TRUE(cv::imwrite((dir / "y.exr").string(), m));  // OpenCV names its channel Y
-  ExpectInputError([&] { ReadDepthExr(dir / "y.exr"); }, {"y.exr", "channel Z", "missing"});
+  EXPECT_TRUE(testing::ImagesBitEqual(ReadDepthExr(dir / "y.exr", cv::Size(5, 4)), m));
+  // Several channels and none of them Z: which one is depth is unknown.
+  cv::Mat colour(4, 4, CV_32FC3, cv::Scalar(1.0, 2.0, 3.0));
+  ASSERT_TRUE(cv::imwrite((dir / "bgr.exr").string(), colour));
+  ExpectInputError([&] { ReadDepthExr(dir / "bgr.exr"); }, {"bgr.exr", "channel Z", "missing", "single channel Y"});
+  // Half floats lose depth resolution (11 bits of mantissa): refused, naming the channel.
+  ASSERT_TRUE(cv::imwrite((dir / "half.exr").string(), m, {cv::IMWRITE_EXR_TYPE, cv::IMWRITE_EXR_TYPE_HALF}));
+  ExpectInputError([&] { ReadDepthExr(dir / "half.exr"); }, {"half.exr", "channel Y", "float32"});
 }
 
 TEST(ImageIo, AtomicWriteLeavesNothingBehindOnFailure) {

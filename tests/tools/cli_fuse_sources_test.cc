@@ -216,6 +216,49 @@ TEST(FuseSourcesCli, TheCalibrationsDepthModelIsAppliedToTheDevicesRawShifts) {
   EXPECT_TRUE(ImagesBitEqual(ReadDepthExr(scratch / "device" / "fused_depth.exr"), device_map));
 }
 
+// A raw-only frame directory (a recording of the chip's raw shifts) fuses with --calibration's
+// depth model: the map of the directory holding the model's depth, bit for bit.
+TEST(FuseSourcesCli, ARawOnlyFrameDirectoryFusesWithTheCalibrationsDepthModel) {
+  ScratchDir scratch("fuse_sources_raw_only");
+  const Capture c = WriteCapture(scratch.path(), kFrames, kFrames, /*raw_model=*/true);
+  const std::filesystem::path raw_only = scratch / "raw_only";
+  {
+    const FrameDirectorySource source(c.dir);
+    FrameDirectoryWriter writer(raw_only, source.manifest().camera);
+    for (size_t i = 0; i < source.manifest().frames.size(); ++i) {
+      Frame f = LoadFrame(c.dir, source.manifest(), i);
+      f.depth_m.release();
+      writer.Add(f);
+    }
+    writer.Finish();
+  }
+  const auto model = RunRomunect("fuse " + c.model_dir.string() + kFuseArgs + " --out " + (scratch / "model_fused").string());
+  ASSERT_EQ(model.exit_code, 0) << model.output;
+  const auto fused = RunRomunect("fuse " + raw_only.string() + kFuseArgs + " --calibration " + c.calibration.string() +
+                                 " --out " + (scratch / "fused").string());
+  ASSERT_EQ(fused.exit_code, 0) << fused.output;
+  EXPECT_TRUE(ImagesBitEqual(ReadDepthExr(scratch / "fused" / "fused_depth.exr"),
+                             ReadDepthExr(scratch / "model_fused" / "fused_depth.exr")));
+  EXPECT_THAT(Report(scratch / "fused")["depth_from"].get<std::string>(),
+              HasSubstr("the calibration's depth model (inverse_affine_in_raw) on the frame directory's raw images"));
+  // Without the calibration there is no depth to fuse; with one that has no depth model, neither.
+  const auto bare = RunRomunect("fuse " + raw_only.string() + kFuseArgs + " --out " + (scratch / "bare").string());
+  EXPECT_NE(bare.exit_code, 0);
+  EXPECT_THAT(bare.output, HasSubstr("missing: fuse needs depth"));
+  calib::Calibration no_model = calib::LoadCalibration(c.calibration);
+  no_model.depth.reset();
+  calib::SaveCalibration(scratch / "no_model.yml", no_model);
+  const auto refused = RunRomunect("fuse " + raw_only.string() + kFuseArgs + " --calibration " +
+                                   (scratch / "no_model.yml").string() + " --out " + (scratch / "refused").string());
+  EXPECT_EQ(refused.exit_code, 2) << refused.output;
+  EXPECT_THAT(refused.output, HasSubstr("no_model.yml: depth_model: missing"));
+  // A frame directory's poses are its own: --poses stays refused.
+  const auto poses = RunRomunect("fuse " + raw_only.string() + kFuseArgs + PoseArgs(c) + " --out " +
+                                 (scratch / "poses").string());
+  EXPECT_NE(poses.exit_code, 0);
+  EXPECT_THAT(poses.output, HasSubstr("--poses"));
+}
+
 // Recording first, then fusing the directory, applies the calibration's depth model too: record
 // reads the raw shifts and writes the model's metric depth beside them, so the directory fuses
 // to the map of fusing the device directly (it fused the chip's uncorrected depth before).

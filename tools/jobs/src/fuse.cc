@@ -123,10 +123,11 @@ struct FuseSource {
   std::string depth_from;  // for the report
 };
 
-// A frame directory's frames.json holds camera and poses: the options for streams do not apply.
-void RefuseStreamOptions(const FuseOptions& o) {
+// A frame directory's frames.json holds camera and poses: the options for streams do not apply
+// (a frame directory may take --calibration for its depth model alone: `calibration_allowed`).
+void RefuseStreamOptions(const FuseOptions& o, bool calibration_allowed = false) {
   for (const auto& [flag, given] : {std::pair<const char*, bool>{"--poses", !o.poses.empty()},
-                                    {"--calibration", !o.calibration.empty()},
+                                    {"--calibration", !o.calibration.empty() && !calibration_allowed},
                                     {"--camera", !o.camera.empty()},
                                     {"--pose-offset", o.pose_offset_given},
                                     {"--device-depth", o.device_depth},
@@ -136,6 +137,15 @@ void RefuseStreamOptions(const FuseOptions& o) {
                        std::string("applies to .oni files and devices; ") + o.source +
                            " is a frame directory, whose frames.json holds the camera and the poses");
     }
+  }
+}
+
+// A calibration's per-pixel depth maps must be the frames' camera's size.
+void CheckDepthModelSize(const std::string& file, const DepthCorrection& model, const CameraModel& camera) {
+  if (model.a.cols != camera.width || model.a.rows != camera.height) {
+    throw InputError(file, "depth_model",
+                     "maps are " + std::to_string(model.a.cols) + " x " + std::to_string(model.a.rows) +
+                         ", the camera is " + std::to_string(camera.width) + " x " + std::to_string(camera.height));
   }
 }
 
@@ -150,8 +160,23 @@ FuseSource OpenFuseSource(const FuseOptions& o) {
     return {OpenBopScene(o.source), std::nullopt, {}, "the BOP scene's sensor depth (depth/)"};
   }
   if (openni2::ClassifySource(o.source) == openni2::SourceKind::kFrameDirectory) {
-    RefuseStreamOptions(o);
-    return {openni2::OpenSource(o.source, options), std::nullopt, {}, "the frame directory's depth"};
+    RefuseStreamOptions(o, true);
+    FuseSource fuse{openni2::OpenSource(o.source, options), std::nullopt, {}, "the frame directory's depth"};
+    if (!o.calibration.empty()) {
+      // The directory's own camera and poses; the calibration's depth model on its raw images.
+      const calib::Calibration calibration = calib::LoadDeviceCalibration(o.calibration);
+      if (!calibration.depth) {
+        throw InputError(o.calibration, "depth_model",
+                         "missing: with a frame directory, --calibration gives the depth model applied to its raw "
+                         "images (the directory's frames.json holds the camera and the poses)");
+      }
+      CheckDepthModelSize(o.calibration, *calibration.depth, fuse.source->camera());
+      fuse.depth_model = calibration.depth;
+      fuse.chip = calibration.chip;
+      fuse.depth_from = std::string("the calibration's depth model (") +
+                        DepthCorrectionModelName(calibration.depth->model) + ") on the frame directory's raw images";
+    }
+    return fuse;
   }
   if (o.poses.empty()) {
     throw InputError("--poses", "",
@@ -175,13 +200,7 @@ FuseSource OpenFuseSource(const FuseOptions& o) {
   options.openni2.timeout_s = o.timeout_s;
   FuseSource fuse;
   if (calibration.depth && !o.device_depth) {
-    const CameraModel& camera = *options.openni2.camera;
-    if (calibration.depth->a.cols != camera.width || calibration.depth->a.rows != camera.height) {
-      throw InputError(o.calibration, "depth_model",
-                       "maps are " + std::to_string(calibration.depth->a.cols) + " x " +
-                           std::to_string(calibration.depth->a.rows) + ", the camera is " +
-                           std::to_string(camera.width) + " x " + std::to_string(camera.height));
-    }
+    CheckDepthModelSize(o.calibration, *calibration.depth, *options.openni2.camera);
     options.openni2.raw = true;  // the model reads the chip's raw shifts
     fuse.depth_model = calibration.depth;
     fuse.chip = calibration.chip;
@@ -251,10 +270,12 @@ class FuseHooks : public FrameHooks {
   }
 
   void Prepare(size_t i, Frame* frame) override {
+    const std::string field = Field(i, *frame);
     if (opened_.depth_model && !frame->raw.empty()) {
       frame->depth_m = ApplyDepthCorrection(*opened_.depth_model, frame->raw, opened_.chip);
+    } else if (opened_.depth_model && directory_ != nullptr) {
+      throw InputError(where_, field + ".raw", "missing: the calibration's depth model reads the raw image");
     }
-    const std::string field = Field(i, *frame);
     if (frame->depth_m.empty()) throw InputError(where_, field + ".depth", "missing: fuse needs depth");
     if (!frame->T_W_C) throw InputError(where_, field + ".T_W_C", "missing: fuse needs the camera pose");
     if (frame->depth_m.rows != camera_.height || frame->depth_m.cols != camera_.width) {

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <limits>
 
+#include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/tools/jobs/text.h"
 
@@ -20,7 +21,7 @@ FrameDirectoryInfo InspectFrameDirectory(const std::filesystem::path& dir) {
     info.first_time_s = manifest.frames.front().time_s;
     info.last_time_s = manifest.frames.back().time_s;
   }
-  double valid_sum = 0.0;
+  double valid_sum = 0.0, raw_valid_sum = 0.0;
   Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
   Eigen::Vector3d hi = -lo;
   std::optional<Eigen::Vector3d> previous;
@@ -39,6 +40,12 @@ FrameDirectoryInfo InspectFrameDirectory(const std::filesystem::path& dir) {
       info.valid_min = std::min(info.valid_min, valid);
       info.valid_max = std::max(info.valid_max, valid);
     }
+    if (!frame.raw.empty()) {
+      const double valid = static_cast<double>(cv::countNonZero(frame.raw < kRawInvalid)) / frame.raw.total();
+      raw_valid_sum += valid;
+      info.raw_valid_min = std::min(info.raw_valid_min, valid);
+      info.raw_valid_max = std::max(info.raw_valid_max, valid);
+    }
     if (r.T_W_C) {
       ++info.with_pose;
       const Eigen::Vector3d p = r.T_W_C->translation();
@@ -49,6 +56,7 @@ FrameDirectoryInfo InspectFrameDirectory(const std::filesystem::path& dir) {
     }
   }
   if (info.with_depth > 0) info.valid_mean = valid_sum / info.with_depth;
+  if (info.with_raw > 0) info.raw_valid_mean = raw_valid_sum / info.with_raw;
   if (info.with_pose > 0) {
     info.cameras_min_W = lo;
     info.cameras_max_W = hi;
@@ -81,6 +89,11 @@ std::string FrameDirectoryInfoText(const FrameDirectoryInfo& info) {
   if (info.with_depth > 0) {
     text += Format("valid depth pixels: mean %.1f %% (min %.1f %%, max %.1f %%)\n", 100.0 * info.valid_mean,
                    100.0 * info.valid_min, 100.0 * info.valid_max);
+  }
+  if (info.with_raw > 0) {
+    text += Format("valid raw pixels (11-bit, below 2047): mean %.1f %% (min %.1f %%, max %.1f %%)%s\n",
+                   100.0 * info.raw_valid_mean, 100.0 * info.raw_valid_min, 100.0 * info.raw_valid_max,
+                   info.raw_valid_max == 0.0 ? "; warning: no raw measurement in any frame" : "");
   }
   if (info.with_pose > 0) {
     const Eigen::Vector3d& lo = info.cameras_min_W;

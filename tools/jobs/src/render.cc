@@ -190,8 +190,18 @@ void WritePictures(const Rig& rig, const Frame& frame, const cv::Mat& chip_depth
   WritePicture(s->pictures / "color.png", color_bgr);
   s->metric = ErrorsOf(frame.depth_m, frame.gt_depth_m);
   s->chip = ErrorsOf(chip_depth_m, frame.gt_depth_m);
-  // Full colour at the 95th percentile of |error|: outliers at edges do not wash it out.
-  s->error_scale_m = std::max(s->metric.p95, 1e-5);
+  std::vector<float> truth;
+  for (auto it = frame.gt_depth_m.begin<float>(); it != frame.gt_depth_m.end<float>(); ++it) {
+    if (*it > 0.0f) truth.push_back(*it);
+  }
+  double median_m = s->distance_m;
+  if (!truth.empty()) {
+    std::nth_element(truth.begin(), truth.begin() + truth.size() / 2, truth.end());
+    median_m = truth[truth.size() / 2];
+  }
+  const double focal_px = rig.camera.fx, baseline_m = rig.T_C_P.translation().norm();
+  s->code_step_m = median_m * median_m / (8.0 * focal_px * baseline_m);
+  s->error_scale_m = ErrorPictureScaleM(s->metric.p95, median_m, focal_px, baseline_m);
   WritePicture(s->pictures / "error.png", ErrorPicture(frame.depth_m, frame.gt_depth_m, s->error_scale_m));
 }
 
@@ -230,16 +240,24 @@ RenderSummary Render(const RenderJobOptions& o) {
   return s;
 }
 
+double ErrorPictureScaleM(double p95_abs_error_m, double median_true_depth_m, double focal_px, double baseline_m) {
+  const double step_m = median_true_depth_m * median_true_depth_m / (8.0 * focal_px * baseline_m);
+  // A degenerate geometry (no truth, no baseline) still gets a finite, positive scale: 1 um.
+  return std::max({p95_abs_error_m, std::isfinite(step_m) ? step_m : 0.0, 1e-6});
+}
+
 std::string RenderSummaryText(const RenderSummary& s) {
   std::string text = Format("rig: %s, camera %d x %d, %s at %.4f m (%zu triangles)\n", s.rig_name.c_str(), s.width,
                             s.height, s.what.c_str(), s.distance_m, s.triangles);
   text += s.render_stats + "\n" + s.synthesis_stats + "\n" + s.depth_stats + "\n";
   text += Format("valid depth: %.1f %% of pixels; reported depth %.4f .. %.4f m; ground truth %.4f .. %.4f m\n",
                  100.0 * s.valid_fraction, s.lo_m, s.hi_m, s.gt_lo_m, s.gt_hi_m);
-  text += Format("metric - true depth: median %.3f mm, RMS %.3f mm over %zu pixels (%s; error.png scale +-%.3f mm)\n",
-                 1e3 * s.metric.median, 1e3 * s.metric.rms, s.metric.pixels,
-                 s.stock ? "the chip's depth: the rig is the stock device" : "the rig's ground-truth correction",
-                 1e3 * s.error_scale_m);
+  text += Format("metric - true depth: median %.3f mm, RMS %.3f mm over %zu pixels (%s)\n", 1e3 * s.metric.median,
+                 1e3 * s.metric.rms, s.metric.pixels,
+                 s.stock ? "the chip's depth: the rig is the stock device" : "the rig's ground-truth correction");
+  text += Format("error.png: full colour at +-%.3f mm (the larger of the 95th percentile of |error|, %.3f mm, and one "
+                 "raw code's depth step at the median true depth, %.3f mm); red too far, blue too near\n",
+                 1e3 * s.error_scale_m, 1e3 * s.metric.p95, 1e3 * s.code_step_m);
   text += Format("chip depth (uncorrected) - true depth: median %.3f mm, RMS %.3f mm\n", 1e3 * s.chip.median,
                  1e3 * s.chip.rms);
   text += Format("wrote %s (frames.json, ir, raw, depth, gt_depth, color) and %s/{ir,depth,gt_depth,error,color}.png\n",

@@ -18,7 +18,8 @@
 // Matching: both images are prefiltered (local mean removed, divided by the local standard
 // deviation, 8 bits), each window_px x window_px window's sum of absolute differences against
 // the reference is computed for every integer shift in [min_shift, min_shift + range), the
-// best is refined to 1/8 px (parabola through the neighbouring costs), and the pixel is
+// best is refined to 1/8 px (parabola through the neighbouring costs; the rig's disparity
+// distortion, disparity_distortion.h, is added before the rounding), and the pixel is
 // invalid when the window is flat (raw standard deviation < min_texture DN), the match weak
 // (mean difference > max_cost), ambiguous (another shift > 1 px away within `uniqueness` of the
 // best), at the end of the search range, or the raw value leaves 11 bits. Edge fattening,
@@ -111,6 +112,7 @@ class DepthEngine {
   std::vector<uint8_t> reference_reversed_, reference_outside_;
   int clean_begin_ = 0, clean_end_ = 0;
   std::vector<int16_t> ambiguous_below_;  // per best window cost that is not weak
+  cv::Mat distortion_beta_;               // CV_32F beta(u, v) of the disparity distortion; empty: none
 };
 
 // Per-pixel conversion of the chip's output to metric depth (paper eqs. 2-3). The one

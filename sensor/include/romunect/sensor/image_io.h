@@ -29,7 +29,8 @@ enum class ImageCompression { kCompact, kFast };
 // given, not that size ("image size": "expected W x H, found w x h"). The Decode* forms read
 // bytes in memory; `source` names them in errors.
 
-// Reads a single-channel float EXR with a channel named "Z" into a CV_32F Mat.
+// Reads a float EXR's channel "Z" into a CV_32F Mat; a file with the one channel "Y" (what
+// OpenCV's imwrite gives a single-channel float image) is read the same.
 cv::Mat ReadDepthExr(const std::filesystem::path& path, const std::optional<cv::Size>& expected = std::nullopt);
 cv::Mat DecodeDepthExr(std::string_view bytes, const std::string& source,
                        const std::optional<cv::Size>& expected = std::nullopt);

@@ -23,6 +23,7 @@
 #include <opencv2/core.hpp>
 
 #include "romunect/sensor/camera_model.h"
+#include "romunect/sensor/disparity_distortion.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/pose.h"
 
@@ -130,6 +131,9 @@ struct DepthEngineOptions {
   double uniqueness = 0.20;  // second best (>1 px away) within this fraction: ambiguous
   int prefilter_px = 9;      // local-mean removal window (odd), as the chip normalizes
   int threads = 1;
+  // The chip's fixed-pattern disparity error (disparity_distortion.h), added before rounding to
+  // codes; none by default. JSON: optional "disparity_distortion" (absent: none).
+  DisparityDistortion disparity_distortion;
 
   std::string Problem() const;
   FieldProblem Check() const;

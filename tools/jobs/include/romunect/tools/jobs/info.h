@@ -23,6 +23,9 @@ struct FrameDirectoryInfo {
   std::optional<ColorCamera> color_camera;  // frames.json's color_camera
   size_t with_hand_pose = 0;  // frames with the robot's T_B_H (what calibrate hand-eye and depth read)
   double valid_mean = 0.0, valid_min = 1.0, valid_max = 0.0;  // share of valid depth pixels per frame
+  // Share of raw pixels with a measurement (below 2047) per frame with raw; raw above 2047 (not
+  // 11 bits) is refused when the frame is read.
+  double raw_valid_mean = 0.0, raw_valid_min = 1.0, raw_valid_max = 0.0;
   Eigen::Vector3d cameras_min_W = Eigen::Vector3d::Zero(), cameras_max_W = Eigen::Vector3d::Zero();
   double path_m = 0.0;  // the cameras' path, frame to frame
   std::optional<WorldBox> region_W;

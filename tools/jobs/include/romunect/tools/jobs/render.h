@@ -41,8 +41,15 @@ struct RenderSummary {
   double lo_m = 0.0, hi_m = 0.0, gt_lo_m = 0.0, gt_hi_m = 0.0;  // reported and true depth ranges
   bool stock = false;  // the rig is the stock device: the chip's depth is metric
   DepthErrors metric, chip;
-  double error_scale_m = 0.0;  // error.png's full colour
+  double error_scale_m = 0.0;  // error.png's full colour (ErrorPictureScaleM)
+  double code_step_m = 0.0;    // one raw code's depth step at the median true depth
 };
+
+// error.png's full-colour error: the 95th percentile of |error| (outliers at edges do not wash
+// it out), but never below one raw code's depth step at the median true depth, Z^2 / (8 f b) for
+// the rig's camera focal length f (px) and baseline b (m): a frame whose pixels mostly hit the
+// exact code has a 95th percentile of 0 and would saturate on its first miss.
+double ErrorPictureScaleM(double p95_abs_error_m, double median_true_depth_m, double focal_px, double baseline_m);
 
 // Validates the options (InputError naming the option), renders and writes the frame directory
 // (refusing one that holds frames.json before anything is rendered) and its pictures.
