@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <initializer_list>
 #include <memory>
 #include <sstream>
 #include <string>
@@ -550,7 +551,18 @@ std::optional<HeightMapGeometry> ReadHeightMapGeometry(const fs::path& path) {
   }
 }
 
-cv::Mat DecodePng16(std::string_view bytes, const std::string& source, const std::optional<cv::Size>& expected) {
+namespace {
+// What a PNG reader accepts and how libpng hands its samples over.
+struct PngLayout {
+  int bit_depth;
+  std::initializer_list<int> colour_types;  // IHDR colour types accepted
+  const char* expected;                     // for the error: what was expected
+  png_uint_32 format;                       // libpng's simplified-API output format
+  int cv_type;
+};
+
+cv::Mat DecodePng(std::string_view bytes, const std::string& source, const std::optional<cv::Size>& expected,
+                  const PngLayout& layout) {
   // The signature, then IHDR first (the PNG standard's order): width, height, bit depth, colour type.
   static constexpr char kSignature[] = "\x89PNG\r\n\x1a\n";
   if (bytes.size() < 33 || bytes.compare(0, 8, kSignature) != 0 || bytes.compare(12, 4, "IHDR") != 0) {
@@ -559,9 +571,10 @@ cv::Mat DecodePng16(std::string_view bytes, const std::string& source, const std
   CheckHeaderSize({static_cast<int64_t>(Be32(bytes, 16)), static_cast<int64_t>(Be32(bytes, 20))}, expected, source);
   const int bit_depth = static_cast<unsigned char>(bytes[24]);
   const int colour_type = static_cast<unsigned char>(bytes[25]);
-  if (bit_depth != 16 || colour_type != 0) {
+  if (bit_depth != layout.bit_depth || std::find(layout.colour_types.begin(), layout.colour_types.end(),
+                                                 colour_type) == layout.colour_types.end()) {
     throw InputError(source, "pixel type",
-                     "expected a 16-bit single-channel PNG, found bit depth " + std::to_string(bit_depth) +
+                     std::string("expected ") + layout.expected + ", found bit depth " + std::to_string(bit_depth) +
                          " and colour type " + std::to_string(colour_type));
   }
   // libpng's simplified API: no longjmp through our frames. A 16-bit file without gamma chunks
@@ -573,9 +586,9 @@ cv::Mat DecodePng16(std::string_view bytes, const std::string& source, const std
     png_image_free(&png);
     throw InputError(source, "", "not a readable PNG image (" + why + ")");
   }
-  png.format = PNG_FORMAT_LINEAR_Y;
-  cv::Mat image(static_cast<int>(png.height), static_cast<int>(png.width), CV_16UC1);
-  // Row strides are in components (16-bit samples here), not bytes.
+  png.format = layout.format;
+  cv::Mat image(static_cast<int>(png.height), static_cast<int>(png.width), layout.cv_type);
+  // Row strides are in components (16-bit samples for 16-bit images), not bytes.
   if (png_image_finish_read(&png, nullptr, image.data, static_cast<png_int_32>(image.step[0] / image.elemSize1()),
                             nullptr) == 0) {
     const std::string why = png.message;
@@ -584,39 +597,21 @@ cv::Mat DecodePng16(std::string_view bytes, const std::string& source, const std
   }
   return image;
 }
+}  // namespace
+
+cv::Mat DecodePng16(std::string_view bytes, const std::string& source, const std::optional<cv::Size>& expected) {
+  return DecodePng(bytes, source, expected,
+                   {16, {0}, "a 16-bit single-channel PNG", PNG_FORMAT_LINEAR_Y, CV_16UC1});
+}
 
 cv::Mat ReadPng16(const fs::path& path, const std::optional<cv::Size>& expected) {
   return DecodePng16(ReadInputFile(path, kMaxImageFileBytes, "PNG file"), path.string(), expected);
 }
 
 cv::Mat DecodePngRgb8(std::string_view bytes, const std::string& source, const std::optional<cv::Size>& expected) {
-  static constexpr char kSignature[] = "\x89PNG\r\n\x1a\n";
-  if (bytes.size() < 33 || bytes.compare(0, 8, kSignature) != 0 || bytes.compare(12, 4, "IHDR") != 0) {
-    throw InputError(source, "", "not a readable PNG image (no PNG signature and header)");
-  }
-  CheckHeaderSize({static_cast<int64_t>(Be32(bytes, 16)), static_cast<int64_t>(Be32(bytes, 20))}, expected, source);
-  const int bit_depth = static_cast<unsigned char>(bytes[24]);
-  const int colour_type = static_cast<unsigned char>(bytes[25]);
-  if (bit_depth != 8 || (colour_type != 2 && colour_type != 6)) {
-    throw InputError(source, "pixel type",
-                     "expected an 8-bit RGB (or RGBA) PNG, found bit depth " + std::to_string(bit_depth) +
-                         " and colour type " + std::to_string(colour_type));
-  }
-  png_image png{};
-  png.version = PNG_IMAGE_VERSION;
-  if (png_image_begin_read_from_memory(&png, bytes.data(), bytes.size()) == 0) {
-    const std::string why = png.message;
-    png_image_free(&png);
-    throw InputError(source, "", "not a readable PNG image (" + why + ")");
-  }
-  png.format = PNG_FORMAT_RGB;  // an alpha channel is dropped (composited on black)
-  cv::Mat image(static_cast<int>(png.height), static_cast<int>(png.width), CV_8UC3);
-  if (png_image_finish_read(&png, nullptr, image.data, static_cast<png_int_32>(image.step[0]), nullptr) == 0) {
-    const std::string why = png.message;
-    png_image_free(&png);
-    throw InputError(source, "", "cannot be decoded: " + why);
-  }
-  return image;
+  // An alpha channel is dropped (composited on black).
+  return DecodePng(bytes, source, expected,
+                   {8, {2, 6}, "an 8-bit RGB (or RGBA) PNG", PNG_FORMAT_RGB, CV_8UC3});
 }
 
 cv::Mat ReadPngRgb8(const fs::path& path, const std::optional<cv::Size>& expected) {
