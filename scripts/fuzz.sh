@@ -37,5 +37,11 @@ for t in "${targets[@]}"; do
   runs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$log" | tail -1)
   rate=$(sed -n 's/^stat::average_exec_per_sec: *//p' "$log" | tail -1)
   printf '%-16s %12s %10s  %s\n' "$t" "${runs:-?}" "${rate:-?}" "$result"
+  if [[ "$result" != ok ]]; then  # a clean clone's CI keeps only this output: show the finding here
+    grep -E -m1 -A12 '^==[0-9]+==|^ALARM|^SUMMARY' "$log" | sed 's/^/    /' || true
+    for a in build-fuzz/findings/"$t"-*; do
+      [[ -f "$a" ]] && echo "    input ($a, first 256 bytes as hex):" && head -c 256 "$a" | od -An -tx1 | sed 's/^/    /'
+    done
+  fi
 done
 exit "$failed"

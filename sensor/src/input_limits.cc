@@ -118,7 +118,19 @@ void CheckYamlNesting(std::string_view text, const std::string& source) {
       // No line of a document lies left of its first key: that is not YAML, and OpenCV 4.6's
       // parser can loop forever on it (a 20-byte file did).
       const bool content = j < text.size() && std::strchr("\n\r#", text[j]) == nullptr;
-      const bool marker = j == i && (text[j] == '%' || text.substr(j, 3) == "---" || text.substr(j, 3) == "...");
+      const bool document_marker = j == i && (text.substr(j, 3) == "---" || text.substr(j, 3) == "...");
+      const bool marker = document_marker || (j == i && j < text.size() && text[j] == '%');
+      if (document_marker) {
+        // Content after a marker on its line ("--- a", "----a") starts the document right of the
+        // lines below it, which OpenCV 4.6's parser can loop on forever as well.
+        size_t k = j + 3;
+        while (k < text.size() && (text[k] == ' ' || text[k] == '\t' || text[k] == '\r')) ++k;
+        if (k < text.size() && text[k] != '\n' && text[k] != '#') {
+          throw InputError(source, "line " + std::to_string(line),
+                           "expected the document marker '" + std::string(text.substr(j, 3)) +
+                               "' alone on its line (as OpenCV writes it)");
+        }
+      }
       if (content && !marker) {
         const int indent = static_cast<int>(j - i);
         if (root_indent < 0) {

@@ -68,6 +68,18 @@ TEST(YamlNesting, ALineLeftOfTheFirstKeyIsRefusedBeforeOpenCvParses) {
   EXPECT_NO_THROW(CheckYamlNesting("%YAML:1.0\n---\n  a: 1\n  b:\n    - 2\n# note\n  c: 3\n", "a.yaml"));
 }
 
+// Content on a document marker's line starts the document right of the lines below it; OpenCV
+// 4.6's parser looped forever on both files (fuzzer finds of 18 and 16 bytes).
+TEST(YamlNesting, ContentOnADocumentMarkerLineIsRefusedBeforeOpenCvParses) {
+  ScratchDir dir("yaml_marker");
+  testing::WriteText(dir / "dashes.yaml", "%YAML:1.0\n----Y\nY\n\n");
+  ExpectContains(InputErrorOf([&] { CameraModel::Load(dir / "dashes.yaml"); }),
+                 {"dashes.yaml", "line 2", "document marker '---' alone on its line"});
+  testing::WriteText(dir / "inline.yaml", "%YAML:1.0\n--- -Y\nY\n\n");
+  ExpectContains(InputErrorOf([&] { CameraModel::Load(dir / "inline.yaml"); }), {"inline.yaml", "line 2"});
+  EXPECT_NO_THROW(CheckYamlNesting("%YAML:1.0\n--- # first\na: 1\n...\n", "a.yaml"));
+}
+
 TEST(InputFile, OnlyRegularFilesAreRead) {
   ScratchDir dir("input_file");
   ASSERT_EQ(mkfifo((dir / "fifo").c_str(), 0600), 0);
