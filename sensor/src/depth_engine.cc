@@ -52,10 +52,19 @@ std::string DepthEngineStats::BriefReport() const {
   return s.str();
 }
 
-cv::Mat ChipReferenceImage(const ChipGeometry& chip) {
+std::pair<int, int> ReferenceMarginsPx(const DepthEngineOptions& options) {
+  // Pixel x at shift s reads reference column x - s, s in [min_shift, min_shift + range).
+  return {std::max(0, options.min_shift_px + options.search_range_px - 1), std::max(0, -options.min_shift_px)};
+}
+
+cv::Mat ChipReferenceImage(const DepthEngineOptions& options) {
+  const ChipGeometry& chip = options.chip;
   ROMUNECT_CHECK_MSG(chip.Problem().empty(), chip.Problem().c_str());
+  const auto [left, right] = ReferenceMarginsPx(options);
   Rig stock;
   stock.camera = chip.camera;
+  stock.camera.width += left + right;
+  stock.camera.cx += left;
   stock.optics = CameraOptics{};
   stock.optics.aperture_m = 0.0;
   stock.optics.ambient_e_per_s = 0.0;
@@ -67,11 +76,12 @@ cv::Mat ChipReferenceImage(const ChipGeometry& chip) {
   stock.T_C_P = MakePose(Eigen::Matrix3d::Identity(), Eigen::Vector3d(chip.baseline_m, 0, 0));
   stock.pattern = chip.pattern;
   stock.depth_engine.chip = chip;
-  IrSynthesisOptions options;
-  options.noise = false;
-  IrSynthesizer synthesizer(options);
+  stock.depth_engine.chip.camera = stock.camera;
+  IrSynthesisOptions quiet;
+  quiet.noise = false;
+  IrSynthesizer synthesizer(quiet);
   cv::Mat ir;
-  synthesizer.Synthesize(stock, FrontoParallelPlane(chip.camera, z, IrMaterial{1.0f, 0.0f, 50.0f}), 0, &ir, nullptr);
+  synthesizer.Synthesize(stock, FrontoParallelPlane(stock.camera, z, IrMaterial{1.0f, 0.0f, 50.0f}), 0, &ir, nullptr);
   return ir;
 }
 
@@ -176,13 +186,17 @@ void DepthEngine::Prefilter(const cv::Mat& ir, int window_px, cv::Mat* normalize
   PrefilterRows(ir, window_px, SquaresFit32Bits(ir, window_px), 0, ir.rows, normalized, local_sigma);
 }
 
-DepthEngine::DepthEngine(const DepthEngineOptions& options) : DepthEngine(options, ChipReferenceImage(options.chip)) {}
+DepthEngine::DepthEngine(const DepthEngineOptions& options) : DepthEngine(options, ChipReferenceImage(options)) {}
 
 DepthEngine::DepthEngine(const DepthEngineOptions& options, const cv::Mat& reference_ir)
     : options_(options), isa_(KernelFor(Isa::kAuto)->isa) {
   ROMUNECT_CHECK_MSG(options.Problem().empty(), options.Problem().c_str());
   ROMUNECT_CHECK(reference_ir.type() == CV_16U);
-  ROMUNECT_CHECK(reference_ir.cols == options.chip.camera.width && reference_ir.rows == options.chip.camera.height);
+  const auto [margin_left, margin_right] = ReferenceMarginsPx(options);
+  const bool cropped = reference_ir.cols == options.chip.camera.width;
+  ROMUNECT_CHECK(cropped || reference_ir.cols == options.chip.camera.width + margin_left + margin_right);
+  ROMUNECT_CHECK(reference_ir.rows == options.chip.camera.height);
+  const int left = cropped ? 0 : margin_left;
   reference_ir_ = reference_ir.clone();
   cv::Mat reference_norm, sigma;
   Prefilter(reference_ir_, options_.prefilter_px, &reference_norm, &sigma);
@@ -190,9 +204,10 @@ DepthEngine::DepthEngine(const DepthEngineOptions& options, const cv::Mat& refer
   chip_depth_lut_.resize(kRawInvalid + 1);
   for (int raw = 0; raw <= kRawInvalid; ++raw) chip_depth_lut_[raw] = static_cast<float>(ChipDepthM(raw));
 
-  // Search tables (depth_engine_kernel.h): padded index p holds reference column
-  // W - 1 - min_shift - p, so that pixel x's shifts j read p = W - 1 - x + j, ascending in j.
-  const int W = reference_ir.cols, D = options_.search_range_px;
+  // Search tables (depth_engine_kernel.h): padded index p holds the camera's column
+  // W - 1 - min_shift - p (reference column + left), so that pixel x's shifts j read
+  // p = W - 1 - x + j, ascending in j.
+  const int W = options.chip.camera.width, D = options_.search_range_px;
   const int blocks = (D + internal::kLanesPerBlock - 1) / internal::kLanesPerBlock;
   ROMUNECT_CHECK(blocks <= internal::kMaxBlocks);
   search_lanes_ = blocks * internal::kLanesPerBlock;
@@ -200,8 +215,8 @@ DepthEngine::DepthEngine(const DepthEngineOptions& options, const cv::Mat& refer
   reference_reversed_.assign(static_cast<size_t>(reference_ir.rows) * reference_row_length_, 0);
   reference_outside_.assign(reference_row_length_, 0xFF);
   for (int p = 0; p < reference_row_length_; ++p) {
-    const int col = W - 1 - options_.min_shift_px - p;
-    if (col < 0 || col >= W) continue;
+    const int col = W - 1 - options_.min_shift_px - p + left;
+    if (col < 0 || col >= reference_ir.cols) continue;
     reference_outside_[p] = 0;
     for (int y = 0; y < reference_ir.rows; ++y) {
       reference_reversed_[static_cast<size_t>(y) * reference_row_length_ + p] = reference_norm.at<uint8_t>(y, col);
@@ -308,6 +323,8 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
   args.max_best_cost = static_cast<int>(ambiguous_below_.size()) - 1;
   args.ambiguous_below = ambiguous_below_.data();
   args.raw_at_reference = raw_at_reference_rounded_;
+  args.equiangular_weight = static_cast<float>(options_.subpixel_equiangular_weight);
+  args.quarter_correction = static_cast<float>(options_.subpixel_quarter_correction);
   // raw < raw_offset (a double) and below kRawInvalid.
   args.raw_limit = static_cast<int>(std::clamp(std::ceil(options_.chip.raw_offset), 0.0, double{kRawInvalid}));
   args.chip_depth_lut = chip_depth_lut_.data();

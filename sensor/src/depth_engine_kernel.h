@@ -68,6 +68,8 @@ struct KernelArgs {
   // float_step, added as beta exp(alpha0 - alpha1 raw) to the unrounded raw; nullptr: none.
   const float* distortion_beta = nullptr;
   float distortion_alpha0 = 0.f, distortion_alpha1 = 0.f;
+  float equiangular_weight = 1.f;  // DepthEngineOptions::subpixel_equiangular_weight
+  float quarter_correction = 0.f;  // DepthEngineOptions::subpixel_quarter_correction
   int16_t* scratch = nullptr;  // KernelScratchSize(width, blocks) values
   int y_begin = 0, y_end = 0;
 };

@@ -2,6 +2,7 @@
 // by depth_engine_kernel_{scalar,sse2,avx2,avx512}.cc; everything here has internal linkage.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -20,16 +21,36 @@ using romunect::depth_engine_internal::kRawNone;
 // Why a pixel has no raw value, or kCandidate when the search found a match to refine.
 enum PixelCode : int16_t { kCandidate, kBorder, kFlat, kWeak, kAmbiguous, kEdgeOfRange };
 
-// The second pass over one row: the sub-pixel refinement (parabola through the neighbours'
-// costs) and the raw value, with the float arithmetic of depth_engine.h and the reference
-// matcher. Writes every pixel of the row and counts it. kDistorted: beta_row holds the
-// disparity distortion's beta (the undistorted rows compile without it).
+// The best shift's sub-pixel offset in [-0.5, 0.5] px from its window cost c0 and its
+// neighbours' (cm at -1 px, cp at +1 px): `weight` times the equiangular (V) fit plus the rest
+// times the parabola's, then the quarter-pixel correction (DepthEngineOptions). Branch-free so
+// that a row of it vectorizes; every instruction set gives the same bits (one IEEE operation
+// per step, no contraction), and so does the reference matcher.
+inline float SubPixelOffset(float c0, float cm, float cp, float weight, float quarter_correction) {
+  // v = (cm - cp) / 2a and parabola = (cm - cp) / 2b in one division (b >= a, and b > 0 implies
+  // a > 0; b = 0 only when all three costs are equal: offset 0).
+  const float a = std::max(cm, cp) - c0, b = cm + cp - 2.f * c0;
+  const float num = b > 0.f ? (cm - cp) * (weight * b + (1.f - weight) * a) : 0.f;
+  const float d = num / (b > 0.f ? 2.f * a * b : 1.f);
+  const float u = d > 0.25f ? d - 0.5f : d < -0.25f ? d + 0.5f : d;  // from the nearest half pixel
+  return d - quarter_correction * u * (1.f - 16.f * u * u);
+}
+
+// The second pass over one row: the sub-pixel refinement (SubPixelOffset, for the whole row
+// first, parked in shift_row) and the raw value, with the float arithmetic of depth_engine.h and
+// the reference matcher. Writes every pixel of the row and counts it. kDistorted: beta_row holds
+// the disparity distortion's beta (the undistorted rows compile without it).
 template <bool kDistorted>
 inline void RefineRow(const KernelArgs& a, const int16_t* code, const int16_t* best_cost, const int16_t* best_j,
                       const int16_t* cost_minus, const int16_t* cost_plus, const float* beta_row, uint16_t* raw_row,
                       float* depth_row, float* shift_row, KernelStats* stats) {
   const float nan = std::numeric_limits<float>::quiet_NaN();
+  const float weight = a.equiangular_weight, quarter_correction = a.quarter_correction;
   for (int x = 0; x < a.width; ++x) {
+    shift_row[x] = SubPixelOffset(best_cost[x], cost_minus[x], cost_plus[x], weight, quarter_correction);
+  }
+  for (int x = 0; x < a.width; ++x) {
+    const float delta = shift_row[x];
     raw_row[x] = kRawNone;
     depth_row[x] = 0.f;
     shift_row[x] = nan;
@@ -41,9 +62,6 @@ inline void RefineRow(const KernelArgs& a, const int16_t* code, const int16_t* b
       case kEdgeOfRange: ++stats->out_of_range; continue;
       default: break;
     }
-    const float c0 = best_cost[x], cm = cost_minus[x], cp = cost_plus[x];
-    const float denom = 2.f * (cm + cp - 2.f * c0);
-    const float delta = denom > 0.f ? (cm - cp) / denom : 0.f;
     float s8f = 8.f * (static_cast<float>(a.min_shift_px + best_j[x]) + delta);
     if constexpr (kDistorted) {  // the distortion raises raw: lowers the shift
       s8f -= beta_row[x] * std::exp(a.distortion_alpha0 - a.distortion_alpha1 * (a.raw_at_reference - s8f));

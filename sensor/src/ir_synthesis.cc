@@ -315,6 +315,7 @@ void IrSynthesizer::FinishImage(const Rig& rig, uint64_t seed, cv::Mat* ir) {
   args.gain = static_cast<float>(optics.gain_dn_per_e);
   args.full_well = static_cast<float>(optics.full_well_e);
   args.read = static_cast<float>(optics.read_noise_e);
+  args.speckle2 = static_cast<float>(optics.speckle_contrast * optics.speckle_contrast);
   args.max_dn = optics.MaxDn();
   const auto finish_row = KernelFor(isa_)->finish;
   ParallelRows(options_.threads, size.height, [&](int row_begin, int row_end) {

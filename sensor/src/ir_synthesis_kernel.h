@@ -74,6 +74,7 @@ struct FinishArgs {
   bool noise = false, shot = false;
   uint64_t noise_seed = 0;
   float gain = 0.f, full_well = 0.f, read = 0.f;
+  float speckle2 = 0.f;  // the speckle contrast squared
   int max_dn = 0;
 };
 

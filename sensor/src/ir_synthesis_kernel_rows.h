@@ -291,7 +291,10 @@ void FinishPixels(const FinishArgs& a, const FinishRowData& row, int x) {
     F c, s;
     FastCosSin2Pi<L>(u2, &c, &s);
     const F g1 = r * c, g2 = r * s;
-    e = e + ((a.shot ? L::Sqrt(L::Select(e < 0.f, F(0.f), e)) * g1 : F(0.f)) + a.read * g2);
+    // Shot noise and speckle share g1: independent Gaussians add their variances.
+    const F lit = L::Select(e < 0.f, F(0.f), e);
+    const F variance = (a.shot ? lit : F(0.f)) + a.speckle2 * lit * lit;
+    e = e + (L::Sqrt(variance) * g1 + a.read * g2);
   }
   e = L::Select(e < 0.f, F(0.f), L::Select(a.full_well < e, F(a.full_well), e));  // std::clamp
   const I dn = L::Trunc(a.gain * e + 0.5f);

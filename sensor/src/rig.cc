@@ -110,6 +110,9 @@ FieldProblem CameraOptics::Check() const {
   if (!(std::isfinite(read_noise_e) && read_noise_e >= 0)) {
     return Bad("read_noise_e", "must be non-negative", read_noise_e);
   }
+  if (!(speckle_contrast >= 0 && speckle_contrast <= 1)) {
+    return Bad("speckle_contrast", "must be in [0, 1]", speckle_contrast);
+  }
   if (bits < 1 || bits > 16) return Bad("bits", "must be in [1, 16]", bits);
   if (!(std::isfinite(ambient_e_per_s) && ambient_e_per_s >= 0)) {
     return Bad("ambient_e_per_s", "must be non-negative", ambient_e_per_s);
@@ -218,6 +221,13 @@ FieldProblem DepthEngineOptions::Check() const {
     return Bad("min_shift_px", "must be in [-256, 256]", min_shift_px);
   }
   if (subpixel_steps != 8) return Bad("subpixel_steps", "the chip reports 1/8 px: must be 8", subpixel_steps);
+  if (!(subpixel_equiangular_weight >= 0 && subpixel_equiangular_weight <= 1)) {
+    return Bad("subpixel_equiangular_weight", "must be in [0, 1]", subpixel_equiangular_weight);
+  }
+  if (!(subpixel_quarter_correction >= -0.5 && subpixel_quarter_correction <= 0.5)) {
+    return Bad("subpixel_quarter_correction", "must be in [-0.5, 0.5] (the map stays monotone)",
+               subpixel_quarter_correction);
+  }
   if (!(std::isfinite(min_texture) && min_texture >= 0)) return Bad("min_texture", "must be >= 0", min_texture);
   if (!(std::isfinite(max_cost) && max_cost > 0)) return Bad("max_cost", "must be positive", max_cost);
   if (!(std::isfinite(uniqueness) && uniqueness >= 0 && uniqueness < 1)) {
@@ -303,9 +313,11 @@ Rig KinectV1() {
   rig.depth_engine.chip = StockChip();
   rig.camera = rig.depth_engine.chip.camera;
   rig.optics = CameraOptics{};
-  // A fast fixed-focus IR lens: near targets blur in the camera (most of the noise at 0.5 m).
-  rig.optics.aperture_m = 0.006;
+  // A fast fixed-focus IR lens: near targets blur in the camera (much of the noise at 0.5 m).
+  rig.optics.aperture_m = 0.0045;
   rig.optics.focus_distance_m = 2.0;
+  // The laser's speckle: code noise of about 0.55 raw units on any plane (docs/fidelity.md).
+  rig.optics.speckle_contrast = 0.18;
   // The laser's DOE keeps the pattern sharp from ~0.5 m on: a tiny effective aperture.
   rig.projector = rig.depth_engine.chip.projector;
   rig.projector.focus_distance_m = 2.0;
@@ -314,9 +326,16 @@ Rig KinectV1() {
   rig.T_C_P = MakePose(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.075, 0, 0));
   rig.pattern = rig.depth_engine.chip.pattern;
   rig.H_P_rec = Eigen::Matrix3d::Identity();
-  // 0.47 m .. 3.8 m: the stock range needs more than the default 64 px.
-  rig.depth_engine.min_shift_px = -32;
+  // 0.43 m .. 7.4 m (raw 286 .. 1046): the stock range needs more than the default 64 px.
+  rig.depth_engine.min_shift_px = -38;
   rig.depth_engine.search_range_px = 96;
+  // The real chip keeps a plane valid from 0.55 to 6 m: it accepts the faint dots of far
+  // surfaces and the blurred, speckled ones of near surfaces.
+  rig.depth_engine.min_texture = 1.5;
+  rig.depth_engine.max_cost = 32.0;
+  // Its blurred, speckled pattern rounds the cost's minimum: mostly V, some parabola.
+  rig.depth_engine.subpixel_equiangular_weight = 0.75;
+  rig.depth_engine.subpixel_quarter_correction = 0.05;
   // The stock unit's fixed-pattern error after its own raw-to-depth mapping.
   rig.depth_engine.disparity_distortion = KinectV1DisparityDistortion();
   return rig;
@@ -354,6 +373,8 @@ Rig Romunect() {
   // Within its focused range the pattern is sharp: a stricter match threshold costs no valid
   // pixels and rejects the false matches at the image borders (true match off the reference).
   rig.depth_engine.max_cost = 20.0;
+  rig.depth_engine.subpixel_equiangular_weight = 0.92;  // its codes' phases spread evenly
+  rig.depth_engine.subpixel_quarter_correction = 0.05;
   rig.H_P_rec = IdealPrewarp(rig, 0.2);
   return rig;
 }
@@ -459,6 +480,7 @@ json OpticsJson(const CameraOptics& o) {
           {"full_well_e", o.full_well_e},
           {"read_noise_e", o.read_noise_e},
           {"shot_noise", o.shot_noise},
+          {"speckle_contrast", o.speckle_contrast},
           {"bits", o.bits},
           {"ambient_e_per_s", o.ambient_e_per_s}};
 }
@@ -473,6 +495,7 @@ CameraOptics ReadOptics(const Field& f) {
   o.full_well_e = f["full_well_e"].Number();
   o.read_noise_e = f["read_noise_e"].Number();
   o.shot_noise = f["shot_noise"].Bool();
+  if (f.Has("speckle_contrast")) o.speckle_contrast = f["speckle_contrast"].Number();
   o.bits = f["bits"].Int();
   o.ambient_e_per_s = f["ambient_e_per_s"].Number();
   if (const FieldProblem problem = o.Check()) FailProblem(f, problem);
@@ -549,6 +572,8 @@ json EngineJson(const DepthEngineOptions& o) {
           {"min_shift_px", o.min_shift_px},
           {"search_range_px", o.search_range_px},
           {"subpixel_steps", o.subpixel_steps},
+          {"subpixel_equiangular_weight", o.subpixel_equiangular_weight},
+          {"subpixel_quarter_correction", o.subpixel_quarter_correction},
           {"min_texture", o.min_texture},
           {"max_cost", o.max_cost},
           {"uniqueness", o.uniqueness},
@@ -570,6 +595,8 @@ DepthEngineOptions ReadEngine(const Field& f) {
   o.min_shift_px = f["min_shift_px"].Int();
   o.search_range_px = f["search_range_px"].Int();
   o.subpixel_steps = f["subpixel_steps"].Int();
+  if (f.Has("subpixel_equiangular_weight")) o.subpixel_equiangular_weight = f["subpixel_equiangular_weight"].Number();
+  if (f.Has("subpixel_quarter_correction")) o.subpixel_quarter_correction = f["subpixel_quarter_correction"].Number();
   o.min_texture = f["min_texture"].Number();
   o.max_cost = f["max_cost"].Number();
   o.uniqueness = f["uniqueness"].Number();

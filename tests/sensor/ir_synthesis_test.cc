@@ -25,6 +25,7 @@ Rig UniformRig() {
   rig.optics.aperture_m = 0.0;
   rig.optics.psf_sigma_px = 0.0;
   rig.optics.ambient_e_per_s = 0.0;
+  rig.optics.speckle_contrast = 0.0;
   rig.projector.brightness_e_per_s = 1.0e5;  // no saturation at 1.5 m
   return rig;
 }
@@ -80,6 +81,32 @@ TEST(IrSynthesisTest, InverseSquareShadowAmbientAndSaturation) {
   synth.Synthesize(rig, FrontoParallelPlane(rig.camera, 1.0, IrMaterial{}), 1, &ir, &stats);
   EXPECT_EQ(stats.pixels_saturated, 80 * 60);
   EXPECT_EQ(ir.at<uint16_t>(30, 40), std::lround(rig.optics.full_well_e * rig.optics.gain_dn_per_e));
+}
+
+// Laser speckle adds (contrast x signal)^2 to the variance: multiplicative, zero-mean.
+TEST(IrSynthesisTest, SpeckleAddsItsContrastTimesTheSignalToTheNoise) {
+  Rig rig = UniformRig();
+  rig.optics.speckle_contrast = 0.1;
+  IrSynthesizer quiet(NoNoise()), noisy;
+  cv::Mat clean, ir;
+  const GeometryBuffer g = FrontoParallelPlane(rig.camera, 2.0, IrMaterial{0.5f, 0, 50});
+  quiet.Synthesize(rig, g, 1, &clean, nullptr);
+  noisy.Synthesize(rig, g, 1, &ir, nullptr);
+  const double e = quiet.expected_electrons().at<float>(30, 40);
+  const double c = rig.optics.speckle_contrast;
+  const double gain2 = rig.optics.gain_dn_per_e * rig.optics.gain_dn_per_e;
+  const double expected_var =
+      (e + c * c * e * e + rig.optics.read_noise_e * rig.optics.read_noise_e) * gain2 + 1.0 / 6.0;
+  ASSERT_GT(c * c * e, 2.0) << "the speckle term must dominate the shot noise here";
+  cv::Mat diff;
+  cv::subtract(ir, clean, diff, cv::noArray(), CV_64F);
+  cv::Scalar mean, sd;
+  cv::meanStdDev(diff, mean, sd);
+  constexpr double kVarianceRelTolerance = 0.10;  // as below: 4800 samples, falloff across the field
+  EXPECT_NEAR(sd[0] * sd[0], expected_var, expected_var * kVarianceRelTolerance);
+  EXPECT_NEAR(mean[0], 0.0, 4 * sd[0] / std::sqrt(diff.total()));
+  rig.optics.speckle_contrast = 1.5;
+  EXPECT_NE(rig.Problem().find("speckle_contrast"), std::string::npos) << rig.Problem();
 }
 
 TEST(IrSynthesisTest, NoiseHasTheShotAndReadVariance) {

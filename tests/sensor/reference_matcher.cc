@@ -34,6 +34,8 @@ uint16_t ReferenceMatchRaw(const DepthEngine& engine, const cv::Mat& n_obs, cons
                            int x, int y) {
   const DepthEngineOptions& o = engine.options();
   const int r = o.window_px / 2, W = n_obs.cols, H = n_obs.rows;
+  // The reference's column 0 is the camera's -left (0 for a reference cropped to the image).
+  const int left = n_ref.cols == W ? 0 : ReferenceMarginsPx(o).first;
   if (x < r || y < r || x >= W - r || y >= H - r) return kRawInvalid;
   if (sigma.at<float>(y, x) < static_cast<float>(o.min_texture)) return kRawInvalid;
   std::vector<int> cost(o.search_range_px);
@@ -42,9 +44,9 @@ uint16_t ReferenceMatchRaw(const DepthEngine& engine, const cv::Mat& n_obs, cons
     int sum = 0;
     for (int dy = -r; dy <= r; ++dy) {
       for (int dx = -r; dx <= r; ++dx) {
-        const int xr = x + dx - s;
+        const int xr = x + dx - s + left;
         const int a = n_obs.at<uint8_t>(y + dy, x + dx);
-        sum += (xr >= 0 && xr < W) ? std::abs(a - n_ref.at<uint8_t>(y + dy, xr)) : 255;
+        sum += (xr >= 0 && xr < n_ref.cols) ? std::abs(a - n_ref.at<uint8_t>(y + dy, xr)) : 255;
       }
     }
     cost[j] = sum;
@@ -62,8 +64,14 @@ uint16_t ReferenceMatchRaw(const DepthEngine& engine, const cv::Mat& n_obs, cons
   if (second < c0 * (1.f + static_cast<float>(o.uniqueness))) return kRawInvalid;
   if (best_j == 0 || best_j == o.search_range_px - 1) return kRawInvalid;
   const float cm = static_cast<float>(cost[best_j - 1]), cp = static_cast<float>(cost[best_j + 1]);
-  const float denom = 2.f * (cm + cp - 2.f * c0);
-  const float delta = denom > 0.f ? (cm - cp) / denom : 0.f;
+  // Sub-pixel: the equiangular (V) and the parabolic fit, weighted.
+  const float w = static_cast<float>(o.subpixel_equiangular_weight);
+  // V: (cm - cp) / 2a; parabola: (cm - cp) / 2b; blended over one denominator, 2ab.
+  const float a = std::max(cm, cp) - c0, b = cm + cp - 2.f * c0;
+  const float d = b > 0.f ? (cm - cp) * (w * b + (1.f - w) * a) / (2.f * a * b) : 0.f;
+  // The quarter-pixel correction on the offset from the nearest half pixel.
+  const float u = d - 0.5f * std::round(2.f * d);
+  const float delta = d - static_cast<float>(o.subpixel_quarter_correction) * u * (1.f - 16.f * u * u);
   const long s8 = static_cast<long>(std::floor(8.f * (static_cast<float>(o.min_shift_px + best_j) + delta) + 0.5f));
   const long raw = std::lround(engine.RawAtReference()) - s8;
   if (raw < 0 || raw >= kRawInvalid || raw >= o.chip.raw_offset) return kRawInvalid;

@@ -32,6 +32,7 @@
 #pragma once
 
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -64,14 +65,20 @@ struct DepthEngineOutput {
 };
 
 // The reference image the chip stores: the pattern on a white plane at reference_distance_m in
-// the stock geometry, without noise (CV_16U, 10 bits).
-cv::Mat ChipReferenceImage(const ChipGeometry& chip);
+// the stock geometry, without noise (CV_16U, 10 bits). It is wider than the camera's image by
+// the search's shifts (ReferenceMarginsPx), so that every shift of every pixel has a reference
+// column, as on the real chip: no band of the image is lost near or far.
+cv::Mat ChipReferenceImage(const DepthEngineOptions& options);
+// Columns of the reference left of the camera's column 0 (the largest shift) and right of its
+// last column (minus the smallest shift), each at least 0.
+std::pair<int, int> ReferenceMarginsPx(const DepthEngineOptions& options);
 
 class DepthEngine {
  public:
   // Renders the chip's reference image once (ChipReferenceImage).
   explicit DepthEngine(const DepthEngineOptions& options);
-  // Uses a given reference image (CV_16U, the chip camera's size).
+  // Uses a given reference image (CV_16U): ChipReferenceImage's size, or the camera's (a
+  // reference cropped to the image: shifts that leave it count as mismatches).
   DepthEngine(const DepthEngineOptions& options, const cv::Mat& reference_ir);
 
   // One frame: ir is CV_16U of the chip camera's size. A wrong size or type is bad input from

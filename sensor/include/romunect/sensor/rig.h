@@ -62,6 +62,10 @@ struct CameraOptics {
   double full_well_e = 4000.0;      // electrons where a pixel saturates
   double read_noise_e = 6.0;        // read noise, electrons RMS
   bool shot_noise = true;           // photon (Poisson) noise, Gaussian approximation
+  // Laser speckle: multiplicative noise of this contrast (standard deviation over mean) in each
+  // pixel and frame, the same on any surface and at any angle; 0 for incoherent light (LED/DLP).
+  // JSON: optional (absent: 0).
+  double speckle_contrast = 0.0;
   int bits = 10;                    // quantization: output in [0, 2^bits - 1]
   double ambient_e_per_s = 2000.0;  // ambient IR on a white surface, electrons per second
 
@@ -126,6 +130,14 @@ struct DepthEngineOptions {
   int min_shift_px = -32;  // search along the row: shifts [min, min + range) vs reference
   int search_range_px = 64;
   int subpixel_steps = 8;    // 1/8 px
+  // The sub-pixel fit through the best integer shift's cost and its neighbours', calibrated so
+  // that codes fall evenly on the eight 1/8-px phases, as the real chip's do (docs/fidelity.md):
+  // this weight on the equiangular (V) fit, the rest on the parabola (a parabola on sums of
+  // absolute differences pulls codes to whole pixels, a V to half pixels), then the offset u
+  // from the nearest half pixel moved by -correction u (1 - 16 u^2), which spreads codes
+  // from the quarter pixels to the whole and half ones (monotone). JSON: optional (absent: 1, 0).
+  double subpixel_equiangular_weight = 1.0;
+  double subpixel_quarter_correction = 0.0;
   double min_texture = 6.0;  // mean |prefiltered| in the window below this: flat -> invalid
   double max_cost = 25.0;    // mean |difference| per pixel above this: weak -> invalid
   double uniqueness = 0.20;  // second best (>1 px away) within this fraction: ambiguous
