@@ -27,11 +27,11 @@ enum PixelCode : int16_t { kCandidate, kBorder, kFlat, kWeak, kAmbiguous, kEdgeO
 // that a row of it vectorizes; every instruction set gives the same bits (one IEEE operation
 // per step, no contraction), and so does the reference matcher.
 inline float SubPixelOffset(float c0, float cm, float cp, float weight, float quarter_correction) {
-  // v = (cm - cp) / 2a and parabola = (cm - cp) / 2b in one division (b >= a, and b > 0 implies
-  // a > 0; b = 0 only when all three costs are equal: offset 0).
+  // v = (cm - cp) / 2a and parabola = (cm - cp) / 2b in one division (a = b = 0 only when all
+  // three costs are equal: offset 0). The row's other pixels hold stale costs: never 0 / 0.
   const float a = std::max(cm, cp) - c0, b = cm + cp - 2.f * c0;
-  const float num = b > 0.f ? (cm - cp) * (weight * b + (1.f - weight) * a) : 0.f;
-  const float d = num / (b > 0.f ? 2.f * a * b : 1.f);
+  const bool fit = a > 0.f && b > 0.f;
+  const float d = (fit ? (cm - cp) * (weight * b + (1.f - weight) * a) : 0.f) / (fit ? 2.f * a * b : 1.f);
   const float u = d > 0.25f ? d - 0.5f : d < -0.25f ? d + 0.5f : d;  // from the nearest half pixel
   return d - quarter_correction * u * (1.f - 16.f * u * u);
 }

@@ -68,7 +68,7 @@ uint16_t ReferenceMatchRaw(const DepthEngine& engine, const cv::Mat& n_obs, cons
   const float w = static_cast<float>(o.subpixel_equiangular_weight);
   // V: (cm - cp) / 2a; parabola: (cm - cp) / 2b; blended over one denominator, 2ab.
   const float a = std::max(cm, cp) - c0, b = cm + cp - 2.f * c0;
-  const float d = b > 0.f ? (cm - cp) * (w * b + (1.f - w) * a) / (2.f * a * b) : 0.f;
+  const float d = a > 0.f && b > 0.f ? (cm - cp) * (w * b + (1.f - w) * a) / (2.f * a * b) : 0.f;
   // The quarter-pixel correction on the offset from the nearest half pixel.
   const float u = d - 0.5f * std::round(2.f * d);
   const float delta = d - static_cast<float>(o.subpixel_quarter_correction) * u * (1.f - 16.f * u * u);
