@@ -12,7 +12,7 @@
 namespace romunect::sim {
 namespace {
 
-// A wide measurable range (the stock Kinect's 0.45-2.1 m) is used near its near end, where depth
+// A wide measurable range (the stock Kinect's 0.48-3.0 m) is used near its near end, where depth
 // noise (growing with Z^2) is lowest, with this much room for taller surfaces.
 constexpr double kWideRangeRoomM = 0.25;
 // Points this close to a wall are left out of the pile's height (the walls are the bin, not the pile).

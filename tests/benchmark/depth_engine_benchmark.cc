@@ -28,6 +28,7 @@ constexpr double kEighthPx = 0.125;
 struct Pair {
   Rig rig = RigPreset("romunect");
   cv::Mat ir, reference, truth_shift_px;  // shift = f b (1/Z - 1/Z_w), exact for this rig
+  cv::Mat reference_in_image;              // its columns under the image: OpenCV wants equal sizes
   std::unique_ptr<DepthEngine> engine;
 };
 
@@ -41,6 +42,8 @@ Pair& ThePair() {
     synth.Synthesize(p->rig, g, 1, &p->ir, nullptr);
     p->engine = std::make_unique<DepthEngine>(p->rig.depth_engine);
     p->reference = p->engine->reference_ir();
+    const int left = ReferenceMarginsPx(p->rig.depth_engine).first;
+    p->reference_in_image = p->reference.colRange(left, left + p->ir.cols).clone();
     const cv::Mat z = testing::TruthDepth(g);
     const double fb = p->rig.camera.fx * p->rig.T_C_P.translation().x();
     p->truth_shift_px.create(z.size(), CV_32F);
@@ -172,7 +175,7 @@ void BM_OpenCvStereoBM(benchmark::State& state) {
   bm->setMinDisparity(o.min_shift_px);
   cv::Mat disparity;
   for (auto _ : state) {
-    bm->compute(To8Bit(p.ir), To8Bit(p.reference), disparity);
+    bm->compute(To8Bit(p.ir), To8Bit(p.reference_in_image), disparity);
     benchmark::DoNotOptimize(disparity.data);
   }
   Record(state, "opencv_stereobm_threads_" + std::to_string(state.range(0)), ShareWithinEighth(OpenCvShift(disparity)));
@@ -187,7 +190,7 @@ void BM_OpenCvStereoSGBM(benchmark::State& state) {
   auto sgbm = cv::StereoSGBM::create(o.min_shift_px, o.search_range_px, w, 8 * w * w, 32 * w * w);
   cv::Mat disparity;
   for (auto _ : state) {
-    sgbm->compute(To8Bit(p.ir), To8Bit(p.reference), disparity);
+    sgbm->compute(To8Bit(p.ir), To8Bit(p.reference_in_image), disparity);
     benchmark::DoNotOptimize(disparity.data);
   }
   Record(state, "opencv_stereosgbm_threads_" + std::to_string(state.range(0)),

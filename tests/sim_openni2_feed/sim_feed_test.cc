@@ -98,7 +98,7 @@ TEST(SimFeed, OpenNI2SourceOverTheLiveFeedGivesTheSimulatorsFrames) {
 }
 
 // The stock Kinect preset in the live twin: its approach is planned from its own range (about
-// 0.45-2.1 m, the bin seen from ~0.7 m), and the device delivers its frames.
+// 0.48-3.0 m, the bin seen from ~0.7 m), and the device delivers its frames.
 TEST(SimFeed, TheStockKinectPresetDeliversFrames) {
   openni2::VirtualDeviceOptions step;
   step.pace = openni2::VirtualDeviceOptions::Pace::kStep;

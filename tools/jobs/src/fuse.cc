@@ -1,5 +1,7 @@
 #include "romunect/tools/jobs/fuse.h"
 
+#include <unistd.h>
+
 #include <cmath>
 #include <cstdio>
 #include <memory>
@@ -292,13 +294,12 @@ class FuseHooks : public FrameHooks {
 
   void OnFused(size_t i, const Frame&, const FusionSummary& summary) override {
     const fusion::FusionReport& r = summary.report;
-    if (frame_count_ > 0) {
-      std::fprintf(stderr, "\rfuse: frame %zu/%zu, insert %.1f ms, completeness %.1f %%   ", i + 1, frame_count_,
-                   r.insert_ms.back(), 100.0 * r.completeness_per_frame.back());
-    } else {
-      std::fprintf(stderr, "\rfuse: frame %zu, insert %.1f ms, completeness %.1f %%   ", i + 1, r.insert_ms.back(),
-                   100.0 * r.completeness_per_frame.back());
-    }
+    // One updating line on a terminal; in a log a line every 10 frames and at the last.
+    if (!interactive_ && (i + 1) % 10 != 0 && i + 1 != frame_count_) return;
+    std::fprintf(stderr, "%sfuse: frame %zu", interactive_ ? "\r" : "", i + 1);
+    if (frame_count_ > 0) std::fprintf(stderr, "/%zu", frame_count_);
+    std::fprintf(stderr, ", insert %.1f ms, completeness %.1f %%%s", r.insert_ms.back(),
+                 100.0 * r.completeness_per_frame.back(), interactive_ ? "   " : "\n");
   }
 
  private:
@@ -308,6 +309,7 @@ class FuseHooks : public FrameHooks {
   }
 
   const FuseSource& opened_;
+  const bool interactive_ = isatty(fileno(stderr));
   const CalibrationPerturbation perturbation_;
   const FrameDirectorySource* directory_;
   const std::string where_;
@@ -429,7 +431,7 @@ FuseJobSummary RunFuse(const FuseOptions& o) {
   run.Begin();  // a second run into the same --out is refused here, before any frame is fused
   FuseHooks hooks(o, opened, directory, perturbation);
   FusionSummary fused = FuseFrames(*opened.source, perturbation.Apply(opened.source->camera()), grid, o.threads, hooks);
-  std::fprintf(stderr, "\n");
+  if (isatty(fileno(stderr))) std::fprintf(stderr, "\n");  // ends the updating line
   // A device that skipped frame numbers lost frames fuse could not keep up with (or the link
   // dropped): the map misses them, so the report counts them.
   const openni2::OpenNI2Source* device = openni2::FindOpenNI2Source(opened.source.get());

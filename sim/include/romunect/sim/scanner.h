@@ -53,7 +53,7 @@ class FrameImager {
 // chip's reference plane for the stock device). Only usable_fraction of the search window, about
 // its centre, counts: best matches at its border are clamped, not found. A window that reaches
 // zero disparity ends at 10 x the focus distance. The romunect rig: about 191-210 mm (the
-// paper's ~2 cm focused range); kinect-v1: about 0.45-2.1 m.
+// paper's ~2 cm focused range); kinect-v1: about 0.48-3.0 m.
 struct DepthRange {
   double near_m = 0.0, far_m = 0.0;
 };
