@@ -51,6 +51,9 @@ void AddScanCommand(CLI::App& app) {
   cmd->add_flag("--ideal-depth", o->ideal_depth, "Fuse ground-truth depth instead of the sensor's (debugging)");
   cmd->add_flag("--compress-frames", o->compress_frames,
                 "Compress the frame directory's files (PNG, EXR ZIP: 2-5x smaller, ~50 ms of CPU per frame)");
+  cmd->add_flag("--resume", o->resume,
+                "Continue the run in --out that was interrupted (its .incomplete folder) from its last finished "
+                "frame, with the same options: the same bytes as an uninterrupted run");
   cmd->callback([o] { std::printf("%s", jobs::ScanSummaryText(jobs::RunScan(*o)).c_str()); });
 }
 

@@ -2,6 +2,7 @@
 // behind by a run that fails.
 #include <atomic>
 #include <filesystem>
+#include <iterator>
 #include <map>
 #include <string>
 #include <thread>
@@ -57,6 +58,26 @@ TEST(RunFolder, BuildsInTheWorkFolderAndRenamesWhenComplete) {
   EXPECT_EQ(ReadText(dir / "empty" / "report.json"), "{}");
   EXPECT_FALSE(fs::exists(dir / "empty" / kRunMarker));
   EXPECT_FALSE(fs::exists(run.work_dir()));
+}
+
+// Resume takes a killed run's work folder over with its files; with none it starts a fresh one;
+// a folder another run holds is refused as by Begin.
+TEST(RunFolder, ResumeTakesOverAKilledRunsWorkFolderWithItsFiles) {
+  ScratchDir dir("run_folder");
+  WriteText(dir / "killed.incomplete" / "frame.png", "finished before the kill");
+  WriteText(dir / "killed.incomplete" / kRunMarker, "made by romunect scan (pid 1)\n");  // and unlocked
+  RunFolder run((dir / "killed").string(), "--out", "scan");
+  EXPECT_TRUE(run.Resume());
+  EXPECT_EQ(ReadText(run.work_dir() / "frame.png"), "finished before the kill");
+  RunFolder second((dir / "killed").string(), "--out", "scan");
+  const std::string refused = InputErrorOf([&] { second.Resume(); });
+  EXPECT_NE(refused.find("another run is writing into it"), std::string::npos) << refused;
+  run.Commit();
+  EXPECT_EQ(ReadText(dir / "killed" / "frame.png"), "finished before the kill");
+  EXPECT_FALSE(fs::exists(dir / "killed" / kRunMarker));
+  RunFolder fresh((dir / "fresh").string(), "--out", "scan");
+  EXPECT_FALSE(fresh.Resume());
+  EXPECT_EQ(std::distance(fs::directory_iterator(fresh.work_dir()), fs::directory_iterator()), 1);  // the marker
 }
 
 // A work folder without the marker was not made by romunect: refused, and never removed.

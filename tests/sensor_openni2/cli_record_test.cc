@@ -17,6 +17,7 @@ namespace {
 
 using testing::ImagesBitEqual;
 using testing::RunRomunect;
+using testing::RunShell;
 using testing::ScratchDir;
 
 std::string Quote(const std::string& s) { return "'" + s + "'"; }
@@ -118,19 +119,6 @@ TEST(CliRecord, RawShiftsGoToTheFrameDirectorysRawImages) {
   }
   const auto doc = nlohmann::json::parse(testing::ReadText(out / "raw" / "frames.json"));
   EXPECT_EQ(doc["recording"]["depth_unit"], "raw shift9.2");
-}
-
-// Runs a shell command line, output and errors together.
-testing::CommandResult RunShell(const std::string& command_line) {
-  const std::string command = "(" + command_line + ") 2>&1";
-  testing::CommandResult result;
-  FILE* pipe = popen(command.c_str(), "r");
-  if (pipe == nullptr) return result;
-  char buffer[4096];
-  for (size_t n; (n = fread(buffer, 1, sizeof(buffer), pipe)) > 0;) result.output.append(buffer, n);
-  const int status = pclose(pipe);
-  result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return result;
 }
 
 // Runs `romunect <arguments>` in `cwd` with ROMUNECT_VIRTUAL_DEVICE set to `device`.

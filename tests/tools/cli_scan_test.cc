@@ -154,6 +154,48 @@ TEST(CliScanIntegration, TwoScansAtOnceIntoOneOutOneIsRefusedBeforeAnyWork) {
   }
 }
 
+// A scan killed mid-approach and resumed holds the bytes of an uninterrupted run; its finished
+// frames were read back, not imaged. Resuming with other options is refused, naming the option,
+// and leaves the interrupted run as it was.
+TEST(CliScanIntegration, AKilledScanResumesToTheUninterruptedRunsBytes) {
+  ScratchDir dir("scan_resume");
+  const std::string options = "scan --objects 1 --seed 4 --voxel 0.002 --threads 1 --out ";
+  const auto lone = RunRomunect(options + (dir / "lone").string());
+  ASSERT_EQ(lone.exit_code, 0) << lone.output;
+  const auto expected = RunFiles(dir / "lone");
+  const fs::path out = dir / "run";
+  const std::string depth_files = out.string() + ".incomplete/frames/depth";
+  const auto killed = testing::RunShell(testing::RomunectBinary().string() + " " + options + out.string() +
+                               " >/dev/null 2>&1 & pid=$!; for i in $(seq 1 1000); do [ $(ls " + depth_files +
+                               " 2>/dev/null | wc -l) -ge 10 ] && break; sleep 0.02; done; kill -9 $pid; wait $pid");
+  ASSERT_TRUE(fs::exists(depth_files)) << killed.output;
+  ASSERT_FALSE(fs::exists(out)) << "killed after it finished: the test needs a slower scan";
+  const auto other = RunRomunect("scan --objects 1 --seed 5 --voxel 0.002 --threads 1 --resume --out " + out.string());
+  EXPECT_EQ(other.exit_code, 2) << other.output;
+  EXPECT_THAT(other.output, ::testing::HasSubstr("--resume: seed: the interrupted run in"));
+  EXPECT_THAT(other.output, ::testing::HasSubstr("used 4, this one 5"));
+  ASSERT_TRUE(fs::exists(depth_files)) << "a refused resume keeps the interrupted run";
+  // The threads may differ: the bytes do not depend on them.
+  const auto resumed = RunRomunect("scan --objects 1 --seed 4 --voxel 0.002 --threads 2 --resume --out " + out.string());
+  ASSERT_EQ(resumed.exit_code, 0) << resumed.output;
+  EXPECT_THAT(resumed.output, ::testing::ContainsRegex("resuming .*: [1-9][0-9]* finished frames are read back"));
+  auto files = RunFiles(out);
+  auto want = expected;
+  for (auto* f : {&files, &want}) {  // the report records the threads it ran with
+    auto report = nlohmann::json::parse((*f)["report.json"]);
+    report["options"].erase("threads");
+    (*f)["report.json"] = report.dump();
+  }
+  EXPECT_TRUE(files == want);
+  EXPECT_FALSE(fs::exists(out.string() + ".incomplete"));
+  // Nothing to resume: a fresh run, said so.
+  const auto fresh = RunRomunect(options + (dir / "fresh").string() + " --resume");
+  ASSERT_EQ(fresh.exit_code, 0) << fresh.output;
+  EXPECT_THAT(fresh.output, ::testing::HasSubstr("no interrupted run in"));
+  EXPECT_TRUE(RunFiles(dir / "fresh") == expected);
+  EXPECT_EQ(RunRomunect(options + (dir / "p").string() + " --resume --perturb focal_pct=0.1").exit_code, 2);
+}
+
 // A user's part in the pile: a dark 18 mm cube (OBJ) dropped with two generated objects settles
 // in the bin, is scanned and fused, and its saved scene names its file.
 TEST(CliScanIntegration, DropsAUserMeshIntoThePile) {

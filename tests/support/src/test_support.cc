@@ -54,8 +54,10 @@ ScratchDir::~ScratchDir() {
 
 fs::path RomunectBinary() { return fs::path(ROMUNECT_BINARY_DIR) / "bin" / "romunect"; }
 
-CommandResult RunRomunect(const std::string& arguments) {
-  const std::string command = RomunectBinary().string() + " " + arguments + " 2>&1";
+CommandResult RunRomunect(const std::string& arguments) { return RunShell(RomunectBinary().string() + " " + arguments); }
+
+CommandResult RunShell(const std::string& command_line) {
+  const std::string command = "(" + command_line + ") 2>&1";
   CommandResult result;
   FILE* pipe = popen(command.c_str(), "r");
   if (pipe == nullptr) return result;

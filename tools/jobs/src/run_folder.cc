@@ -39,7 +39,7 @@ RunFolder::RunFolder(const std::string& value, const std::string& option, const 
 }
 
 RunFolder::~RunFolder() {
-  if (begun_ && !done_) {
+  if (begun_ && !done_ && !taken_over_) {
     std::error_code ec;  // a destructor may not throw; a folder that stays is found by the next run
     fs::remove_all(work_dir_, ec);
   }
@@ -99,11 +99,11 @@ bool RunFolder::TryCreate() {
   throw InputError(work_dir_.string(), "", "cannot be created: " + std::string(std::strerror(error)));
 }
 
-void RunFolder::RemoveIfStale() {
+bool RunFolder::RemoveIfStale(bool take_over) {
   const fs::path marker = work_dir_ / kRunMarker;
   const int fd = ::open(marker.c_str(), O_RDWR | O_CLOEXEC | O_NOFOLLOW);
   if (fd < 0) {
-    if (!fs::exists(work_dir_)) return;  // gone meanwhile: try again
+    if (!fs::exists(work_dir_)) return false;  // gone meanwhile: try again
     throw InputError(work_dir_.string(), "",
                      "exists and was not made by romunect (no " + std::string(kRunMarker) +
                          " inside); it is left alone: move it away or choose another " + option_);
@@ -120,25 +120,35 @@ void RunFolder::RemoveIfStale() {
   }, now{};
   const bool same = ::fstat(fd, &locked) == 0 && ::stat(marker.c_str(), &now) == 0 && locked.st_ino == now.st_ino &&
                     locked.st_dev == now.st_dev;
+  if (same && take_over) {
+    lock_fd_ = fd;
+    return true;
+  }
   std::error_code ec;
   if (same) fs::remove_all(work_dir_, ec);
   ::close(fd);
   if (ec) throw InputError(work_dir_.string(), "", "a killed run's folder cannot be removed: " + ec.message());
+  return false;
 }
 
-void RunFolder::Begin() {
+void RunFolder::Begin() { Start(/*take_over=*/false); }
+
+bool RunFolder::Resume() { return Start(/*take_over=*/true); }
+
+bool RunFolder::Start(bool take_over) {
   std::error_code ec;
   fs::create_directories(dir_.parent_path().empty() ? fs::path(".") : dir_.parent_path(), ec);
   if (ec) throw InputError(dir_.string(), "", "its parent folder cannot be created: " + ec.message());
   for (int attempt = 0; attempt < 4 && !begun_; ++attempt) {
     if (TryCreate()) {
       begun_ = true;
-    } else {
-      RemoveIfStale();
+    } else if (RemoveIfStale(take_over)) {
+      begun_ = taken_over_ = true;
     }
   }
   if (!begun_) throw InputError(work_dir_.string(), "", "other runs keep replacing it; choose another " + option_);
   CheckFinalNameIsFree();  // a run that finished while this one waited to start: throws, and ~RunFolder cleans up
+  return taken_over_;
 }
 
 void RunFolder::Commit() {

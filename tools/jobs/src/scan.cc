@@ -20,6 +20,7 @@
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/frame_pipeline.h"
+#include "romunect/sensor/image_io.h"
 #include "romunect/sim/objects.h"
 #include "romunect/sim/pick.h"
 #include "romunect/sim/pile.h"
@@ -28,6 +29,7 @@
 #include "romunect/tools/jobs/fusion_loop.h"
 #include "romunect/tools/jobs/rig_argument.h"
 #include "romunect/tools/jobs/run_folder.h"
+#include "scan_resume.h"
 
 namespace romunect::jobs {
 namespace {
@@ -61,6 +63,9 @@ void CheckOptionValues(const ScanJobOptions& o) {
     throw InputError("--voxel", "", "expected 0.00005 .. 0.005 metres");
   }
   ParsePerturbation(o.perturb);  // before any work
+  if (o.resume && !o.perturb.empty()) {
+    throw InputError("--resume", "", "not with --perturb: the frames on disk hold the perturbed depth");
+  }
   for (const std::string* file : {&o.scene, &o.saved_scene, &o.calibration}) {
     if (!file->empty() && !fs::exists(*file)) throw InputError(*file, "", "file not found");
   }
@@ -112,9 +117,10 @@ sim::ScanOptions SimulatorOptions(const ScanJobOptions& o, std::optional<calib::
 }
 
 // Imaging: the sensor model (IR synthesis, depth engine) and the depth correction, or none
-// (ideal depth). Returns what the report says the depth correction is.
+// (ideal depth); the first `reused` frames read back from `frames_dir` (--resume). Returns what
+// the report says the depth correction is.
 std::string SetUpImaging(const ScanJobOptions& o, const std::optional<calib::Calibration>& calibration,
-                         sim::Scanner* scanner) {
+                         const fs::path& frames_dir, int reused, sim::Scanner* scanner) {
   if (o.ideal_depth) return "none: ideal depth (ground truth), --ideal-depth";
   sim::SensorImagerOptions imager_options;
   // IR synthesis and the depth engine run on stages of their own beside rendering and fusion
@@ -131,7 +137,11 @@ std::string SetUpImaging(const ScanJobOptions& o, const std::optional<calib::Cal
                o.calibration.empty() ? "ground truth of the rig" : o.calibration.c_str());
   auto imager = std::make_unique<sim::SensorImager>(scanner->options().rig, imager_options);
   std::string source = imager->correction_source();
-  scanner->SetImager(std::move(imager));
+  if (reused == 0) {
+    scanner->SetImager(std::move(imager));
+  } else {
+    scanner->SetImager(MakeResumingImager(std::move(imager), frames_dir, reused));
+  }
   return source;
 }
 
@@ -324,7 +334,17 @@ ScanSummary RunScan(const ScanJobOptions& o) {
   const sim::ScanOptions options = SimulatorOptions(o, &calibration);
   // The run folder is taken before the pile settles: a second run into the same --out is
   // refused before it does any work.
-  run.Begin();
+  int reused = 0;
+  if (!o.resume) {
+    run.Begin();
+  } else if (run.Resume()) {
+    reused = PrepareResume(o, run.work_dir());
+    std::fprintf(stderr, "scan: resuming %s: %d finished frames are read back, the simulation replays from the start\n",
+                 run.work_dir().c_str(), reused);
+  } else {
+    std::fprintf(stderr, "scan: --resume: no interrupted run in %s; starting afresh\n", run.work_dir().c_str());
+  }
+  WriteTextAtomically(run.work_dir() / kScanOptionsFile, ScanOptionsFileText(o));
 
   if (o.saved_scene.empty()) {
     std::fprintf(stderr, "scan: loading the scene, dropping %d objects (seed %u) and settling the pile...\n",
@@ -334,7 +354,7 @@ ScanSummary RunScan(const ScanJobOptions& o) {
   }
   sim::Scanner scanner(options);
   std::fprintf(stderr, "scan: %s\n", scanner.stats().settle.BriefReport().c_str());
-  report.depth_correction = SetUpImaging(o, calibration, &scanner);
+  report.depth_correction = SetUpImaging(o, calibration, run.work_dir() / "frames", reused, &scanner);
 
   // The settled pile, before the pick moves it: `--saved-scene` reloads it without settling.
   sim::SaveSettledScene(scanner.world(), run.work_dir() / "scene.json");
@@ -342,6 +362,7 @@ ScanSummary RunScan(const ScanJobOptions& o) {
   CompleteReport(o, scanner, &report);
   report.total_wall_s = total.seconds();
   WriteScanOutputs(run.work_dir(), report);
+  fs::remove(run.work_dir() / kScanOptionsFile);  // the report holds the options
   run.Commit();  // complete: the run under its final name
   summary.run_dir = run.dir();
   return summary;

@@ -196,6 +196,27 @@ std::string Html(const ScanReport& r, const fs::path& dir) {
 
 }  // namespace
 
+std::string ScanOptionsJson(const ScanJobOptions& a) {
+  // `romunect scan` with these repeats the run (same bytes).
+  const json j = {{"scene", a.scene},
+                  {"saved_scene", a.saved_scene},
+                  {"seed", a.seed},
+                  {"objects", a.objects},
+                  {"kinds", a.kinds},
+                  {"meshes", a.meshes},
+                  {"mesh_unit_m", a.mesh_unit_m},
+                  {"mesh_material", a.mesh_material},
+                  {"rig", a.rig},
+                  {"calibration", a.calibration},
+                  {"threads", a.threads},
+                  {"samples", a.samples},
+                  {"voxel_m", a.voxel_m},
+                  {"sweep", a.sweep},
+                  {"ideal_depth", a.ideal_depth},
+                  {"compress_frames", a.compress_frames}};
+  return j.dump();
+}
+
 std::string ScanReportJson(const ScanReport& r) {
   ROMUNECT_CHECK(r.fusion.metrics.has_value());
   const fusion::HeightMapMetrics& m = *r.fusion.metrics;
@@ -218,23 +239,7 @@ std::string ScanReportJson(const ScanReport& r) {
                             {"hand_eye_error_mm", e.hand_eye_mm},
                             {"focal_error_pct", e.focal_pct},
                             {"principal_point_error_px", e.principal_px}};
-  const ScanJobOptions& a = r.options;  // `romunect scan` with these repeats the run (same bytes)
-  j["options"] = {{"scene", a.scene},
-                  {"saved_scene", a.saved_scene},
-                  {"seed", a.seed},
-                  {"objects", a.objects},
-                  {"kinds", a.kinds},
-                  {"meshes", a.meshes},
-                  {"mesh_unit_m", a.mesh_unit_m},
-                  {"mesh_material", a.mesh_material},
-                  {"rig", a.rig},
-                  {"calibration", a.calibration},
-                  {"threads", a.threads},
-                  {"samples", a.samples},
-                  {"voxel_m", a.voxel_m},
-                  {"sweep", a.sweep},
-                  {"ideal_depth", a.ideal_depth},
-                  {"compress_frames", a.compress_frames}};
+  j["options"] = json::parse(ScanOptionsJson(r.options));
   j["frames"] = r.fusion.completeness_per_frame.size();
   json table = json::object();
   for (int n : kTableFrames) table["after_" + std::to_string(n)] = CompletenessAfter(r, n);

@@ -41,6 +41,8 @@ struct CommandResult {
   std::string output;  // stdout and stderr together
 };
 CommandResult RunRomunect(const std::string& arguments);
+// Runs a shell command line (sh -c), output and errors together.
+CommandResult RunShell(const std::string& command_line);
 
 // Writes text to a file (for crafting malformed inputs).
 void WriteText(const std::filesystem::path& path, const std::string& text);

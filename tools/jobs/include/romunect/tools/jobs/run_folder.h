@@ -25,7 +25,7 @@ class RunFolder {
   // InputError naming the option or the folder. `job` names the run in messages ("scan": a
   // report.json there is "a finished scan"). Creates nothing.
   RunFolder(const std::string& value, const std::string& option, const std::string& job);
-  // A run that never committed leaves nothing: its work folder is removed.
+  // A run that never committed leaves nothing: its work folder is removed (but a taken-over one).
   ~RunFolder();
   RunFolder(const RunFolder&) = delete;
   RunFolder& operator=(const RunFolder&) = delete;
@@ -36,20 +36,27 @@ class RunFolder {
   // Creates and locks the work folder, replacing one a killed run left. Throws InputError when
   // another run holds it, when it lacks the marker, or when the final name was filled meanwhile.
   void Begin();
+  // Begin(), but a killed run's work folder is taken over with its files (locked, its marker
+  // kept) instead of removed: true then; false when there was none and a fresh one was made. A
+  // taken-over folder stays when the run fails: it can be resumed again.
+  bool Resume();
   // Moves the work folder under the final name. Throws InputError, keeping the work folder,
   // when the final name was filled meanwhile.
   void Commit();
 
  private:
+  bool Start(bool take_over);  // Begin and Resume
   void CheckFinalNameIsFree() const;
   bool TryCreate();      // false when the work folder exists
-  void RemoveIfStale();  // throws when it is not a killed run's
+  // A killed run's work folder (marker, no lock): removed, or with `take_over` locked and kept
+  // (true). Throws when it is not a killed run's.
+  bool RemoveIfStale(bool take_over = false);
   void Unlock();
 
   std::string job_, option_;
   std::filesystem::path dir_, work_dir_;
   int lock_fd_ = -1;  // the marker, locked (flock) while this run owns the work folder
-  bool begun_ = false, done_ = false;
+  bool begun_ = false, done_ = false, taken_over_ = false;
 };
 
 // An exclusive lock for a run that writes into an output folder in place (calibrate's --out, which

@@ -41,6 +41,9 @@ struct ScanJobOptions {
   double mesh_unit_m = 1e-3;
   std::string mesh_material = "bright";
   std::string perturb;  // injected calibration errors (perturbation.h); "" none
+  // Continue the interrupted run in `out` (its <out>.incomplete) from its last complete frame:
+  // the same bytes as an uninterrupted run, with the finished frames' images read, not imaged.
+  bool resume = false;
 };
 
 // Keeps two single depth maps of the scan for figure 2: the first one with a useful share of
@@ -104,6 +107,8 @@ void WriteScanOutputs(const std::filesystem::path& dir, const ScanReport& report
 
 // The report as JSON text.
 std::string ScanReportJson(const ScanReport& report);
+// The options that repeat a scan (the report's "options"), as a JSON object text.
+std::string ScanOptionsJson(const ScanJobOptions& options);
 
 // What RunScan returns: the finished run folder and its report.
 struct ScanSummary {
