@@ -322,15 +322,20 @@ bool Scanner::Render(ScanWork* work) {
   World& world = *s.world;
   UpdatePoses(world, s.handles, &s.T_W_G, &s.scene);
   const Pose T_W_C = world.T_W_C();
-  work->geometry = s.TakeGeometry();
-  // The rig is the optics' truth (a saved scene may carry another projector site).
-  s.renderer.Render(s.scene, s.options.rig.camera, T_W_C, s.options.rig.T_C_P, s.render_options, work->geometry.get());
   Frame& frame = work->frame;
   frame.index = k;
   frame.time_s = t;
   frame.T_W_C = T_W_C;
   frame.T_B_H = world.T_B_H();
-  frame.gt_depth_m = embree::GroundTruthDepth(*work->geometry);
+  work->seed = s.options.seed * 1000003ULL + k;
+  work->replayed = s.imager && !s.options.color_camera && s.imager->Replay(s.options.rig, &frame);
+  if (!work->replayed) {
+    work->geometry = s.TakeGeometry();
+    // The rig is the optics' truth (a saved scene may carry another projector site).
+    s.renderer.Render(s.scene, s.options.rig.camera, T_W_C, s.options.rig.T_C_P, s.render_options,
+                      work->geometry.get());
+    frame.gt_depth_m = embree::GroundTruthDepth(*work->geometry);
+  }
   if (const std::optional<ColorCamera>& rgb = s.options.color_camera) {
     embree::RenderOptions pinhole;  // a plain shading: one ray a pixel, no defocus
     pinhole.threads = s.render_options.threads;
@@ -344,7 +349,6 @@ bool Scanner::Render(ScanWork* work) {
   ++s.stats.frames;
   ++s.next;
 
-  work->seed = s.options.seed * 1000003ULL + k;
   if (!s.imager) {
     frame.depth_m = frame.gt_depth_m.clone();  // an ideal sensor
     s.GiveBack(std::move(work->geometry));
@@ -356,7 +360,7 @@ bool Scanner::Render(ScanWork* work) {
 void Scanner::SynthesizeIr(ScanWork* work) {
   ROMUNECT_CHECK(work != nullptr);
   Impl& s = *impl_;
-  if (!s.imager) return;
+  if (!s.imager || work->replayed) return;
   ROMUNECT_CHECK_MSG(work->geometry != nullptr, "Scanner::SynthesizeIr without a rendered frame");
   const Stopwatch ir;
   s.imager->SynthesizeIr(s.options.rig, *work->geometry, work->seed, &work->frame);
@@ -369,7 +373,7 @@ void Scanner::ComputeDepth(ScanWork* work) {
   Impl& s = *impl_;
   if (!s.imager) return;
   const Stopwatch depth;
-  s.imager->ComputeDepth(s.options.rig, &work->frame);
+  if (!work->replayed) s.imager->ComputeDepth(s.options.rig, &work->frame);
   s.Measure(work->frame);
   // Only this stage writes imaging_s (Render writes the other stats): no two threads share one.
   s.stats.imaging_s += work->ir_s + depth.seconds();

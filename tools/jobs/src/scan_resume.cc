@@ -28,16 +28,20 @@ class ResumingImager : public sim::FrameImager {
   ResumingImager(std::unique_ptr<sim::FrameImager> inner, fs::path frames, int reused)
       : inner_(std::move(inner)), frames_(std::move(frames)), reused_(reused) {}
 
-  void SynthesizeIr(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, Frame* frame) override {
-    if (frame->index >= reused_) return inner_->SynthesizeIr(rig, geometry, seed, frame);
-    frame->ir = ReadPng16(FramePath(frames_, "ir", frame->index, "png"), Size(rig));
+  bool Replay(const Rig& rig, Frame* frame) override {
+    if (frame->index >= reused_) return false;
+    const int i = frame->index;
+    frame->ir = ReadPng16(FramePath(frames_, "ir", i, "png"), Size(rig));
+    frame->raw = ReadPng16(FramePath(frames_, "raw", i, "png"), Size(rig));
+    frame->depth_m = ReadDepthExr(FramePath(frames_, "depth", i, "exr"), Size(rig));
+    frame->gt_depth_m = ReadDepthExr(FramePath(frames_, "gt_depth", i, "exr"), Size(rig));
+    return true;
   }
 
-  void ComputeDepth(const Rig& rig, Frame* frame) override {
-    if (frame->index >= reused_) return inner_->ComputeDepth(rig, frame);
-    frame->raw = ReadPng16(FramePath(frames_, "raw", frame->index, "png"), Size(rig));
-    frame->depth_m = ReadDepthExr(FramePath(frames_, "depth", frame->index, "exr"), Size(rig));
+  void SynthesizeIr(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, Frame* frame) override {
+    inner_->SynthesizeIr(rig, geometry, seed, frame);
   }
+  void ComputeDepth(const Rig& rig, Frame* frame) override { inner_->ComputeDepth(rig, frame); }
 
  private:
   static cv::Size Size(const Rig& rig) { return {rig.camera.width, rig.camera.height}; }

@@ -1,7 +1,7 @@
 // `romunect scan --resume` (ScanJobOptions::resume): the interrupted run's options and finished
-// frames, and an imager that reads those frames back instead of imaging them. The simulation is
-// replayed from the start (it is deterministic and cheap beside imaging), so every later frame,
-// the plan and the fused map come out as the uninterrupted run's bytes.
+// frames, and an imager that reads those frames back instead of rendering and imaging them. The
+// simulation's physics replays from the start (deterministic, and cheap beside rendering), so
+// every later frame, the plan and the fused map come out as the uninterrupted run's bytes.
 #pragma once
 
 #include <filesystem>
@@ -23,8 +23,9 @@ std::string ScanOptionsFileText(const ScanJobOptions& options);
 // complete on disk.
 int PrepareResume(const ScanJobOptions& options, const std::filesystem::path& work_dir);
 
-// Frames below `reused` take their IR, raw and depth images from frames_dir (checked: present,
-// of the camera's size); the others go to `inner`.
+// Frames below `reused` are replayed (FrameImager::Replay) from frames_dir: IR, raw, depth and
+// ground-truth depth read back (checked: present, of the camera's size), neither rendered nor
+// imaged; the others go to `inner`.
 std::unique_ptr<sim::FrameImager> MakeResumingImager(std::unique_ptr<sim::FrameImager> inner,
                                                      const std::filesystem::path& frames_dir, int reused);
 

@@ -41,6 +41,10 @@ class FrameImager {
   virtual ~FrameImager() = default;
   virtual void SynthesizeIr(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, Frame* frame) = 0;
   virtual void ComputeDepth(const Rig& rig, Frame* frame) = 0;
+  // A frame whose images the imager already holds (a resumed run's, read back): sets ir, raw,
+  // depth_m and gt_depth_m and returns true, and the scanner neither renders nor images it (only
+  // its physics and poses run). Called in Render, in frame order. Default: none.
+  virtual bool Replay(const Rig& rig, Frame* frame) { return false; }
   void Image(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, Frame* frame) {
     SynthesizeIr(rig, geometry, seed, frame);
     ComputeDepth(rig, frame);
@@ -100,6 +104,7 @@ struct ScanStats {
 struct ScanWork {
   Frame frame;
   uint64_t seed = 0;  // the frame's imaging seed
+  bool replayed = false;  // FrameImager::Replay gave its images: not rendered, not imaged
   std::shared_ptr<GeometryBuffer> geometry;
   double ir_s = 0.0;  // wall time of SynthesizeIr (added to ScanStats::imaging_s by ComputeDepth)
 };
