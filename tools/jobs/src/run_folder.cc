@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <cstring>
 #include <system_error>
+#include <vector>
 
 #include <fcntl.h>
 #include <sys/file.h>
@@ -139,6 +140,42 @@ void RunFolder::Begin() {
   }
   if (!begun_) throw InputError(work_dir_.string(), "", "other runs keep replacing it; choose another " + option_);
   CheckFinalNameIsFree();  // a run that finished while this one waited to start: throws, and ~RunFolder cleans up
+}
+
+void RunFolder::Resume() {
+  CheckFinalNameIsFree();
+  const fs::path marker = work_dir_ / kRunMarker;
+  if (std::error_code ec; !fs::is_directory(work_dir_, ec)) {
+    throw InputError(work_dir_.string(), "", "does not exist: there is no interrupted " + job_ +
+                                                 " to resume into " + dir_.string() + "; run without --resume");
+  }
+  const int fd = ::open(marker.c_str(), O_RDWR | O_CLOEXEC | O_NOFOLLOW);
+  if (fd < 0) {
+    throw InputError(work_dir_.string(), "",
+                     "was not made by romunect (no " + std::string(kRunMarker) + " inside); it is left alone");
+  }
+  if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+    const std::string holder = MarkerText(fd);
+    ::close(fd);
+    throw InputError(work_dir_.string(), "",
+                     "another run is writing into it (" + holder + "); wait for it or choose another " + option_);
+  }
+  const std::string text = "made by romunect " + job_ + " (pid " + std::to_string(::getpid()) + ", resumed)\n";
+  const bool named = ::ftruncate(fd, 0) == 0 && ::pwrite(fd, text.data(), text.size(), 0) >= 0;
+  (void)named;  // the text only names the holder in messages
+  lock_fd_ = fd;
+  begun_ = true;
+  // A write cut by the kill leaves its temporary (".NAME.tmp-PID-N.EXT"): never part of a run.
+  std::error_code ec;
+  std::vector<fs::path> stale;
+  for (auto it = fs::recursive_directory_iterator(work_dir_, ec); !ec && it != fs::recursive_directory_iterator();
+       it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (name.size() > 1 && name[0] == '.' && name.find(".tmp-") != std::string::npos && it->is_regular_file(ec)) {
+      stale.push_back(it->path());
+    }
+  }
+  for (const fs::path& p : stale) fs::remove(p, ec);
 }
 
 void RunFolder::Commit() {

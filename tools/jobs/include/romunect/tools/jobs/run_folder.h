@@ -36,6 +36,10 @@ class RunFolder {
   // Creates and locks the work folder, replacing one a killed run left. Throws InputError when
   // another run holds it, when it lacks the marker, or when the final name was filled meanwhile.
   void Begin();
+  // Takes over the work folder an interrupted run left (its marker present and unlocked), keeping
+  // its files, and removes the temporary files its killed writes left. Throws InputError when
+  // there is none, when it lacks the marker, or when another run holds it.
+  void Resume();
   // Moves the work folder under the final name. Throws InputError, keeping the work folder,
   // when the final name was filled meanwhile.
   void Commit();
