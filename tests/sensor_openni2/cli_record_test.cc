@@ -54,7 +54,8 @@ void ExpectSameFrames(const std::filesystem::path& recorded, const std::filesyst
 TEST(CliRecord, Help) {
   const auto r = RunRomunect("record --help");
   EXPECT_EQ(r.exit_code, 0);
-  for (const char* word : {"SOURCE", "OUT_DIR", "--oni", "--pose-log", "--frames", "--list-devices", "romunect:DIR"}) {
+  for (const char* word :
+       {"SOURCE", "OUT_DIR", "--oni", "--pose-log", "--frames", "--list-devices", "romunect:DIR", "--resume"}) {
     EXPECT_NE(r.output.find(word), std::string::npos) << word << "\n" << r.output;
   }
 }
@@ -478,7 +479,8 @@ TEST(CliRecord, AKilledCaptureResumedGivesTheBytesOfAWholeRun) {
   ASSERT_FALSE(std::filesystem::exists(cut)) << "the kill came after the capture finished";
   ASSERT_TRUE(std::filesystem::exists(cut + ".incomplete/depth/000005.exr"));
 
-  const auto other = RunRomunect("record " + dir.path().string() + " " + cut + " --frames 99 --compress-frames --resume");
+  const auto other = RunRomunect("record " + dir.path().string() + " " + cut +
+                                 " --frames 99 --compress-frames --resume");
   EXPECT_EQ(other.exit_code, 2) << other.output;
   EXPECT_NE(other.output.find("--frames"), std::string::npos) << other.output;
   EXPECT_TRUE(std::filesystem::exists(cut + ".incomplete/.romunect-run")) << "a refused resume keeps the work";

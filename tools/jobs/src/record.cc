@@ -209,8 +209,9 @@ nlohmann::json ArgsJson(const RecordOptions& o) {
 // the same options (named when one differs).
 void CheckResumable(const RecordOptions& o, const fs::path& work_dir) {
   if (openni2::ClassifySource(o.source) == openni2::SourceKind::kDevice) {
-    throw InputError("--resume", "", "a device cannot send again the frames it already sent; resume applies to a "
-                                     "frame directory or an .oni file as SOURCE");
+    throw InputError("--resume", "",
+                     "a device cannot send again the frames it already sent; resume applies to a "
+                     "frame directory or an .oni file as SOURCE");
   }
   if (!o.oni.empty()) throw InputError("--resume", "", "an interrupted --oni recording cannot be continued");
   const fs::path file = work_dir / kRecordArgsFile;
@@ -361,11 +362,9 @@ RecordSummary Record(const RecordOptions& o) {
 }
 
 std::string RecordSummaryText(const RecordSummary& s, const RecordOptions& o) {
-  const std::string reused =
-      o.resume ? std::to_string(s.reused) + " reused from the interrupted run, " : std::string();
+  const std::string reused = o.resume ? std::to_string(s.reused) + " reused from the interrupted run, " : std::string();
   return "recorded " + std::to_string(s.frames) + " frames (" + reused + std::to_string(s.skipped) + " skipped" +
-         s.dropped +
-         ") to " + o.out_dir + (o.oni.empty() ? "" : " and " + o.oni) + "\n";
+         s.dropped + ") to " + o.out_dir + (o.oni.empty() ? "" : " and " + o.oni) + "\n";
 }
 
 std::string DeviceListText() {

@@ -146,8 +146,9 @@ void RunFolder::Resume() {
   CheckFinalNameIsFree();
   const fs::path marker = work_dir_ / kRunMarker;
   if (std::error_code ec; !fs::is_directory(work_dir_, ec)) {
-    throw InputError(work_dir_.string(), "", "does not exist: there is no interrupted " + job_ +
-                                                 " to resume into " + dir_.string() + "; run without --resume");
+    throw InputError(work_dir_.string(), "",
+                     "does not exist: there is no interrupted " + job_ + " to resume into " + dir_.string() +
+                         "; run without --resume");
   }
   const int fd = ::open(marker.c_str(), O_RDWR | O_CLOEXEC | O_NOFOLLOW);
   if (fd < 0) {

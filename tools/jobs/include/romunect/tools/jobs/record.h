@@ -25,7 +25,7 @@ struct RecordOptions {
 struct RecordSummary {
   size_t frames = 0;
   int skipped = 0;
-  size_t reused = 0;  // with resume: frames an interrupted run had already written
+  size_t reused = 0;    // with resume: frames an interrupted run had already written
   std::string dropped;  // ", N dropped by the device" for a device, else ""
 };
 
