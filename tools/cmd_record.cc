@@ -41,6 +41,9 @@ void AddRecordCommand(CLI::App& app) {
   cmd->add_option("--pose-log", o->pose_log, "CSV pose log of T_B_H (time_s,x_m,y_m,z_m,qw,qx,qy,qz)");
   auto* pose_offset = cmd->add_option("--pose-offset", o->pose_offset_s,
                                       "With --pose-log: seconds added to frame times to get pose-log times");
+  cmd->add_flag("--resume", o->resume,
+                "Continue the capture an interrupted run left in OUT_DIR.incomplete (SOURCE a frame directory or .oni "
+                "file, same arguments): frames already written are kept, the result is the same as one whole run");
   auto list_devices = std::make_shared<bool>(false), list_modes = std::make_shared<bool>(false);
   cmd->add_flag("--list-devices", *list_devices, "List the OpenNI2 devices and exit");
   cmd->add_flag("--list-modes", *list_modes, "List the video modes of SOURCE and exit");

@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <set>
 #include <sstream>
 #include <utility>
@@ -385,6 +386,48 @@ void FrameDirectoryWriter::Add(const Frame& frame, const std::string& extra_json
     WritePngRgb8(dir_ / record.color, frame.color);
   }
   manifest_.frames.push_back(std::move(record));
+}
+
+bool FrameDirectoryWriter::AddIfWritten(const Frame& frame, const std::string& extra_json) {
+  ROMUNECT_CHECK(!finished_);
+  const cv::Size size(manifest_.camera.width, manifest_.camera.height);
+  // Written images read back bit-exactly (EXR holds the float depth, PNG the 16-bit values).
+  auto same = [&](const cv::Mat& image, const char* folder, const char* extension) {
+    if (image.empty()) return true;
+    const fs::path path = dir_ / FrameFile(folder, frame.index, extension);
+    if (std::error_code ec; !fs::is_regular_file(path, ec)) return false;
+    try {
+      const cv::Mat read = image.type() == CV_32F   ? ReadDepthExr(path, size)
+                           : image.type() == CV_16U ? ReadPng16(path, size)
+                                                    : ReadPngRgb8(path, image.size());
+      return read.size() == image.size() && read.type() == image.type() &&
+             std::memcmp(read.data, image.data, image.total() * image.elemSize()) == 0;  // both continuous
+    } catch (const InputError&) {
+      return false;
+    }
+  };
+  const cv::Mat images[] = {frame.depth_m.isContinuous() ? frame.depth_m : frame.depth_m.clone(),
+                            frame.ir.isContinuous() ? frame.ir : frame.ir.clone(),
+                            frame.raw.isContinuous() ? frame.raw : frame.raw.clone(),
+                            frame.gt_depth_m.isContinuous() ? frame.gt_depth_m : frame.gt_depth_m.clone(),
+                            frame.color.isContinuous() ? frame.color : frame.color.clone()};
+  if (!same(images[0], "depth", "exr") || !same(images[1], "ir", "png") || !same(images[2], "raw", "png") ||
+      !same(images[3], "gt_depth", "exr") || !same(images[4], "color", "png")) {
+    return false;
+  }
+  FrameRecord record;
+  record.index = frame.index;
+  record.time_s = frame.time_s;
+  record.T_W_C = frame.T_W_C;
+  record.T_B_H = frame.T_B_H;
+  record.extra_json = extra_json;
+  if (!frame.depth_m.empty()) record.depth = FrameFile("depth", frame.index, "exr");
+  if (!frame.ir.empty()) record.ir = FrameFile("ir", frame.index, "png");
+  if (!frame.raw.empty()) record.raw = FrameFile("raw", frame.index, "png");
+  if (!frame.gt_depth_m.empty()) record.gt_depth = FrameFile("gt_depth", frame.index, "exr");
+  if (!frame.color.empty()) record.color = FrameFile("color", frame.index, "png");
+  manifest_.frames.push_back(std::move(record));
+  return true;
 }
 
 void FrameDirectoryWriter::Finish() {

@@ -3,6 +3,9 @@
 #include <sys/wait.h>
 
 #include <cstdio>
+#include <fstream>
+#include <map>
+#include <sstream>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -52,7 +55,8 @@ void ExpectSameFrames(const std::filesystem::path& recorded, const std::filesyst
 TEST(CliRecord, Help) {
   const auto r = RunRomunect("record --help");
   EXPECT_EQ(r.exit_code, 0);
-  for (const char* word : {"SOURCE", "OUT_DIR", "--oni", "--pose-log", "--frames", "--list-devices", "romunect:DIR"}) {
+  for (const char* word :
+       {"SOURCE", "OUT_DIR", "--oni", "--pose-log", "--frames", "--list-devices", "romunect:DIR", "--resume"}) {
     EXPECT_NE(r.output.find(word), std::string::npos) << word << "\n" << r.output;
   }
 }
@@ -431,6 +435,72 @@ TEST(CliRecord, AKilledCaptureLeavesNoOutDirAndTheNextRunReplacesItsWork) {
   EXPECT_FALSE(std::filesystem::exists(live + ".incomplete"));
   EXPECT_FALSE(std::filesystem::exists(live + "/.romunect-run"));
   EXPECT_EQ(FrameDirectorySource(live).manifest().frames.size(), 4u);
+}
+
+// Every file under `dir` (hidden ones too) by its path relative to `dir`, with its bytes.
+std::map<std::string, std::string> FilesUnder(const std::filesystem::path& dir) {
+  std::map<std::string, std::string> files;
+  for (const auto& e : std::filesystem::recursive_directory_iterator(dir)) {
+    if (!e.is_regular_file()) continue;
+    std::ifstream in(e.path(), std::ios::binary);
+    std::ostringstream bytes;
+    bytes << in.rdbuf();
+    files[std::filesystem::relative(e.path(), dir).string()] = bytes.str();
+  }
+  return files;
+}
+
+// A capture killed mid-run (kill -9) and resumed gives the same bytes as one run without a stop,
+// keeping the frames the killed run had written; a resume with other arguments is refused.
+TEST(CliRecord, AKilledCaptureResumedGivesTheBytesOfAWholeRun) {
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  constexpr int kFrames = 120;  // enough that the copy is still running when the kill lands
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), kFrames, 41);
+  const std::string whole = (out / "whole").string(), cut = (out / "cut").string();
+  const std::string args = " --compress-frames --frames 100";
+  ASSERT_EQ(RunRomunect("record " + dir.path().string() + " " + whole + args).exit_code, 0);
+
+  RunShell(testing::RomunectBinary().string() + " record " + dir.path().string() + " " + cut + args +
+           " >/dev/null & pid=$!; for i in $(seq 1 2000); do [ -e " + cut +
+           ".incomplete/depth/000005.exr ] && break; sleep 0.005; done; kill -9 $pid; wait $pid");
+  ASSERT_FALSE(std::filesystem::exists(cut)) << "the kill came after the capture finished";
+  ASSERT_TRUE(std::filesystem::exists(cut + ".incomplete/depth/000005.exr"));
+
+  const auto other = RunRomunect("record " + dir.path().string() + " " + cut +
+                                 " --frames 99 --compress-frames --resume");
+  EXPECT_EQ(other.exit_code, 2) << other.output;
+  EXPECT_NE(other.output.find("--frames"), std::string::npos) << other.output;
+  EXPECT_TRUE(std::filesystem::exists(cut + ".incomplete/.romunect-run")) << "a refused resume keeps the work";
+
+  const auto r = RunRomunect("record " + dir.path().string() + " " + cut + args + " --resume");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const size_t at = r.output.find(" reused from the interrupted run");
+  ASSERT_NE(at, std::string::npos) << r.output;
+  const int reused = std::stoi(r.output.substr(r.output.rfind('(', at) + 1));
+  EXPECT_GE(reused, 5) << r.output;  // frames 0-5 were on disk before the kill
+  EXPECT_LT(reused, 100) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(cut + ".incomplete"));
+  const auto a = FilesUnder(whole), b = FilesUnder(cut);
+  ASSERT_EQ(a.size(), b.size());
+  for (const auto& [name, bytes] : a) {
+    ASSERT_TRUE(b.count(name)) << name;
+    EXPECT_TRUE(b.at(name) == bytes) << name;
+  }
+}
+
+// --resume needs an interrupted run to continue and a source that can be replayed.
+TEST(CliRecord, ResumeWithoutAnInterruptedRunOrFromADeviceIsRefused) {
+  ScratchDir dir("frames");
+  ScratchDir out("out");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 2, 43);
+  const auto none = RunRomunect("record " + dir.path().string() + " " + (out / "new").string() + " --resume");
+  EXPECT_EQ(none.exit_code, 2) << none.output;
+  EXPECT_NE(none.output.find("no interrupted record"), std::string::npos) << none.output;
+  EXPECT_FALSE(std::filesystem::exists(out / "new.incomplete"));
+  const auto device = RunRomunect("record " + StepDevice(dir.path()) + " " + (out / "dev").string() + " --resume");
+  EXPECT_EQ(device.exit_code, 2) << device.output;
+  EXPECT_NE(device.output.find("a device cannot send again"), std::string::npos) << device.output;
 }
 
 }  // namespace

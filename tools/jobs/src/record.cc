@@ -5,6 +5,7 @@
 #include <csignal>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <map>
 #include <memory>
 #include <optional>
@@ -16,6 +17,7 @@
 #include "romunect/sensor/depth_engine.h"
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/frame_io.h"
+#include "romunect/sensor/image_io.h"
 #include "romunect/sensor/openni2/open_source.h"
 #include "romunect/sensor/openni2/openni2_source.h"
 #include "romunect/tools/jobs/output_folder.h"
@@ -182,10 +184,69 @@ CameraModel FramesCamera(const RecordOptions& o, const Capture& c, const FrameSo
   return *given;
 }
 
+// The options that decide the frames, by the name the user gives them: a resume must match.
+nlohmann::json ArgsJson(const RecordOptions& o) {
+  nlohmann::json a = nlohmann::json::object();
+  a["SOURCE"] = o.source;
+  a["--oni"] = o.oni;
+  a["--frames"] = o.frames;
+  a["--width"] = o.width;
+  a["--height"] = o.height;
+  a["--fps"] = o.fps;
+  a["--depth-unit"] = o.depth_unit;
+  a["--no-ir"] = o.no_ir;
+  a["--compress-frames"] = o.compress_frames;
+  a["--raw"] = o.raw;
+  a["--device-depth"] = o.device_depth;
+  a["--camera"] = o.camera;
+  a["--calibration"] = o.calibration;
+  a["--pose-log"] = o.pose_log;
+  a["--pose-offset"] = o.pose_offset_given ? nlohmann::json(o.pose_offset_s) : nlohmann::json();
+  return a;
+}
+
+// Before a resume takes the work folder: the source can be replayed, and the interrupted run had
+// the same options (named when one differs).
+void CheckResumable(const RecordOptions& o, const fs::path& work_dir) {
+  if (openni2::ClassifySource(o.source) == openni2::SourceKind::kDevice) {
+    throw InputError("--resume", "",
+                     "a device cannot send again the frames it already sent; resume applies to a "
+                     "frame directory or an .oni file as SOURCE");
+  }
+  if (!o.oni.empty()) throw InputError("--resume", "", "an interrupted --oni recording cannot be continued");
+  const fs::path file = work_dir / kRecordArgsFile;
+  if (std::error_code ec; !fs::is_directory(work_dir, ec)) {
+    throw InputError(work_dir.string(), "",
+                     "does not exist: there is no interrupted record to resume into " + o.out_dir +
+                         "; run without --resume");
+  }
+  if (std::error_code ec; !fs::is_regular_file(file, ec)) {
+    throw InputError(file.string(), "", "missing: the interrupted run left no options to check; run without --resume");
+  }
+  nlohmann::json given;
+  try {
+    std::ifstream in(file);
+    given = nlohmann::json::parse(in);
+  } catch (const nlohmann::json::exception& e) {
+    throw InputError(file.string(), "", std::string("not valid JSON: ") + e.what());
+  }
+  const nlohmann::json now = ArgsJson(o);
+  for (const auto& [name, value] : now.items()) {
+    const auto was = given.is_object() ? given.find(name) : given.end();
+    if (!given.is_object() || was == given.end() || *was != value) {
+      throw InputError(name, "",
+                       "differs from the interrupted run's (" + (was != given.end() ? was->dump() : "missing") +
+                           ", now " + value.dump() + "); resume with the same arguments or run without --resume");
+    }
+  }
+}
+
 // The capture loop: until the source ends, --frames are written or Ctrl-C. Returns the skipped.
 // A frame that cannot be written (a full disk) sets *write_failed before its InputError goes on.
+// With --resume, leading frames whose files the interrupted run wrote are kept (counted in *reused).
 int CaptureFrames(const RecordOptions& o, const Capture& c, FrameSource& source, FrameDirectoryWriter& writer,
-                  bool* write_failed) {
+                  bool* write_failed, size_t* reused) {
+  bool reusing = o.resume;
   // A copied directory's entries keep their unknown keys, found by frame index.
   std::map<int, std::string> entry_extra;
   if (const FrameDirectorySource* d = openni2::FindFrameDirectorySource(&source)) {
@@ -211,8 +272,14 @@ int CaptureFrames(const RecordOptions& o, const Capture& c, FrameSource& source,
       frame.depth_m = ApplyDepthCorrection(*c.depth_model->depth, frame.raw, c.depth_model->chip);
     }
     const auto entry = entry_extra.find(frame.index);
+    const std::string& extra = entry != entry_extra.end() ? entry->second : std::string("{}");
+    if (reusing && writer.AddIfWritten(frame, extra)) {
+      ++*reused;
+      continue;
+    }
+    reusing = false;  // from the first frame not on disk on, every frame is written
     try {
-      writer.Add(frame, entry != entry_extra.end() ? entry->second : "{}");
+      writer.Add(frame, extra);
     } catch (const InputError&) {
       *write_failed = true;
       throw;
@@ -232,7 +299,17 @@ RecordSummary Record(const RecordOptions& o) {
   // The frames go to OUT_DIR.incomplete, renamed to OUT_DIR when the directory is finished; a
   // second run into OUT_DIR is refused here, before the source opens.
   RunFolder run(o.out_dir, "OUT_DIR", "record");
-  run.Begin();
+  if (o.resume) {
+    CheckResumable(o, run.work_dir());
+    if (!run.Resume()) {  // gone meanwhile: the fresh folder goes with `run`
+      throw InputError(run.work_dir().string(), "", "there is no interrupted record to resume; run without --resume");
+    }
+    std::error_code ec;  // a run killed between its frames.json and the rename: written again
+    fs::remove(run.work_dir() / "frames.json", ec);
+  } else {
+    run.Begin();
+  }
+  WriteTextAtomically(run.work_dir() / kRecordArgsFile, ArgsJson(o).dump(1) + "\n");
   std::unique_ptr<FrameSource> source = openni2::OpenSource(o.source, c.options);
   const std::string depth_from = DepthFrom(o, c);
   // A live device delivers 30 frames a second: uncompressed files keep up (image_io.h).
@@ -249,7 +326,7 @@ RecordSummary Record(const RecordOptions& o) {
   auto previous = std::signal(SIGINT, OnInterrupt);
   bool write_failed = false;
   try {
-    s.skipped = CaptureFrames(o, c, *source, writer, &write_failed);
+    s.skipped = CaptureFrames(o, c, *source, writer, &write_failed, &s.reused);
   } catch (const InputError& e) {
     std::signal(SIGINT, previous);
     // A frame that could not be written (a full disk): no frames.json claims the capture, and
@@ -262,6 +339,7 @@ RecordSummary Record(const RecordOptions& o) {
     // The device is gone: keep what arrived, say so in the directory, then report the error.
     writer.SetExtraJson(ExtraJson(o, *source, e.what(), depth_from));
     writer.Finish();
+    fs::remove(run.work_dir() / kRecordArgsFile);
     run.Commit();
     std::fprintf(stderr, "romunect: kept %zu frames in %s\n", writer.size(), o.out_dir.c_str());
     throw;
@@ -279,14 +357,16 @@ RecordSummary Record(const RecordOptions& o) {
   }
   writer.SetExtraJson(ExtraJson(o, *source, g_interrupted ? "interrupted" : "", depth_from));
   writer.Finish();
+  fs::remove(run.work_dir() / kRecordArgsFile);
   run.Commit();
   s.frames = writer.size();
   return s;
 }
 
 std::string RecordSummaryText(const RecordSummary& s, const RecordOptions& o) {
-  return "recorded " + std::to_string(s.frames) + " frames (" + std::to_string(s.skipped) + " skipped" + s.dropped +
-         ") to " + o.out_dir + (o.oni.empty() ? "" : " and " + o.oni) + "\n";
+  const std::string reused = o.resume ? std::to_string(s.reused) + " reused from the interrupted run, " : std::string();
+  return "recorded " + std::to_string(s.frames) + " frames (" + reused + std::to_string(s.skipped) + " skipped" +
+         s.dropped + ") to " + o.out_dir + (o.oni.empty() ? "" : " and " + o.oni) + "\n";
 }
 
 std::string DeviceListText() {

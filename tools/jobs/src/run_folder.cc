@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <cstring>
 #include <system_error>
+#include <vector>
 
 #include <fcntl.h>
 #include <sys/file.h>
@@ -122,6 +123,20 @@ bool RunFolder::RemoveIfStale(bool take_over) {
                     locked.st_dev == now.st_dev;
   if (same && take_over) {
     lock_fd_ = fd;
+    const std::string text = "made by romunect " + job_ + " (pid " + std::to_string(::getpid()) + ", resumed)\n";
+    const bool named = ::ftruncate(fd, 0) == 0 && ::pwrite(fd, text.data(), text.size(), 0) >= 0;
+    (void)named;  // the text only names the holder in messages
+    // A write cut by the kill leaves its temporary (".NAME.tmp-PID-N.EXT"): never part of a run.
+    std::error_code ec;
+    std::vector<fs::path> stale;
+    for (auto it = fs::recursive_directory_iterator(work_dir_, ec); !ec && it != fs::recursive_directory_iterator();
+         it.increment(ec)) {
+      const std::string name = it->path().filename().string();
+      if (name.size() > 1 && name[0] == '.' && name.find(".tmp-") != std::string::npos && it->is_regular_file(ec)) {
+        stale.push_back(it->path());
+      }
+    }
+    for (const fs::path& p : stale) fs::remove(p, ec);
     return true;
   }
   std::error_code ec;

@@ -3,7 +3,6 @@
 #include <cstdio>
 #include <string>
 #include <utility>
-#include <vector>
 
 #include <nlohmann/json.hpp>
 
@@ -80,15 +79,7 @@ int PrepareResume(const ScanJobOptions& options, const fs::path& work_dir) {
                            value.dump() + ": resume with the interrupted run's options");
     }
   }
-  // Temporaries of writes the kill cut short, and a frames.json written just before it.
-  std::vector<fs::path> leftovers;
-  for (const auto& e : fs::recursive_directory_iterator(work_dir)) {
-    const std::string name = e.path().filename().string();
-    if (e.is_regular_file() && name.rfind('.', 0) == 0 && name.find(".tmp-") != std::string::npos) {
-      leftovers.push_back(e.path());
-    }
-  }
-  for (const fs::path& p : leftovers) fs::remove(p);
+  // A frames.json written just before the kill (the temporaries went with RunFolder::Resume).
   const fs::path frames = work_dir / "frames";
   fs::remove(frames / "frames.json");
   // Complete frames: every image of the frame renamed into place, from frame 0 on.

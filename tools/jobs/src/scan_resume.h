@@ -18,9 +18,8 @@ inline constexpr const char* kScanOptionsFile = "scan_options.json";
 std::string ScanOptionsFileText(const ScanJobOptions& options);
 
 // For the interrupted run in work_dir: checks its options against `options` (all but --threads,
-// which do not change the bytes; InputError naming the option), removes what its killed writers
-// left (temporaries, an early frames.json) and returns how many frames, from the first, are
-// complete on disk.
+// which do not change the bytes; InputError naming the option), removes a frames.json written
+// just before the kill, and returns how many frames, from the first, are complete on disk.
 int PrepareResume(const ScanJobOptions& options, const std::filesystem::path& work_dir);
 
 // Frames below `reused` are replayed (FrameImager::Replay) from frames_dir: IR, raw, depth and

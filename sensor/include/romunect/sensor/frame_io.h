@@ -90,6 +90,11 @@ class FrameDirectoryWriter {
   // the entry's unknown keys (a JSON object text: a copied entry keeps its own). Images must be
   // camera-sized (color: the colour camera's size, set first) and of the types frame.h documents.
   void Add(const Frame& frame, const std::string& extra_json = "{}");
+  // For a resumed capture that replays its source: records the frame as Add does when its files
+  // are already in the directory and hold exactly its images (read back and compared pixel by
+  // pixel), and returns true; returns false, recording nothing, when any is missing, unreadable or
+  // different (the caller then Adds it, which replaces them).
+  bool AddIfWritten(const Frame& frame, const std::string& extra_json = "{}");
 
   // Writes frames.json; the directory is complete from then on. Call once.
   void Finish();

@@ -16,13 +16,21 @@ struct RecordOptions {
   bool no_ir = false, raw = false, compress_frames = false;
   bool device_depth = false;       // record the device's metric depth even with a depth model
   bool pose_offset_given = false;  // to tell a given 0 from none
+  // Continue the capture an interrupted run left in OUT_DIR.incomplete: its source (a frame
+  // directory or an .oni file) is replayed with the same options, and frames whose files are
+  // already there and equal are kept instead of written again.
+  bool resume = false;
 };
 
 struct RecordSummary {
   size_t frames = 0;
   int skipped = 0;
+  size_t reused = 0;    // with resume: frames an interrupted run had already written
   std::string dropped;  // ", N dropped by the device" for a device, else ""
 };
+
+// The options a capture was started with, in the work folder, so that a resume can check them.
+constexpr const char* kRecordArgsFile = ".romunect-record-args.json";
 
 // Validates the options (InputError naming the option or file; refusals before the source
 // opens, which would start an .oni recording), records and finishes the frame directory.

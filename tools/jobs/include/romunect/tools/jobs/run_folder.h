@@ -37,8 +37,9 @@ class RunFolder {
   // another run holds it, when it lacks the marker, or when the final name was filled meanwhile.
   void Begin();
   // Begin(), but a killed run's work folder is taken over with its files (locked, its marker
-  // kept) instead of removed: true then; false when there was none and a fresh one was made. A
-  // taken-over folder stays when the run fails: it can be resumed again.
+  // kept) instead of removed, less the temporaries its cut writes left: true then; false when
+  // there was none and a fresh one was made. A taken-over folder stays when the run fails: it
+  // can be resumed again.
   bool Resume();
   // Moves the work folder under the final name. Throws InputError, keeping the work folder,
   // when the final name was filled meanwhile.
