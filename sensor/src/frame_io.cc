@@ -342,6 +342,19 @@ void FrameDirectoryWriter::SetColorCamera(const ColorCamera& color_camera) {
   manifest_.color_camera = color_camera;
 }
 
+namespace {
+// A frame's manifest entry without its image files.
+FrameRecord RecordOf(const Frame& frame, const std::string& extra_json) {
+  FrameRecord record;
+  record.index = frame.index;
+  record.time_s = frame.time_s;
+  record.T_W_C = frame.T_W_C;
+  record.T_B_H = frame.T_B_H;
+  record.extra_json = extra_json;
+  return record;
+}
+}  // namespace
+
 void FrameDirectoryWriter::Add(const Frame& frame, const std::string& extra_json) {
   ROMUNECT_CHECK(!finished_);
   const CameraModel& c = manifest_.camera;
@@ -360,12 +373,7 @@ void FrameDirectoryWriter::Add(const Frame& frame, const std::string& extra_json
                        Describe(frame.color).c_str());
   }
 
-  FrameRecord record;
-  record.index = frame.index;
-  record.time_s = frame.time_s;
-  record.T_W_C = frame.T_W_C;
-  record.T_B_H = frame.T_B_H;
-  record.extra_json = extra_json;
+  FrameRecord record = RecordOf(frame, extra_json);
   auto write = [&](const cv::Mat& image, const char* folder, const char* extension, std::string* field) {
     if (image.empty()) return;
     *field = FrameFile(folder, frame.index, extension);
@@ -415,12 +423,7 @@ bool FrameDirectoryWriter::AddIfWritten(const Frame& frame, const std::string& e
       !same(images[3], "gt_depth", "exr") || !same(images[4], "color", "png")) {
     return false;
   }
-  FrameRecord record;
-  record.index = frame.index;
-  record.time_s = frame.time_s;
-  record.T_W_C = frame.T_W_C;
-  record.T_B_H = frame.T_B_H;
-  record.extra_json = extra_json;
+  FrameRecord record = RecordOf(frame, extra_json);
   if (!frame.depth_m.empty()) record.depth = FrameFile("depth", frame.index, "exr");
   if (!frame.ir.empty()) record.ir = FrameFile("ir", frame.index, "png");
   if (!frame.raw.empty()) record.raw = FrameFile("raw", frame.index, "png");
