@@ -58,6 +58,15 @@ std::optional<json> ReadJson(const fs::path& file, Problems* problems) {
   return doc;
 }
 
+// j[key] of a const object without its undefined behaviour: null when j is not an object or has
+// no such key (a const json's operator[] reads freed memory for a missing key).
+const json& At(const json& j, const std::string& key) {
+  static const json kNull;
+  if (!j.is_object()) return kNull;
+  const auto it = j.find(key);
+  return it == j.end() ? kNull : *it;
+}
+
 bool IsNumbers(const json& j, size_t n) {
   if (!j.is_array() || j.size() != n) return false;
   for (const auto& x : j) {
@@ -278,27 +287,27 @@ bool CheckEntries(const fs::path& dir, const std::string& id, const json& cam, c
                   const std::set<int>& obj_ids, Problems* problems) {
   const fs::path cam_file = dir / "scene_camera.json", gt_file = dir / "scene_gt.json",
                  info_file = dir / "scene_gt_info.json";
-  bool ok = Expect(cam, "cam_K", IsNumbers(cam["cam_K"], 9), "9 numbers", cam_file, id, problems);
-  ok &= Expect(cam, "cam_R_w2c", IsNumbers(cam["cam_R_w2c"], 9), "9 numbers", cam_file, id, problems);
-  ok &= Expect(cam, "cam_t_w2c", IsNumbers(cam["cam_t_w2c"], 3), "3 numbers", cam_file, id, problems);
-  ok &= Expect(cam, "depth_scale", cam["depth_scale"].is_number(), "a number", cam_file, id, problems);
+  bool ok = Expect(cam, "cam_K", IsNumbers(At(cam, "cam_K"), 9), "9 numbers", cam_file, id, problems);
+  ok &= Expect(cam, "cam_R_w2c", IsNumbers(At(cam, "cam_R_w2c"), 9), "9 numbers", cam_file, id, problems);
+  ok &= Expect(cam, "cam_t_w2c", IsNumbers(At(cam, "cam_t_w2c"), 3), "3 numbers", cam_file, id, problems);
+  ok &= Expect(cam, "depth_scale", At(cam, "depth_scale").is_number(), "a number", cam_file, id, problems);
   if (!gt.is_array() || !info.is_array() || gt.size() != info.size()) {
     problems->Add(info_file, id + ": not a list as long as scene_gt.json's");
     return false;
   }
   for (size_t k = 0; k < gt.size(); ++k) {
     const std::string where = id + "[" + std::to_string(k) + "]";
-    ok &= Expect(gt[k], "obj_id", gt[k]["obj_id"].is_number_integer() && obj_ids.count(gt[k]["obj_id"].get<int>()),
+    ok &= Expect(gt[k], "obj_id", At(gt[k], "obj_id").is_number_integer() && obj_ids.count(At(gt[k], "obj_id").get<int>()),
                  "an obj_id of models_info.json", gt_file, where, problems);
-    ok &= Expect(gt[k], "cam_R_m2c", IsNumbers(gt[k]["cam_R_m2c"], 9), "9 numbers", gt_file, where, problems);
-    ok &= Expect(gt[k], "cam_t_m2c", IsNumbers(gt[k]["cam_t_m2c"], 3), "3 numbers", gt_file, where, problems);
+    ok &= Expect(gt[k], "cam_R_m2c", IsNumbers(At(gt[k], "cam_R_m2c"), 9), "9 numbers", gt_file, where, problems);
+    ok &= Expect(gt[k], "cam_t_m2c", IsNumbers(At(gt[k], "cam_t_m2c"), 3), "3 numbers", gt_file, where, problems);
     for (const char* key : {"bbox_obj", "bbox_visib"}) {
-      ok &= Expect(info[k], key, IsInts(info[k][key], 4), "4 integers", info_file, where, problems);
+      ok &= Expect(info[k], key, IsInts(At(info[k], key), 4), "4 integers", info_file, where, problems);
     }
     for (const char* key : {"px_count_all", "px_count_valid", "px_count_visib"}) {
-      ok &= Expect(info[k], key, info[k][key].is_number_integer(), "an integer", info_file, where, problems);
+      ok &= Expect(info[k], key, At(info[k], key).is_number_integer(), "an integer", info_file, where, problems);
     }
-    ok &= Expect(info[k], "visib_fract", info[k]["visib_fract"].is_number(), "a number", info_file, where, problems);
+    ok &= Expect(info[k], "visib_fract", At(info[k], "visib_fract").is_number(), "a number", info_file, where, problems);
   }
   return ok;
 }
