@@ -140,12 +140,6 @@ void CheckDepthValues(cv::Mat* depth, const fs::path& path, InvalidDepthPolicy p
   }
 }
 
-std::string FrameFile(const char* folder, int index, const char* extension) {
-  char name[64];
-  std::snprintf(name, sizeof(name), "%s/%06d.%s", folder, index, extension);
-  return name;
-}
-
 // Raw depth is the chip's 11-bit value (2047 = none, depth_engine.h). Larger values are another
 // encoding (drivers that shift it left, say by 5 bits to fill 16): refused, not read as depths
 // that then fuse nothing.
@@ -163,6 +157,12 @@ void CheckRawIs11Bits(const cv::Mat& raw, const std::filesystem::path& path) {
 }
 
 }  // namespace
+
+std::string FrameFile(const char* folder, int index, const char* extension) {
+  char name[64];
+  std::snprintf(name, sizeof(name), "%s/%06d.%s", folder, index, extension);
+  return name;
+}
 
 FrameDirectoryManifest ReadFrameDirectoryManifest(const fs::path& dir) {
   const fs::path path = dir / kManifestName;

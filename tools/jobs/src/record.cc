@@ -5,7 +5,6 @@
 #include <csignal>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <map>
 #include <memory>
 #include <optional>
@@ -214,30 +213,15 @@ void CheckResumable(const RecordOptions& o, const fs::path& work_dir) {
                      "frame directory or an .oni file as SOURCE");
   }
   if (!o.oni.empty()) throw InputError("--resume", "", "an interrupted --oni recording cannot be continued");
-  const fs::path file = work_dir / kRecordArgsFile;
   if (std::error_code ec; !fs::is_directory(work_dir, ec)) {
     throw InputError(work_dir.string(), "",
                      "does not exist: there is no interrupted record to resume into " + o.out_dir +
                          "; run without --resume");
   }
-  if (std::error_code ec; !fs::is_regular_file(file, ec)) {
-    throw InputError(file.string(), "", "missing: the interrupted run left no options to check; run without --resume");
-  }
-  nlohmann::json given;
-  try {
-    std::ifstream in(file);
-    given = nlohmann::json::parse(in);
-  } catch (const nlohmann::json::exception& e) {
-    throw InputError(file.string(), "", std::string("not valid JSON: ") + e.what());
-  }
-  const nlohmann::json now = ArgsJson(o);
-  for (const auto& [name, value] : now.items()) {
-    const auto was = given.is_object() ? given.find(name) : given.end();
-    if (!given.is_object() || was == given.end() || *was != value) {
-      throw InputError(name, "",
-                       "differs from the interrupted run's (" + (was != given.end() ? was->dump() : "missing") +
-                           ", now " + value.dump() + "); resume with the same arguments or run without --resume");
-    }
+  if (const auto changed = FindChangedOption(work_dir / kRecordArgsFile, ArgsJson(o).dump())) {
+    throw InputError(changed->key, "",
+                     "differs from the interrupted run's (" + changed->recorded + ", now " + changed->now +
+                         "); resume with the same arguments or run without --resume");
   }
 }
 

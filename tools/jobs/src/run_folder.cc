@@ -1,5 +1,6 @@
 #include "romunect/tools/jobs/run_folder.h"
 
+#include <algorithm>
 #include <atomic>
 #include <cerrno>
 #include <cstdio>
@@ -12,7 +13,10 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <nlohmann/json.hpp>
+
 #include "romunect/sensor/errors.h"
+#include "romunect/sensor/input_limits.h"
 #include "romunect/tools/jobs/output_folder.h"
 
 namespace romunect::jobs {
@@ -183,6 +187,29 @@ void RunFolder::Commit() {
   done_ = true;
   Unlock();
   fs::remove(dir_ / kRunMarker);
+}
+
+std::optional<ChangedOption> FindChangedOption(const fs::path& file, const std::string& now_json,
+                                               const std::vector<std::string>& ignored) {
+  if (std::error_code ec; !fs::is_regular_file(file, ec)) {
+    throw InputError(file.string(), "", "missing: the interrupted run left no options to check; run without --resume");
+  }
+  nlohmann::json recorded;
+  try {
+    recorded = nlohmann::json::parse(ReadInputFile(file, 1 << 20, "options file"));
+  } catch (const nlohmann::json::exception& e) {
+    throw InputError(file.string(), "", std::string("not valid JSON: ") + e.what());
+  }
+  if (!recorded.is_object()) throw InputError(file.string(), "", "not a JSON object");
+  const nlohmann::json now = nlohmann::json::parse(now_json);
+  for (const auto& [key, value] : now.items()) {
+    if (std::find(ignored.begin(), ignored.end(), key) != ignored.end()) continue;
+    const auto was = recorded.find(key);
+    if (was == recorded.end() || *was != value) {
+      return ChangedOption{key, was == recorded.end() ? "missing" : was->dump(), value.dump()};
+    }
+  }
+  return std::nullopt;
 }
 
 FolderLock::FolderLock(const fs::path& folder, const std::string& option, const std::string& job)

@@ -1,25 +1,22 @@
 #include "scan_resume.h"
 
-#include <cstdio>
 #include <string>
 #include <utility>
 
 #include <nlohmann/json.hpp>
 
 #include "romunect/sensor/errors.h"
+#include "romunect/sensor/frame_io.h"
 #include "romunect/sensor/image_io.h"
-#include "romunect/sensor/input_limits.h"
+#include "romunect/tools/jobs/run_folder.h"
 
 namespace romunect::jobs {
 namespace {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
-// A frame's file in the frame directory (frame_io: <folder>/<6-digit index>.<extension>).
-fs::path FramePath(const fs::path& frames, const char* folder, int index, const char* extension) {
-  char name[32];
-  std::snprintf(name, sizeof(name), "%06d.%s", index, extension);
-  return frames / folder / name;
+fs::path FrameAt(const fs::path& frames, const char* folder, int index, const char* extension) {
+  return frames / FrameFile(folder, index, extension);
 }
 
 class ResumingImager : public sim::FrameImager {
@@ -30,10 +27,10 @@ class ResumingImager : public sim::FrameImager {
   bool Replay(const Rig& rig, Frame* frame) override {
     if (frame->index >= reused_) return false;
     const int i = frame->index;
-    frame->ir = ReadPng16(FramePath(frames_, "ir", i, "png"), Size(rig));
-    frame->raw = ReadPng16(FramePath(frames_, "raw", i, "png"), Size(rig));
-    frame->depth_m = ReadDepthExr(FramePath(frames_, "depth", i, "exr"), Size(rig));
-    frame->gt_depth_m = ReadDepthExr(FramePath(frames_, "gt_depth", i, "exr"), Size(rig));
+    frame->ir = ReadPng16(FrameAt(frames_, "ir", i, "png"), Size(rig));
+    frame->raw = ReadPng16(FrameAt(frames_, "raw", i, "png"), Size(rig));
+    frame->depth_m = ReadDepthExr(FrameAt(frames_, "depth", i, "exr"), Size(rig));
+    frame->gt_depth_m = ReadDepthExr(FrameAt(frames_, "gt_depth", i, "exr"), Size(rig));
     return true;
   }
 
@@ -59,35 +56,21 @@ std::string ScanOptionsFileText(const ScanJobOptions& options) {
 }
 
 int PrepareResume(const ScanJobOptions& options, const fs::path& work_dir) {
-  const fs::path file = work_dir / kScanOptionsFile;
-  if (!fs::exists(file)) {
-    throw InputError(file.string(), "", "missing: the folder holds no interrupted scan to resume; run without --resume");
-  }
-  json before;
-  try {
-    before = json::parse(ReadInputFile(file, 1 << 20, "scan options file"));
-  } catch (const json::exception& e) {
-    throw InputError(file.string(), "", std::string("not valid JSON: ") + e.what());
-  }
-  const json now = json::parse(ScanOptionsFileText(options));
-  for (const auto& [key, value] : now.items()) {
-    if (key == "threads") continue;  // the same bytes at any thread count
-    if (!before.contains(key) || before[key] != value) {
-      throw InputError("--resume", key,
-                       "the interrupted run in " + work_dir.string() + " used " +
-                           (before.contains(key) ? before[key].dump() : std::string("none")) + ", this one " +
-                           value.dump() + ": resume with the interrupted run's options");
-    }
+  // The threads do not change the bytes.
+  if (const auto changed = FindChangedOption(work_dir / kScanOptionsFile, ScanOptionsFileText(options), {"threads"})) {
+    throw InputError("--resume", changed->key,
+                     "the interrupted run in " + work_dir.string() + " used " + changed->recorded + ", this one " +
+                         changed->now + ": resume with the interrupted run's options");
   }
   // A frames.json written just before the kill (the temporaries went with RunFolder::Resume).
   const fs::path frames = work_dir / "frames";
   fs::remove(frames / "frames.json");
   // Complete frames: every image of the frame renamed into place, from frame 0 on.
   int complete = 0;
-  while (fs::exists(FramePath(frames, "depth", complete, "exr")) &&
-         fs::exists(FramePath(frames, "gt_depth", complete, "exr")) &&
-         (options.ideal_depth || (fs::exists(FramePath(frames, "ir", complete, "png")) &&
-                                  fs::exists(FramePath(frames, "raw", complete, "png"))))) {
+  while (fs::exists(FrameAt(frames, "depth", complete, "exr")) &&
+         fs::exists(FrameAt(frames, "gt_depth", complete, "exr")) &&
+         (options.ideal_depth || (fs::exists(FrameAt(frames, "ir", complete, "png")) &&
+                                  fs::exists(FrameAt(frames, "raw", complete, "png"))))) {
     ++complete;
   }
   return complete;

@@ -72,6 +72,10 @@ enum class InvalidDepthPolicy {
 Frame LoadFrame(const std::filesystem::path& dir, const FrameDirectoryManifest& manifest, size_t i,
                 InvalidDepthPolicy policy = InvalidDepthPolicy::kReject, size_t* skipped_pixels = nullptr);
 
+// Where the writer puts a frame's image, relative to the directory: "<folder>/<6-digit
+// index>.<extension>" (folder "depth", "ir", "raw", "gt_depth" or "color").
+std::string FrameFile(const char* folder, int index, const char* extension);
+
 // Writes a frame directory frame by frame. Images are written as frames arrive (each
 // atomically); frames.json is written by Finish(), atomically, so a directory without
 // frames.json is an unfinished one. A directory that already holds frames.json is refused,

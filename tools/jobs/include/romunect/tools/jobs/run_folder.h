@@ -11,7 +11,9 @@
 #pragma once
 
 #include <filesystem>
+#include <optional>
 #include <string>
+#include <vector>
 
 namespace romunect::jobs {
 
@@ -59,6 +61,16 @@ class RunFolder {
   int lock_fd_ = -1;  // the marker, locked (flock) while this run owns the work folder
   bool begun_ = false, done_ = false, taken_over_ = false;
 };
+
+// A resumable run records the options that decide its bytes (a JSON object) in its work folder;
+// a resume compares them with its own. The first key of `now_json`, `ignored` aside, whose
+// recorded value differs or is missing ("missing"), with both values as JSON text; nothing when
+// all match. Throws InputError naming `file` when it is missing or not a JSON object.
+struct ChangedOption {
+  std::string key, recorded, now;
+};
+std::optional<ChangedOption> FindChangedOption(const std::filesystem::path& file, const std::string& now_json,
+                                               const std::vector<std::string>& ignored = {});
 
 // An exclusive lock for a run that writes into an output folder in place (calibrate's --out, which
 // may hold the calibration it updates): the lock file
