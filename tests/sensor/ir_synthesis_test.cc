@@ -83,42 +83,17 @@ TEST(IrSynthesisTest, InverseSquareShadowAmbientAndSaturation) {
   EXPECT_EQ(ir.at<uint16_t>(30, 40), std::lround(rig.optics.full_well_e * rig.optics.gain_dn_per_e));
 }
 
-// Laser speckle adds (contrast x signal)^2 to the variance: multiplicative, zero-mean.
-TEST(IrSynthesisTest, SpeckleAddsItsContrastTimesTheSignalToTheNoise) {
-  Rig rig = UniformRig();
-  rig.optics.speckle_contrast = 0.1;
+// The noise of a plane's image (seed 1) against its noise-free one: shot, read and speckle
+// variance (e + (c e)^2 + read^2, in DN^2) and zero mean. Returns the noisy image.
+cv::Mat ExpectNoiseVariance(const Rig& rig, const GeometryBuffer& g) {
   IrSynthesizer quiet(NoNoise()), noisy;
   cv::Mat clean, ir;
-  const GeometryBuffer g = FrontoParallelPlane(rig.camera, 2.0, IrMaterial{0.5f, 0, 50});
   quiet.Synthesize(rig, g, 1, &clean, nullptr);
   noisy.Synthesize(rig, g, 1, &ir, nullptr);
   const double e = quiet.expected_electrons().at<float>(30, 40);
   const double c = rig.optics.speckle_contrast;
   const double gain2 = rig.optics.gain_dn_per_e * rig.optics.gain_dn_per_e;
-  const double expected_var =
-      (e + c * c * e * e + rig.optics.read_noise_e * rig.optics.read_noise_e) * gain2 + 1.0 / 6.0;
-  ASSERT_GT(c * c * e, 2.0) << "the speckle term must dominate the shot noise here";
-  cv::Mat diff;
-  cv::subtract(ir, clean, diff, cv::noArray(), CV_64F);
-  cv::Scalar mean, sd;
-  cv::meanStdDev(diff, mean, sd);
-  constexpr double kVarianceRelTolerance = 0.10;  // as below: 4800 samples, falloff across the field
-  EXPECT_NEAR(sd[0] * sd[0], expected_var, expected_var * kVarianceRelTolerance);
-  EXPECT_NEAR(mean[0], 0.0, 4 * sd[0] / std::sqrt(diff.total()));
-  rig.optics.speckle_contrast = 1.5;
-  EXPECT_NE(rig.Problem().find("speckle_contrast"), std::string::npos) << rig.Problem();
-}
-
-TEST(IrSynthesisTest, NoiseHasTheShotAndReadVariance) {
-  const Rig rig = UniformRig();
-  IrSynthesizer quiet(NoNoise()), noisy;
-  cv::Mat clean, ir;
-  const GeometryBuffer g = FrontoParallelPlane(rig.camera, 2.0, IrMaterial{0.5f, 0, 50});
-  quiet.Synthesize(rig, g, 1, &clean, nullptr);
-  noisy.Synthesize(rig, g, 1, &ir, nullptr);
-  const double e = quiet.expected_electrons().at<float>(30, 40);
-  const double expected_var = (e + rig.optics.read_noise_e * rig.optics.read_noise_e) * rig.optics.gain_dn_per_e *
-                                  rig.optics.gain_dn_per_e +
+  const double expected_var = (e + c * c * e * e + rig.optics.read_noise_e * rig.optics.read_noise_e) * gain2 +
                               1.0 / 6.0;  // rounding of both images
   cv::Mat diff;
   cv::subtract(ir, clean, diff, cv::noArray(), CV_64F);
@@ -129,6 +104,30 @@ TEST(IrSynthesisTest, NoiseHasTheShotAndReadVariance) {
   constexpr double kVarianceRelTolerance = 0.10;
   EXPECT_NEAR(sd[0] * sd[0], expected_var, expected_var * kVarianceRelTolerance);
   EXPECT_NEAR(mean[0], 0.0, 4 * sd[0] / std::sqrt(diff.total()));  // zero-mean noise: 4 standard errors
+  return ir;
+}
+
+// Laser speckle adds (contrast x signal)^2 to the variance: multiplicative, zero-mean.
+TEST(IrSynthesisTest, SpeckleAddsItsContrastTimesTheSignalToTheNoise) {
+  Rig rig = UniformRig();
+  rig.optics.speckle_contrast = 0.1;
+  const GeometryBuffer g = FrontoParallelPlane(rig.camera, 2.0, IrMaterial{0.5f, 0, 50});
+  IrSynthesizer quiet(NoNoise());
+  cv::Mat clean;
+  quiet.Synthesize(rig, g, 1, &clean, nullptr);
+  const double e = quiet.expected_electrons().at<float>(30, 40);
+  ASSERT_GT(rig.optics.speckle_contrast * rig.optics.speckle_contrast * e, 2.0)
+      << "the speckle term must dominate the shot noise here";
+  ExpectNoiseVariance(rig, g);
+  rig.optics.speckle_contrast = 1.5;
+  EXPECT_NE(rig.Problem().find("speckle_contrast"), std::string::npos) << rig.Problem();
+}
+
+TEST(IrSynthesisTest, NoiseHasTheShotAndReadVariance) {
+  const Rig rig = UniformRig();
+  const GeometryBuffer g = FrontoParallelPlane(rig.camera, 2.0, IrMaterial{0.5f, 0, 50});
+  const cv::Mat ir = ExpectNoiseVariance(rig, g);
+  IrSynthesizer noisy;
   // Same seed, same bytes; another seed, other bytes.
   cv::Mat again, other;
   noisy.Synthesize(rig, g, 1, &again, nullptr);
