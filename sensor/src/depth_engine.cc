@@ -211,15 +211,18 @@ DepthEngine::DepthEngine(const DepthEngineOptions& options, const cv::Mat& refer
   const int blocks = (D + internal::kLanesPerBlock - 1) / internal::kLanesPerBlock;
   ROMUNECT_CHECK(blocks <= internal::kMaxBlocks);
   search_lanes_ = blocks * internal::kLanesPerBlock;
+  // Rows: the window's radius of reflected rows above and below, as the frame's (KernelArgs).
+  const int H = reference_ir.rows, r = options_.window_px / 2;
   reference_row_length_ = W + search_lanes_;
-  reference_reversed_.assign(static_cast<size_t>(reference_ir.rows) * reference_row_length_, 0);
+  reference_reversed_.assign(static_cast<size_t>(H + 2 * r) * reference_row_length_, 0);
   reference_outside_.assign(reference_row_length_, 0xFF);
   for (int p = 0; p < reference_row_length_; ++p) {
     const int col = W - 1 - options_.min_shift_px - p + left;
     if (col < 0 || col >= reference_ir.cols) continue;
     reference_outside_[p] = 0;
-    for (int y = 0; y < reference_ir.rows; ++y) {
-      reference_reversed_[static_cast<size_t>(y) * reference_row_length_ + p] = reference_norm.at<uint8_t>(y, col);
+    for (int stored = 0; stored < H + 2 * r; ++stored) {
+      const int y = cv::borderInterpolate(stored - r, H, cv::BORDER_REFLECT);
+      reference_reversed_[static_cast<size_t>(stored) * reference_row_length_ + p] = reference_norm.at<uint8_t>(y, col);
     }
   }
   // The decision rules on integer window costs, in the float arithmetic of depth_engine.h: a
@@ -228,6 +231,12 @@ DepthEngine::DepthEngine(const DepthEngineOptions& options, const cv::Mat& refer
   const float max_cost_sum = static_cast<float>(options_.max_cost * options_.window_px * options_.window_px);
   const int max_best_cost = static_cast<int>(std::min(std::floor(max_cost_sum), float{internal::kCostMax}));
   const float uniqueness = static_cast<float>(options_.uniqueness);
+  // A window clipped to n of its columns at the image's sides: max_cost x its area.
+  max_best_cost_of_columns_.resize(options_.window_px + 1);
+  for (int n = 0; n <= options_.window_px; ++n) {
+    max_best_cost_of_columns_[n] = static_cast<int>(std::min(
+        std::floor(static_cast<float>(options_.max_cost * options_.window_px * n)), float{internal::kCostMax}));
+  }
   ambiguous_below_.resize(max_best_cost + 1);
   for (int c0 = 0; c0 <= max_best_cost; ++c0) {
     const float t = static_cast<float>(c0) * (1.f + uniqueness);
@@ -278,7 +287,7 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
                          std::to_string(cam.width) + " x " + std::to_string(cam.height));
   }
   const int W = ir.cols, H = ir.rows, r = options_.window_px / 2;
-  const int rows = H - 2 * r;  // rows the window fits in
+  const int rows = H;
   const int threads = std::clamp(options_.threads, 1, rows);
   // Thread t of ParallelRows' split of n rows: the one whose block starts at `begin`.
   auto thread_of = [threads](int begin, int n) {
@@ -287,26 +296,28 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
     return t;
   };
   std::vector<double> thread_cpu_s(threads, 0.0);
-  frame_norm_.create(ir.size(), CV_8U);
+  // The prefiltered frame with r reflected rows above and below (KernelArgs), as the reference.
+  frame_norm_.create(H + 2 * r, W, CV_8U);
   frame_sigma_.create(ir.size(), CV_32F);
+  cv::Mat frame_norm_rows = frame_norm_.rowRange(r, r + H);
   const bool squares_fit_32_bits = SquaresFit32Bits(ir, options_.prefilter_px);
   ParallelRows(threads, H, [&](int row_begin, int row_end) {
     const double cpu_start = ThreadCpuSeconds();
-    PrefilterRows(ir, options_.prefilter_px, squares_fit_32_bits, row_begin, row_end, &frame_norm_, &frame_sigma_);
+    PrefilterRows(ir, options_.prefilter_px, squares_fit_32_bits, row_begin, row_end, &frame_norm_rows,
+                  &frame_sigma_);
     thread_cpu_s[thread_of(row_begin, H)] += ThreadCpuSeconds() - cpu_start;
   });
+  for (int k = 0; k < r; ++k) {
+    frame_norm_rows.row(cv::borderInterpolate(k - r, H, cv::BORDER_REFLECT)).copyTo(frame_norm_.row(k));
+    frame_norm_rows.row(cv::borderInterpolate(H + k, H, cv::BORDER_REFLECT)).copyTo(frame_norm_.row(r + H + k));
+  }
   out->raw.create(ir.size(), CV_16U);
   out->depth_m.create(ir.size(), CV_32F);
   out->shift_px.create(ir.size(), CV_32F);
-  // Rows the window leaves: border. The kernel does the rest, including the side columns.
-  for (const cv::Range border : {cv::Range(0, r), cv::Range(H - r, H)}) {
-    out->raw.rowRange(border).setTo(kRawInvalid);
-    out->depth_m.rowRange(border).setTo(0.f);
-    out->shift_px.rowRange(border).setTo(std::numeric_limits<float>::quiet_NaN());
-  }
   internal::KernelArgs args;
   args.width = W;
   args.radius = r;
+  args.searched_width = std::max(0, W - kChipBorderColumns);
   args.range = options_.search_range_px;
   args.blocks = search_lanes_ / internal::kLanesPerBlock;
   args.min_shift_px = options_.min_shift_px;
@@ -321,6 +332,7 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
   args.clean_end = clean_end_;
   args.min_texture = static_cast<float>(options_.min_texture);
   args.max_best_cost = static_cast<int>(ambiguous_below_.size()) - 1;
+  args.max_best_cost_of_columns = max_best_cost_of_columns_.data();
   args.ambiguous_below = ambiguous_below_.data();
   args.raw_at_reference = raw_at_reference_rounded_;
   args.equiangular_weight = static_cast<float>(options_.subpixel_equiangular_weight);
@@ -348,13 +360,12 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
     std::vector<int16_t> scratch(internal::KernelScratchSize(W, args.blocks));
     internal::KernelArgs band = args;
     band.scratch = scratch.data();
-    band.y_begin = r + row_begin;
-    band.y_end = r + row_end;
+    band.y_begin = row_begin;
+    band.y_end = row_end;
     match_rows(band, &thread_stats[t]);
     thread_cpu_s[t] += ThreadCpuSeconds() - cpu_start;
   });
   out->stats = DepthEngineStats{};
-  out->stats.border = 2 * r * W;
   for (const internal::KernelStats& s : thread_stats) {
     out->stats.valid += s.valid;
     out->stats.flat += s.flat;

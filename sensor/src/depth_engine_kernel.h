@@ -38,22 +38,29 @@ struct KernelStats {
   int valid = 0, flat = 0, weak = 0, ambiguous = 0, out_of_range = 0, border = 0;
 };
 
-// Everything one call needs: rows [y_begin, y_end) with r <= y_begin, y_end <= H - r.
+// Everything one call needs: rows [y_begin, y_end) of the image, 0 <= y_begin, y_end <= H.
+// Windows at the image's sides are clipped to its columns (the weak test scaled to the columns
+// left); the prefiltered frame and reference rows hold `radius` reflected rows above row 0 and
+// below row H - 1 (image row y is stored row y + radius), the same rows for both, so that a
+// window at the top or bottom compares like with like.
 struct KernelArgs {
   int width = 0, radius = 0;
+  int searched_width = 0;  // columns [searched_width, width) are the chip's border: no search
   int range = 0;   // D, the number of shifts searched
   int blocks = 0;  // ceil(D / 32)
   int min_shift_px = 0;
-  const uint8_t* obs = nullptr;  // prefiltered frame, CV_8U
+  const uint8_t* obs = nullptr;  // prefiltered frame, CV_8U, with the reflected rows
   size_t obs_step = 0;
   const float* sigma = nullptr;      // raw local standard deviation (DN), CV_32F
   size_t sigma_step = 0;             // in floats
-  const uint8_t* ref_rev = nullptr;  // reversed, padded reference rows: index p as above
+  const uint8_t* ref_rev = nullptr;  // reversed, padded reference rows (and reflected rows): index p as above
   size_t ref_step = 0;
   const uint8_t* outside = nullptr;    // per p: 0xFF where the reference has no column x - s
   int clean_begin = 0, clean_end = 0;  // columns x whose shifts j < D all have a reference column
   float min_texture = 0.f;
   int max_best_cost = 0;  // weak above this window cost
+  // The same for a window clipped to n of its columns at the image's sides (n <= 2 radius + 1).
+  const int* max_best_cost_of_columns = nullptr;
   // Per best cost c0 <= max_best_cost: costs below this (beyond +-1 of the best) make the pixel
   // ambiguous (the integer form of "float(cost) < c0 (1 + uniqueness)").
   const int16_t* ambiguous_below = nullptr;

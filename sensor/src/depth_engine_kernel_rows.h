@@ -81,7 +81,7 @@ inline void RefineRow(const KernelArgs& a, const int16_t* code, const int16_t* b
 
 // The band's sliding window at row y: the rows it takes in and leaves (the old row exists from
 // the band's second row on), and the reference rows reversed, pointed at p = W - 1 (x = 0,
-// j = 0), so that column x reads at -x.
+// j = 0), so that column x reads at -x. Stored rows: image row + r (KernelArgs).
 struct RowWindow {
   int y = 0;
   bool first_row = false;
@@ -94,8 +94,8 @@ inline RowWindow WindowAt(const KernelArgs& a, int y) {
   RowWindow w;
   w.y = y;
   w.first_row = y == a.y_begin;
-  const size_t row_new = static_cast<size_t>(y + a.radius);
-  const size_t row_old = w.first_row ? row_new : static_cast<size_t>(y - a.radius - 1);
+  const size_t row_new = static_cast<size_t>(y + 2 * a.radius);
+  const size_t row_old = w.first_row ? row_new : static_cast<size_t>(y - 1);
   w.obs_new = a.obs + row_new * a.obs_step;
   w.obs_old = a.obs + row_old * a.obs_step;
   w.ref_new = a.ref_rev + row_new * a.ref_step + (a.width - 1);
@@ -118,9 +118,9 @@ template <class V, int NB>
     const int p = b * kLanesPerBlock - x;
     auto masked = [&](U8 d) { return clean ? d : V::OrBytes(d, w.outside + p); };
     if (w.first_row) {
-      I16 sum = V::Widen(masked(V::AbsDiff(a.obs[(w.y - r) * a.obs_step + x], w.ref_new + p - 2 * r * a.ref_step)));
+      I16 sum = V::Widen(masked(V::AbsDiff(a.obs[w.y * a.obs_step + x], w.ref_new + p - 2 * r * a.ref_step)));
       for (int dy = -r + 1; dy <= r; ++dy) {
-        const size_t row = static_cast<size_t>(w.y + dy);
+        const size_t row = static_cast<size_t>(w.y + r + dy);
         sum = V::Add(sum, V::Widen(masked(V::AbsDiff(a.obs[row * a.obs_step + x],
                                                      a.ref_rev + row * a.ref_step + (a.width - 1) + p))));
       }
@@ -147,8 +147,8 @@ struct SearchRow {
 // its best shift and the neighbours' costs. `lanes` holds NB x 32 values of scratch.
 template <class V, int NB>
 [[gnu::always_inline]] inline void SearchPixel(const KernelArgs& a, const typename V::I16 (&s)[NB],
-                                               const typename V::I16& pad, int x, int16_t* lanes,
-                                               const SearchRow& out) {
+                                               const typename V::I16& pad, int max_best_cost, int x,
+                                               int16_t* lanes, const SearchRow& out) {
   using I16 = typename V::I16;
   constexpr int kWords = (NB + 1) / 2;  // 64-bit lane masks
   const I16 last = V::Or(s[NB - 1], pad);
@@ -156,7 +156,7 @@ template <class V, int NB>
   for (int b = 0; b < NB - 1; ++b) m = V::Min(m, s[b]);
   const int c0 = V::HorizontalMin(m);
   out.best_cost[x] = static_cast<int16_t>(c0);
-  if (c0 > a.max_best_cost) {
+  if (c0 > max_best_cost) {
     out.code[x] = kWeak;
     return;
   }
@@ -230,29 +230,39 @@ void MatchRows(const KernelArgs& args, KernelStats* stats_out) {
   const I16 pad = V::Load(pad_lanes);
   alignas(64) int16_t lanes[kLanes];
   KernelStats stats;
-  for (int x = 0; x < r; ++x) search.code[x] = search.code[W - 1 - x] = kBorder;
+  const int searched = a.searched_width;
+  for (int x = searched; x < W; ++x) search.code[x] = kBorder;
+  auto column = [&](int x, int b) { return V::Load(colsum + x * kLanes + b * kLanesPerBlock); };
 
   for (int y = a.y_begin; y < a.y_end; ++y) {
     const RowWindow window = WindowAt(a, y);
     const float* sigma_row = a.sigma + y * a.sigma_step;
+    // The window at x = 0, clipped to columns 0..r.
     I16 s[NB];
-    for (int x = 0; x <= 2 * r; ++x) UpdateColumn<V, NB>(a, window, x, colsum);
+    const int first_columns = std::min(r + 1, W);
+    for (int x = 0; x < first_columns; ++x) UpdateColumn<V, NB>(a, window, x, colsum);
     for (int b = 0; b < NB; ++b) {
-      s[b] = V::Load(colsum + b * kLanesPerBlock);
-      for (int x = 1; x <= 2 * r; ++x) s[b] = V::Add(s[b], V::Load(colsum + x * kLanes + b * kLanesPerBlock));
+      s[b] = column(0, b);
+      for (int x = 1; x < first_columns; ++x) s[b] = V::Add(s[b], column(x, b));
     }
     // First pass: the search. Flat windows skip it (invalid whatever their costs).
-    for (int x = r; x < W - r; ++x) {
+    for (int x = 0; x < searched; ++x) {
       if (sigma_row[x] < a.min_texture) {
         search.code[x] = kFlat;
       } else {
-        SearchPixel<V, NB>(a, s, pad, x, lanes, search);
+        const int columns = std::min(x + r, W - 1) - std::max(x - r, 0) + 1;
+        SearchPixel<V, NB>(a, s, pad, a.max_best_cost_of_columns[columns], x, lanes, search);
       }
-      if (x + r + 1 < W) {
-        UpdateColumn<V, NB>(a, window, x + r + 1, colsum);
-        for (int b = 0; b < NB; ++b) {
-          s[b] = V::Add(s[b], V::Sub(V::Load(colsum + (x + r + 1) * kLanes + b * kLanesPerBlock),
-                                     V::Load(colsum + (x - r) * kLanes + b * kLanesPerBlock)));
+      // Slide to x + 1: column x + r + 1 comes in, column x - r leaves (either may not exist).
+      const bool enters = x + r + 1 < W, leaves = x >= r;
+      if (enters) UpdateColumn<V, NB>(a, window, x + r + 1, colsum);
+      for (int b = 0; b < NB; ++b) {
+        if (enters && leaves) {
+          s[b] = V::Add(s[b], V::Sub(column(x + r + 1, b), column(x - r, b)));
+        } else if (enters) {
+          s[b] = V::Add(s[b], column(x + r + 1, b));
+        } else if (leaves) {
+          s[b] = V::Sub(s[b], column(x - r, b));
         }
       }
     }

@@ -118,6 +118,38 @@ TEST(DepthEngineTest, FastPathEqualsTheReferenceOnOtherWindowsRangesAndRules) {
   }
 }
 
+// The window at the image's sides is clipped to its columns and its rows reflected at the top
+// and bottom: the edges are measured as the reference matcher measures them, and only the chip's
+// right-hand columns are lost (as on a PS1080).
+TEST(DepthEngineTest, TheImagesEdgesAreMatchedAndOnlyTheChipsRightColumnsAreLost) {
+  DepthEngine& engine = Engine("kinect-v1");
+  const cv::Mat ir = KinectTestIr(5);
+  DepthEngineOutput out;
+  engine.Compute(ir, &out);
+  cv::Mat n_obs, sigma, n_ref, ref_sigma;
+  testing::ReferencePrefilter(ir, engine.options().prefilter_px, &n_obs, &sigma);
+  testing::ReferencePrefilter(engine.reference_ir(), engine.options().prefilter_px, &n_ref, &ref_sigma);
+  const int W = ir.cols, H = ir.rows, edge = engine.options().window_px;  // a window's width of each side
+  int compared = 0, valid = 0;
+  for (int y = 0; y < H; ++y) {
+    for (int x = 0; x < W; ++x) {
+      const bool at_edge = y < edge || y >= H - edge || x < edge || x >= W - kChipBorderColumns - edge;
+      if (!at_edge || (x + y) % 3 != 0) continue;
+      const uint16_t expected = testing::ReferenceMatchRaw(engine, n_obs, sigma, n_ref, x, y);
+      ASSERT_EQ(out.raw.at<uint16_t>(y, x), expected) << "pixel " << x << ", " << y;
+      if (x < W - kChipBorderColumns) {
+        ++compared;
+        valid += expected != kRawInvalid;
+      }
+    }
+  }
+  // The scene's plane fills the edges: most of them measure (the sphere and box shadow a few).
+  constexpr double kMinValidAtEdges = 0.9;
+  EXPECT_GT(valid, kMinValidAtEdges * compared);
+  EXPECT_EQ(cv::countNonZero(out.raw.colRange(W - kChipBorderColumns, W) != kRawInvalid), 0);
+  EXPECT_EQ(out.stats.border, kChipBorderColumns * H);
+}
+
 TEST(DepthEngineTest, EveryKernelAndThreadCountGivesTheSameBytes) {
   // Scalar, SSE2, AVX2 and AVX-512 (those this CPU runs) at 1, 2 and 3 threads, both presets (two and
   // three blocks of 32 shifts): the same raw, depth, shift and counts.

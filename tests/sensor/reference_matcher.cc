@@ -36,17 +36,22 @@ uint16_t ReferenceMatchRaw(const DepthEngine& engine, const cv::Mat& n_obs, cons
   const int r = o.window_px / 2, W = n_obs.cols, H = n_obs.rows;
   // The reference's column 0 is the camera's -left (0 for a reference cropped to the image).
   const int left = n_ref.cols == W ? 0 : ReferenceMarginsPx(o).first;
-  if (x < r || y < r || x >= W - r || y >= H - r) return kRawInvalid;
+  // The chip's right-hand columns report nothing.
+  if (x >= W - kChipBorderColumns) return kRawInvalid;
   if (sigma.at<float>(y, x) < static_cast<float>(o.min_texture)) return kRawInvalid;
+  // The window's columns inside the image; its rows reflected at the top and bottom, in both
+  // images alike.
+  const int x_first = std::max(x - r, 0), x_last = std::min(x + r, W - 1);
   std::vector<int> cost(o.search_range_px);
   for (int j = 0; j < o.search_range_px; ++j) {
     const int s = o.min_shift_px + j;
     int sum = 0;
     for (int dy = -r; dy <= r; ++dy) {
-      for (int dx = -r; dx <= r; ++dx) {
-        const int xr = x + dx - s + left;
-        const int a = n_obs.at<uint8_t>(y + dy, x + dx);
-        sum += (xr >= 0 && xr < n_ref.cols) ? std::abs(a - n_ref.at<uint8_t>(y + dy, xr)) : 255;
+      const int row = cv::borderInterpolate(y + dy, H, cv::BORDER_REFLECT);
+      for (int xx = x_first; xx <= x_last; ++xx) {
+        const int xr = xx - s + left;
+        const int a = n_obs.at<uint8_t>(row, xx);
+        sum += (xr >= 0 && xr < n_ref.cols) ? std::abs(a - n_ref.at<uint8_t>(row, xr)) : 255;
       }
     }
     cost[j] = sum;
@@ -60,7 +65,7 @@ uint16_t ReferenceMatchRaw(const DepthEngine& engine, const cv::Mat& n_obs, cons
     if (std::abs(j - best_j) > 1 && cost[j] < second) second = cost[j];
   }
   const float c0 = static_cast<float>(cost[best_j]);
-  if (c0 > static_cast<float>(o.max_cost * o.window_px * o.window_px)) return kRawInvalid;
+  if (c0 > std::floor(static_cast<float>(o.max_cost * o.window_px * (x_last - x_first + 1)))) return kRawInvalid;
   if (second < c0 * (1.f + static_cast<float>(o.uniqueness))) return kRawInvalid;
   if (best_j == 0 || best_j == o.search_range_px - 1) return kRawInvalid;
   const float cm = static_cast<float>(cost[best_j - 1]), cp = static_cast<float>(cost[best_j + 1]);

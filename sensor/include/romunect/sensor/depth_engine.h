@@ -22,8 +22,11 @@
 // distortion, disparity_distortion.h, is added before the rounding), and the pixel is
 // invalid when the window is flat (raw standard deviation < min_texture DN), the match weak
 // (mean difference > max_cost), ambiguous (another shift > 1 px away within `uniqueness` of the
-// best), at the end of the search range, or the raw value leaves 11 bits. Edge fattening,
-// shadows and quantization come out of this process. The fast path keeps the search range in
+// best), at the end of the search range, or the raw value leaves 11 bits. At the image's sides
+// the window is clipped to the image's columns (the weak test to its area); at the top and
+// bottom both images' rows are reflected alike; the chip's right-hand kChipBorderColumns columns
+// report nothing, as a PS1080's do. Edge fattening, shadows and quantization come out of this
+// process. The fast path keeps the search range in
 // signed 16-bit SIMD lanes and slides the window with running column and row sums (the cost per
 // pixel does not depend on the window size); flat pixels skip the search. It runs on `threads`
 // threads over row bands, on the widest instruction set the CPU has (Isa, cpu_features.h; the
@@ -43,6 +46,8 @@
 namespace romunect {
 
 inline constexpr uint16_t kRawInvalid = 2047;
+// The chip reports no depth in its right-hand columns (8 on a PS1080 at 640 x 480).
+inline constexpr int kChipBorderColumns = 8;
 
 struct DepthEngineStats {
   int valid = 0;
@@ -50,7 +55,7 @@ struct DepthEngineStats {
   int weak = 0;          // best cost too high
   int ambiguous = 0;     // second best too close
   int out_of_range = 0;  // best at the end of the search range, or raw outside 11 bits
-  int border = 0;        // window leaves the image
+  int border = 0;        // the chip's right-hand columns (kChipBorderColumns)
   double seconds = 0.0;  // wall time of Compute
   // CPU time of the busiest thread (prefilter and search): at `threads` = 1 the frame's CPU time.
   double busiest_thread_cpu_s = 0.0;
@@ -119,6 +124,7 @@ class DepthEngine {
   std::vector<uint8_t> reference_reversed_, reference_outside_;
   int clean_begin_ = 0, clean_end_ = 0;
   std::vector<int16_t> ambiguous_below_;  // per best window cost that is not weak
+  std::vector<int> max_best_cost_of_columns_;  // the weak test of a window clipped to n columns
   cv::Mat distortion_beta_;               // CV_32F beta(u, v) of the disparity distortion; empty: none
 };
 
