@@ -346,11 +346,17 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
   args.shift_px = out->shift_px.ptr<float>();
   args.float_step = out->depth_m.step1();
   ROMUNECT_CHECK(out->shift_px.step1() == args.float_step);
-  if (!distortion_beta_.empty()) {
-    ROMUNECT_CHECK(distortion_beta_.isContinuous() && distortion_beta_.step1() == args.float_step);
-    args.distortion_beta = distortion_beta_.ptr<float>();
-    args.distortion_alpha0 = static_cast<float>(options_.disparity_distortion.alpha0);
-    args.distortion_alpha1 = static_cast<float>(options_.disparity_distortion.alpha1);
+  if (!distortion_beta_.radial.empty()) {
+    for (const cv::Mat* m : {&distortion_beta_.radial, &distortion_beta_.pattern}) {
+      ROMUNECT_CHECK(m->isContinuous() && m->step1() == args.float_step);
+    }
+    const DisparityDistortion& d = options_.disparity_distortion;
+    args.distortion_radial = distortion_beta_.radial.ptr<float>();
+    args.distortion_pattern = distortion_beta_.pattern.ptr<float>();
+    args.distortion_alpha0 = static_cast<float>(d.alpha0);
+    args.distortion_alpha1 = static_cast<float>(d.alpha1);
+    args.distortion_pattern_alpha0 = static_cast<float>(d.pattern_alpha0);
+    args.distortion_pattern_alpha1 = static_cast<float>(d.pattern_alpha1);
   }
   const internal::MatchRowsFn match_rows = KernelFor(isa_)->match_rows;
   std::vector<internal::KernelStats> thread_stats(threads);

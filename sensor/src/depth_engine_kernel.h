@@ -71,10 +71,13 @@ struct KernelArgs {
   float* depth_m = nullptr;
   float* shift_px = nullptr;
   size_t float_step = 0;       // in floats, depth and shift
-  // The fixed-pattern disparity distortion (disparity_distortion.h): beta per pixel, rows of
-  // float_step, added as beta exp(alpha0 - alpha1 raw) to the unrounded raw; nullptr: none.
-  const float* distortion_beta = nullptr;
+  // The fixed-pattern disparity distortion (disparity_distortion.h): beta's radial and pattern
+  // parts per pixel, rows of float_step, each added times its factor exp(alpha0 - alpha1 raw)
+  // to the unrounded raw; nullptr: none.
+  const float* distortion_radial = nullptr;
+  const float* distortion_pattern = nullptr;
   float distortion_alpha0 = 0.f, distortion_alpha1 = 0.f;
+  float distortion_pattern_alpha0 = 0.f, distortion_pattern_alpha1 = 0.f;
   float equiangular_weight = 1.f;  // DepthEngineOptions::subpixel_equiangular_weight
   float quarter_correction = 0.f;  // DepthEngineOptions::subpixel_quarter_correction
   int16_t* scratch = nullptr;  // KernelScratchSize(width, blocks) values

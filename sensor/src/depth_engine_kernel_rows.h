@@ -38,11 +38,11 @@ inline float SubPixelOffset(float c0, float cm, float cp, float weight, float qu
 
 // The second pass over one row: the sub-pixel refinement (SubPixelOffset, for the whole row
 // first, parked in shift_row) and the raw value, with the float arithmetic of depth_engine.h and
-// the reference matcher. Writes every pixel of the row and counts it. kDistorted: beta_row holds
-// the disparity distortion's beta (the undistorted rows compile without it).
+// the reference matcher. Writes every pixel of the row and counts it. kDistorted: the row y of
+// the disparity distortion's maps is added (the undistorted rows compile without it).
 template <bool kDistorted>
-inline void RefineRow(const KernelArgs& a, const int16_t* code, const int16_t* best_cost, const int16_t* best_j,
-                      const int16_t* cost_minus, const int16_t* cost_plus, const float* beta_row, uint16_t* raw_row,
+inline void RefineRow(const KernelArgs& a, int y, const int16_t* code, const int16_t* best_cost,
+                      const int16_t* best_j, const int16_t* cost_minus, const int16_t* cost_plus, uint16_t* raw_row,
                       float* depth_row, float* shift_row, KernelStats* stats) {
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const float weight = a.equiangular_weight, quarter_correction = a.quarter_correction;
@@ -64,7 +64,10 @@ inline void RefineRow(const KernelArgs& a, const int16_t* code, const int16_t* b
     }
     float s8f = 8.f * (static_cast<float>(a.min_shift_px + best_j[x]) + delta);
     if constexpr (kDistorted) {  // the distortion raises raw: lowers the shift
-      s8f -= beta_row[x] * std::exp(a.distortion_alpha0 - a.distortion_alpha1 * (a.raw_at_reference - s8f));
+      const size_t i = static_cast<size_t>(y) * a.float_step + x;
+      const float raw_f = static_cast<float>(a.raw_at_reference) - s8f;
+      s8f -= a.distortion_radial[i] * std::exp(a.distortion_alpha0 - a.distortion_alpha1 * raw_f) +
+             a.distortion_pattern[i] * std::exp(a.distortion_pattern_alpha0 - a.distortion_pattern_alpha1 * raw_f);
     }
     const long s8 = static_cast<long>(std::floor(s8f + 0.5f));
     const long raw = a.raw_at_reference - s8;
@@ -266,13 +269,12 @@ void MatchRows(const KernelArgs& args, KernelStats* stats_out) {
         }
       }
     }
-    if (a.distortion_beta == nullptr) {
-      RefineRow<false>(a, search.code, search.best_cost, search.best_j, search.cost_minus, search.cost_plus, nullptr,
+    if (a.distortion_radial == nullptr) {
+      RefineRow<false>(a, y, search.code, search.best_cost, search.best_j, search.cost_minus, search.cost_plus,
                        a.raw + y * a.raw_step, a.depth_m + y * a.float_step, a.shift_px + y * a.float_step, &stats);
     } else {
-      RefineRow<true>(a, search.code, search.best_cost, search.best_j, search.cost_minus, search.cost_plus,
-                      a.distortion_beta + y * a.float_step, a.raw + y * a.raw_step, a.depth_m + y * a.float_step,
-                      a.shift_px + y * a.float_step, &stats);
+      RefineRow<true>(a, y, search.code, search.best_cost, search.best_j, search.cost_minus, search.cost_plus,
+                      a.raw + y * a.raw_step, a.depth_m + y * a.float_step, a.shift_px + y * a.float_step, &stats);
     }
   }
   AddStats(stats, stats_out);

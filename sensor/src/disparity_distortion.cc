@@ -59,8 +59,9 @@ cv::Mat CornerField(int width, int height) {
 }  // namespace
 
 double DisparityDistortion::WorstCaseCodes(double min_raw) const {
-  // The factor is largest at the smallest raw value (alpha1 >= 0).
-  return (4.0 * std::abs(pattern_rms_codes) + std::abs(corner_codes)) * std::exp(alpha0 - alpha1 * min_raw);
+  // The factors are largest at the smallest raw value (alpha1, pattern_alpha1 >= 0).
+  return 4.0 * std::abs(pattern_rms_codes) * std::exp(pattern_alpha0 - pattern_alpha1 * min_raw) +
+         std::abs(corner_codes) * std::exp(alpha0 - alpha1 * min_raw);
 }
 
 FieldProblem DisparityDistortion::Check() const {
@@ -68,6 +69,12 @@ FieldProblem DisparityDistortion::Check() const {
   // Published units decay by a few tenths of a percent per code; 0.02 would be 1e-18 at the far end.
   if (!(std::isfinite(alpha1) && alpha1 >= 0 && alpha1 <= 0.02)) {
     return Bad("alpha1", "must be in [0, 0.02] per raw code", alpha1);
+  }
+  if (!(std::isfinite(pattern_alpha0) && pattern_alpha0 >= -10 && pattern_alpha0 <= 10)) {
+    return Bad("pattern_alpha0", "must be in [-10, 10]", pattern_alpha0);
+  }
+  if (!(std::isfinite(pattern_alpha1) && pattern_alpha1 >= 0 && pattern_alpha1 <= 0.02)) {
+    return Bad("pattern_alpha1", "must be in [0, 0.02] per raw code", pattern_alpha1);
   }
   if (!(std::isfinite(pattern_rms_codes) && pattern_rms_codes >= 0 && pattern_rms_codes <= 16)) {
     return Bad("pattern_rms_codes", "must be in [0, 16] raw codes", pattern_rms_codes);
@@ -84,30 +91,34 @@ FieldProblem DisparityDistortion::Check() const {
 DisparityDistortion KinectV1DisparityDistortion() {
   DisparityDistortion d;
   d.seed = 1;
-  // The factor is 1 at raw 742 (1 m on the stock chip) and halves by 3 m, as the measured
-  // spreads do (2.1, 1.3 and 1.1 codes at 1, 2 and 3 m).
+  // Both factors are 1 at raw 742 (1 m on the stock chip). The corners' halves by 3 m, as the
+  // measured spreads do (2.1, 1.3 and 1.1 codes at 1, 2 and 3 m); the fine pattern's falls by a
+  // fifth, as the centre of a real unit's planes keeps 0.4-0.6 codes of it from 1 to 3 m.
   d.alpha1 = 0.0028;
   d.alpha0 = d.alpha1 * 742.0;
-  d.pattern_rms_codes = 0.65;
-  d.pattern_scale_px = 80.0;
-  d.corner_codes = -5.5;
+  d.pattern_alpha1 = 0.0008;
+  d.pattern_alpha0 = d.pattern_alpha1 * 742.0;
+  d.pattern_rms_codes = 0.55;
+  d.pattern_scale_px = 40.0;
+  d.corner_codes = -4.8;
   return d;
 }
 
-cv::Mat DisparityDistortionBeta(const DisparityDistortion& model, int width, int height) {
+DisparityDistortionMaps DisparityDistortionBeta(const DisparityDistortion& model, int width, int height) {
   ROMUNECT_CHECK(width > 0 && height > 0);
   ROMUNECT_CHECK_MSG(model.Problem().empty(), model.Problem().c_str());
-  cv::Mat beta = cv::Mat::zeros(height, width, CV_32F);
-  if (!model.Active()) return beta;
+  DisparityDistortionMaps beta{cv::Mat::zeros(height, width, CV_32F), cv::Mat::zeros(height, width, CV_32F)};
   if (model.pattern_rms_codes != 0.0) {
-    beta += model.pattern_rms_codes * RandomField(model.seed, model.pattern_scale_px, width, height);
+    beta.pattern = model.pattern_rms_codes * RandomField(model.seed, model.pattern_scale_px, width, height);
   }
-  if (model.corner_codes != 0.0) beta += model.corner_codes * CornerField(width, height);
+  if (model.corner_codes != 0.0) beta.radial = model.corner_codes * CornerField(width, height);
   return beta;
 }
 
-double DisparityDistortionCodes(const DisparityDistortion& model, double beta, double raw) {
-  return beta * std::exp(model.alpha0 - model.alpha1 * raw);
+double DisparityDistortionCodes(const DisparityDistortion& model, double radial_beta, double pattern_beta,
+                                double raw) {
+  return radial_beta * std::exp(model.alpha0 - model.alpha1 * raw) +
+         pattern_beta * std::exp(model.pattern_alpha0 - model.pattern_alpha1 * raw);
 }
 
 }  // namespace romunect

@@ -251,8 +251,8 @@ FieldProblem DepthEngineOptions::Check() const {
   // A real chip's fixed pattern is a few codes; beyond 8 px it would move matches out of the search.
   if (const double worst = disparity_distortion.WorstCaseCodes(raw_min); worst > 64) {
     return Bad("disparity_distortion",
-               "(4 x pattern_rms_codes + |corner_codes|) x exp(alpha0 - alpha1 x the search's smallest raw value) "
-               "must be at most 64 raw codes (8 px)",
+               "4 x pattern_rms_codes and |corner_codes|, each times its factor at the search's smallest raw "
+               "value, must be at most 64 raw codes (8 px) together",
                worst);
   }
   return {};
@@ -542,7 +542,9 @@ json DistortionJson(const DisparityDistortion& d) {
           {"alpha1", d.alpha1},
           {"pattern_rms_codes", d.pattern_rms_codes},
           {"pattern_scale_px", d.pattern_scale_px},
-          {"corner_codes", d.corner_codes}};
+          {"corner_codes", d.corner_codes},
+          {"pattern_alpha0", d.pattern_alpha0},
+          {"pattern_alpha1", d.pattern_alpha1}};
 }
 
 DisparityDistortion ReadDistortion(const Field& f) {
@@ -555,6 +557,9 @@ DisparityDistortion ReadDistortion(const Field& f) {
   d.pattern_rms_codes = f["pattern_rms_codes"].Number();
   d.pattern_scale_px = f["pattern_scale_px"].Number();
   d.corner_codes = f["corner_codes"].Number();
+  // Optional: absent, the random part decays as the radial one (the published model).
+  d.pattern_alpha0 = f.Has("pattern_alpha0") ? f["pattern_alpha0"].Number() : d.alpha0;
+  d.pattern_alpha1 = f.Has("pattern_alpha1") ? f["pattern_alpha1"].Number() : d.alpha1;
   if (const FieldProblem problem = d.Check()) FailProblem(f, problem);
   return d;
 }

@@ -27,14 +27,20 @@ double Percentile(std::vector<double> v, double p) {
 
 double MeanAbs(const cv::Mat& m, const cv::Rect& r) { return cv::mean(cv::abs(m(r)))[0]; }
 
+// beta's two parts summed (their factors at 1).
+cv::Mat Beta(const DisparityDistortion& model, int width, int height) {
+  const DisparityDistortionMaps beta = DisparityDistortionBeta(model, width, height);
+  return beta.radial + beta.pattern;
+}
+
 TEST(DisparityDistortionTest, BetaIsSeededZeroMeanAndLargestInTheCorners) {
   const DisparityDistortion model = KinectV1DisparityDistortion();
-  const cv::Mat beta = DisparityDistortionBeta(model, 640, 480);
-  const cv::Mat again = DisparityDistortionBeta(model, 640, 480);
+  const cv::Mat beta = Beta(model, 640, 480);
+  const cv::Mat again = Beta(model, 640, 480);
   EXPECT_EQ(cv::norm(beta, again, cv::NORM_INF), 0.0) << "same seed, same map";
   DisparityDistortion other = model;
   other.seed = 2;
-  EXPECT_GT(cv::norm(beta, DisparityDistortionBeta(other, 640, 480), cv::NORM_INF), 0.5) << "the seed matters";
+  EXPECT_GT(cv::norm(beta, Beta(other, 640, 480), cv::NORM_INF), 0.5) << "the seed matters";
   // Zero mean within 0.01 code (float sums): a unit's c0/c1 hold the mean.
   EXPECT_NEAR(cv::mean(beta)[0], 0.0, 0.01);
   // The corners (40 x 40 px) carry several times the centre's error: the published maps' shape.
@@ -43,7 +49,7 @@ TEST(DisparityDistortionTest, BetaIsSeededZeroMeanAndLargestInTheCorners) {
                                 cv::Rect(600, 440, 40, 40)}) {
     EXPECT_GT(MeanAbs(beta, corner), 3.0 * centre + 1.5) << corner;
   }
-  EXPECT_EQ(cv::countNonZero(DisparityDistortionBeta(DisparityDistortion{}, 64, 48)), 0) << "off by default";
+  EXPECT_EQ(cv::countNonZero(Beta(DisparityDistortion{}, 64, 48)), 0) << "off by default";
 }
 
 TEST(DisparityDistortionTest, BoundsNameTheField) {
@@ -53,6 +59,9 @@ TEST(DisparityDistortionTest, BoundsNameTheField) {
   rig = RigPreset("kinect-v1");
   rig.depth_engine.disparity_distortion.pattern_scale_px = 1.0;
   EXPECT_NE(rig.Problem().find("disparity_distortion.pattern_scale_px"), std::string::npos) << rig.Problem();
+  rig = RigPreset("kinect-v1");
+  rig.depth_engine.disparity_distortion.pattern_alpha1 = 0.5;
+  EXPECT_NE(rig.Problem().find("disparity_distortion.pattern_alpha1"), std::string::npos) << rig.Problem();
   // Amplitudes that would move matches by more than 8 px at the near end of the search.
   rig = RigPreset("kinect-v1");
   rig.depth_engine.disparity_distortion.corner_codes = 60.0;
@@ -75,6 +84,17 @@ TEST(DisparityDistortionTest, RigJsonKeepsTheModelAndNamesABadField) {
   text.erase(at, text.find('}', at) + 1 - at);
   WriteTextAtomically(dir / "old.json", text);
   EXPECT_FALSE(LoadRig(dir / "old.json").depth_engine.disparity_distortion.Active());
+  // A model without the random part's own factor has the published single factor.
+  text = testing::ReadText(dir / "kinect.json");
+  for (const std::string key : {"pattern_alpha0", "pattern_alpha1"}) {
+    const size_t at_key = text.find(",\n      \"" + key + "\"");
+    ASSERT_NE(at_key, std::string::npos) << key;
+    text.erase(at_key, text.find_first_of(",}", at_key + 2) - at_key);
+  }
+  WriteTextAtomically(dir / "published.json", text);
+  const DisparityDistortion published = LoadRig(dir / "published.json").depth_engine.disparity_distortion;
+  EXPECT_EQ(published.pattern_alpha0, rig.depth_engine.disparity_distortion.alpha0);
+  EXPECT_EQ(published.pattern_alpha1, rig.depth_engine.disparity_distortion.alpha1);
   // A value out of its physical bounds: the file, the field and the rule.
   text = testing::ReadText(dir / "kinect.json");
   const size_t rms = text.find("\"pattern_rms_codes\": ");
@@ -89,7 +109,7 @@ TEST(DisparityDistortionTest, RigJsonKeepsTheModelAndNamesABadField) {
   }
 }
 
-// The engine adds beta exp(alpha0 - alpha1 raw) before rounding to codes: averaged over a block
+// The engine adds the model (DisparityDistortionCodes) before rounding to codes: averaged over a block
 // the raw shift equals the model's, to within the rounding's dither.
 TEST(DisparityDistortionTest, EngineAddsTheModelBeforeRounding) {
   Rig rig = RigPreset("kinect-v1");
@@ -108,7 +128,7 @@ TEST(DisparityDistortionTest, EngineAddsTheModelBeforeRounding) {
   DepthEngineOutput a, b;
   with.Compute(ir, &a);
   without.Compute(ir, &b);
-  const cv::Mat beta = DisparityDistortionBeta(distorted.disparity_distortion, ir.cols, ir.rows);
+  const DisparityDistortionMaps beta = DisparityDistortionBeta(distorted.disparity_distortion, ir.cols, ir.rows);
   int blocks = 0;
   for (int y0 = 16; y0 + 32 <= ir.rows - 16; y0 += 32) {
     for (int x0 = 16; x0 + 32 <= ir.cols - 48; x0 += 32) {
@@ -119,7 +139,8 @@ TEST(DisparityDistortionTest, EngineAddsTheModelBeforeRounding) {
           const int ra = a.raw.at<uint16_t>(y, x), rb = b.raw.at<uint16_t>(y, x);
           if (ra == kRawInvalid || rb == kRawInvalid) continue;
           shift += ra - rb;
-          model += DisparityDistortionCodes(distorted.disparity_distortion, beta.at<float>(y, x), rb);
+          model += DisparityDistortionCodes(distorted.disparity_distortion, beta.radial.at<float>(y, x),
+                                            beta.pattern.at<float>(y, x), rb);
           ++n;
         }
       }
@@ -179,17 +200,20 @@ FixedPattern MeasureFixedPattern(const Rig& rig, DepthEngine* engine, double z_m
   return p;
 }
 
-// The model's own error in mm at a camera-facing plane z_m: beta exp(alpha0 - alpha1 raw) codes
-// at the plane's raw value, times the chip's depth step there.
+// The model's own error in mm at a camera-facing plane z_m: DisparityDistortionCodes at the
+// plane's raw value, times the chip's depth step there.
 std::vector<double> ModelErrorsMm(const Rig& rig, double z_m) {
   const ChipGeometry& chip = rig.depth_engine.chip;
   const double raw = chip.raw_offset - 8.0 * chip.FocalTimesBaseline() / z_m;
   const double mm_per_code = 1e3 * z_m * z_m / (8.0 * chip.FocalTimesBaseline());
   const DisparityDistortion& model = rig.depth_engine.disparity_distortion;
-  const cv::Mat beta = DisparityDistortionBeta(model, rig.camera.width, rig.camera.height);
+  const DisparityDistortionMaps beta = DisparityDistortionBeta(model, rig.camera.width, rig.camera.height);
   std::vector<double> errors;
-  for (auto it = beta.begin<float>(); it != beta.end<float>(); ++it) {
-    errors.push_back(mm_per_code * DisparityDistortionCodes(model, *it, raw));
+  for (int y = 0; y < beta.radial.rows; ++y) {
+    for (int x = 0; x < beta.radial.cols; ++x) {
+      errors.push_back(mm_per_code *
+                       DisparityDistortionCodes(model, beta.radial.at<float>(y, x), beta.pattern.at<float>(y, x), raw));
+    }
   }
   return errors;
 }
@@ -207,7 +231,7 @@ TEST(DisparityDistortionTest, FidelityKinectFixedPatternErrorMatchesARealUnit) {
   for (const Row& r : rows) {
     const std::vector<double> model = ModelErrorsMm(rig, r.z_m);
     const double model_p5 = Percentile(model, 5), model_p95 = Percentile(model, 95);
-    const FixedPattern p = MeasureFixedPattern(rig, &engine, r.z_m, 8);
+    const FixedPattern p = MeasureFixedPattern(rig, &engine, r.z_m, 16);
     std::printf("%6.2f | %5.0f..%+4.0f | %5.1f..%+5.1f | %6.1f..%+5.1f\n", r.z_m, r.real_p5_mm, r.real_p95_mm,
                 model_p5, model_p95, p.p5_mm, p.p95_mm);
     // The model: each percentile within 20 % of the real unit's (the fidelity bound).

@@ -125,7 +125,7 @@ class DepthEngine {
   int clean_begin_ = 0, clean_end_ = 0;
   std::vector<int16_t> ambiguous_below_;  // per best window cost that is not weak
   std::vector<int> max_best_cost_of_columns_;  // the weak test of a window clipped to n columns
-  cv::Mat distortion_beta_;               // CV_32F beta(u, v) of the disparity distortion; empty: none
+  DisparityDistortionMaps distortion_beta_;  // the disparity distortion's maps; empty: none
 };
 
 // Per-pixel conversion of the chip's output to metric depth (paper eqs. 2-3). The one
