@@ -336,7 +336,9 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
   args.ambiguous_below = ambiguous_below_.data();
   args.raw_at_reference = raw_at_reference_rounded_;
   args.equiangular_weight = static_cast<float>(options_.subpixel_equiangular_weight);
+  args.rounding_slope = static_cast<float>(options_.subpixel_rounding_slope);
   args.quarter_correction = static_cast<float>(options_.subpixel_quarter_correction);
+  args.eighth_correction = static_cast<float>(options_.subpixel_eighth_correction);
   // raw < raw_offset (a double) and below kRawInvalid.
   args.raw_limit = static_cast<int>(std::clamp(std::ceil(options_.chip.raw_offset), 0.0, double{kRawInvalid}));
   args.chip_depth_lut = chip_depth_lut_.data();

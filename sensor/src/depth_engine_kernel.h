@@ -79,7 +79,9 @@ struct KernelArgs {
   float distortion_alpha0 = 0.f, distortion_alpha1 = 0.f;
   float distortion_pattern_alpha0 = 0.f, distortion_pattern_alpha1 = 0.f;
   float equiangular_weight = 1.f;  // DepthEngineOptions::subpixel_equiangular_weight
+  float rounding_slope = 0.f;      // DepthEngineOptions::subpixel_rounding_slope
   float quarter_correction = 0.f;  // DepthEngineOptions::subpixel_quarter_correction
+  float eighth_correction = 0.f;   // DepthEngineOptions::subpixel_eighth_correction
   int16_t* scratch = nullptr;  // KernelScratchSize(width, blocks) values
   int y_begin = 0, y_end = 0;
 };

@@ -21,19 +21,33 @@ using romunect::depth_engine_internal::kRawNone;
 // Why a pixel has no raw value, or kCandidate when the search found a match to refine.
 enum PixelCode : int16_t { kCandidate, kBorder, kFlat, kWeak, kAmbiguous, kEdgeOfRange };
 
+// The sub-pixel fit's parameters (DepthEngineOptions::subpixel_*).
+struct SubPixelFit {
+  float weight, rounding_slope, quarter_correction, eighth_correction;
+};
+
 // The best shift's sub-pixel offset in [-0.5, 0.5] px from its window cost c0 and its
-// neighbours' (cm at -1 px, cp at +1 px): `weight` times the equiangular (V) fit plus the rest
-// times the parabola's, then the quarter-pixel correction (DepthEngineOptions). Branch-free so
-// that a row of it vectorizes; every instruction set gives the same bits (one IEEE operation
-// per step, no contraction), and so does the reference matcher.
-inline float SubPixelOffset(float c0, float cm, float cp, float weight, float quarter_correction) {
-  // v = (cm - cp) / 2a and parabola = (cm - cp) / 2b in one division (a = b = 0 only when all
-  // three costs are equal: offset 0). The row's other pixels hold stale costs: never 0 / 0.
-  const float a = std::max(cm, cp) - c0, b = cm + cp - 2.f * c0;
-  const bool fit = a > 0.f && b > 0.f;
-  const float d = (fit ? (cm - cp) * (weight * b + (1.f - weight) * a) : 0.f) / (fit ? 2.f * a * b : 1.f);
-  const float u = d > 0.25f ? d - 0.5f : d < -0.25f ? d + 0.5f : d;  // from the nearest half pixel
-  return d - quarter_correction * u * (1.f - 16.f * u * u);
+// neighbours' (cm at -1 px, cp at +1 px): a weight w times the equiangular (V) fit plus the rest
+// times the parabola's, then the quarter- and eighth-pixel corrections (DepthEngineOptions).
+// w = weight - rounding_slope c0 / a, clamped to [0, 1] (a = max(cm, cp) - c0): blur and faint,
+// noisy dots lift and round the minimum. Branch-free so that a row of it vectorizes; every
+// instruction set gives the same bits (one IEEE operation per step, no contraction), and so
+// does the reference matcher.
+inline float SubPixelOffset(float c0, float cm, float cp, const SubPixelFit& f) {
+  // V = (cm - cp) / 2a and parabola = (cm - cp) / 2b, weighted by w2 = 2a w and 2a - w2, in one
+  // division (a = b = 0 only when all three costs are equal: offset 0). The row's other pixels
+  // hold stale costs: never 0 / 0. Selects are spelled as arithmetic on 0/1 (exact), which
+  // vectorizes where branches would not.
+  const float a = std::max(cm, cp) - c0, b = cm + cp - 2.f * c0, a2 = 2.f * a;
+  const float fit = static_cast<float>((a > 0.f) & (b > 0.f));
+  const float w2 = std::min(std::max(a2 * f.weight - f.rounding_slope * (2.f * c0), 0.f), a2);
+  const float d = (cm - cp) * (w2 * b + (a2 - w2) * a) * fit / (a2 * a2 * b * fit + (1.f - fit));
+  // From the nearest half pixel, then the nearest quarter pixel (all steps exact).
+  const float u = d - 0.5f * (static_cast<float>(d > 0.25f) - static_cast<float>(d < -0.25f));
+  const float e = d - f.quarter_correction * u * (1.f - 16.f * u * u);
+  const float h = e - 0.5f * (static_cast<float>(e > 0.25f) - static_cast<float>(e < -0.25f));
+  const float v = h - 0.25f * (static_cast<float>(h > 0.125f) - static_cast<float>(h < -0.125f));
+  return e - f.eighth_correction * v * (1.f - 64.f * v * v);
 }
 
 // The second pass over one row: the sub-pixel refinement (SubPixelOffset, for the whole row
@@ -45,9 +59,9 @@ inline void RefineRow(const KernelArgs& a, int y, const int16_t* code, const int
                       const int16_t* best_j, const int16_t* cost_minus, const int16_t* cost_plus, uint16_t* raw_row,
                       float* depth_row, float* shift_row, KernelStats* stats) {
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  const float weight = a.equiangular_weight, quarter_correction = a.quarter_correction;
+  const SubPixelFit fit{a.equiangular_weight, a.rounding_slope, a.quarter_correction, a.eighth_correction};
   for (int x = 0; x < a.width; ++x) {
-    shift_row[x] = SubPixelOffset(best_cost[x], cost_minus[x], cost_plus[x], weight, quarter_correction);
+    shift_row[x] = SubPixelOffset(best_cost[x], cost_minus[x], cost_plus[x], fit);
   }
   for (int x = 0; x < a.width; ++x) {
     const float delta = shift_row[x];

@@ -224,9 +224,16 @@ FieldProblem DepthEngineOptions::Check() const {
   if (!(subpixel_equiangular_weight >= 0 && subpixel_equiangular_weight <= 1)) {
     return Bad("subpixel_equiangular_weight", "must be in [0, 1]", subpixel_equiangular_weight);
   }
+  if (!(subpixel_rounding_slope >= 0 && subpixel_rounding_slope <= 4)) {
+    return Bad("subpixel_rounding_slope", "must be in [0, 4]", subpixel_rounding_slope);
+  }
   if (!(subpixel_quarter_correction >= -0.5 && subpixel_quarter_correction <= 0.5)) {
     return Bad("subpixel_quarter_correction", "must be in [-0.5, 0.5] (the map stays monotone)",
                subpixel_quarter_correction);
+  }
+  if (!(subpixel_eighth_correction >= -0.5 && subpixel_eighth_correction <= 0.5)) {
+    return Bad("subpixel_eighth_correction", "must be in [-0.5, 0.5] (the map stays monotone)",
+               subpixel_eighth_correction);
   }
   if (!(std::isfinite(min_texture) && min_texture >= 0)) return Bad("min_texture", "must be >= 0", min_texture);
   if (!(std::isfinite(max_cost) && max_cost > 0)) return Bad("max_cost", "must be positive", max_cost);
@@ -333,9 +340,12 @@ Rig KinectV1() {
   // surfaces and the blurred, speckled ones of near surfaces.
   rig.depth_engine.min_texture = 1.5;
   rig.depth_engine.max_cost = 32.0;
-  // Its blurred, speckled pattern rounds the cost's minimum: mostly V, some parabola.
-  rig.depth_engine.subpixel_equiangular_weight = 0.75;
-  rig.depth_engine.subpixel_quarter_correction = 0.05;
+  // Its blurred (near), speckled and faint (far) pattern rounds the cost's minimum: mostly V,
+  // more parabola the rounder the minimum.
+  rig.depth_engine.subpixel_equiangular_weight = 0.92;
+  rig.depth_engine.subpixel_rounding_slope = 0.33;
+  rig.depth_engine.subpixel_quarter_correction = 0.0625;
+  rig.depth_engine.subpixel_eighth_correction = 0.03;
   // The stock unit's fixed-pattern error after its own raw-to-depth mapping.
   rig.depth_engine.disparity_distortion = KinectV1DisparityDistortion();
   return rig;
@@ -373,8 +383,10 @@ Rig Romunect() {
   // Within its focused range the pattern is sharp: a stricter match threshold costs no valid
   // pixels and rejects the false matches at the image borders (true match off the reference).
   rig.depth_engine.max_cost = 20.0;
-  rig.depth_engine.subpixel_equiangular_weight = 0.92;  // its codes' phases spread evenly
-  rig.depth_engine.subpixel_quarter_correction = 0.05;
+  rig.depth_engine.subpixel_equiangular_weight = 0.96;  // its codes' phases spread evenly
+  rig.depth_engine.subpixel_rounding_slope = 0.085;
+  rig.depth_engine.subpixel_quarter_correction = 0.075;
+  rig.depth_engine.subpixel_eighth_correction = 0.04;
   rig.H_P_rec = IdealPrewarp(rig, 0.2);
   return rig;
 }
@@ -578,7 +590,9 @@ json EngineJson(const DepthEngineOptions& o) {
           {"search_range_px", o.search_range_px},
           {"subpixel_steps", o.subpixel_steps},
           {"subpixel_equiangular_weight", o.subpixel_equiangular_weight},
+          {"subpixel_rounding_slope", o.subpixel_rounding_slope},
           {"subpixel_quarter_correction", o.subpixel_quarter_correction},
+          {"subpixel_eighth_correction", o.subpixel_eighth_correction},
           {"min_texture", o.min_texture},
           {"max_cost", o.max_cost},
           {"uniqueness", o.uniqueness},
@@ -601,7 +615,9 @@ DepthEngineOptions ReadEngine(const Field& f) {
   o.search_range_px = f["search_range_px"].Int();
   o.subpixel_steps = f["subpixel_steps"].Int();
   if (f.Has("subpixel_equiangular_weight")) o.subpixel_equiangular_weight = f["subpixel_equiangular_weight"].Number();
+  if (f.Has("subpixel_rounding_slope")) o.subpixel_rounding_slope = f["subpixel_rounding_slope"].Number();
   if (f.Has("subpixel_quarter_correction")) o.subpixel_quarter_correction = f["subpixel_quarter_correction"].Number();
+  if (f.Has("subpixel_eighth_correction")) o.subpixel_eighth_correction = f["subpixel_eighth_correction"].Number();
   o.min_texture = f["min_texture"].Number();
   o.max_cost = f["max_cost"].Number();
   o.uniqueness = f["uniqueness"].Number();

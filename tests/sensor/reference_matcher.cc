@@ -69,14 +69,21 @@ uint16_t ReferenceMatchRaw(const DepthEngine& engine, const cv::Mat& n_obs, cons
   if (second < c0 * (1.f + static_cast<float>(o.uniqueness))) return kRawInvalid;
   if (best_j == 0 || best_j == o.search_range_px - 1) return kRawInvalid;
   const float cm = static_cast<float>(cost[best_j - 1]), cp = static_cast<float>(cost[best_j + 1]);
-  // Sub-pixel: the equiangular (V) and the parabolic fit, weighted.
-  const float w = static_cast<float>(o.subpixel_equiangular_weight);
-  // V: (cm - cp) / 2a; parabola: (cm - cp) / 2b; blended over one denominator, 2ab.
+  // Sub-pixel: the equiangular (V) and the parabolic fit, weighted; the V's weight falls with
+  // c0 / a, the best cost over its rise to the higher neighbour.
   const float a = std::max(cm, cp) - c0, b = cm + cp - 2.f * c0;
-  const float d = a > 0.f && b > 0.f ? (cm - cp) * (w * b + (1.f - w) * a) / (2.f * a * b) : 0.f;
+  const float w2a = std::clamp(2.f * a * static_cast<float>(o.subpixel_equiangular_weight) -
+                                   static_cast<float>(o.subpixel_rounding_slope) * (2.f * c0),
+                               0.f, 2.f * a);  // the weight times 2a
+  // V: (cm - cp) / 2a; parabola: (cm - cp) / 2b; blended over one denominator, 2a 2ab.
+  const float d =
+      a > 0.f && b > 0.f ? (cm - cp) * (w2a * b + (2.f * a - w2a) * a) / (2.f * a * (2.f * a) * b) : 0.f;
   // The quarter-pixel correction on the offset from the nearest half pixel.
   const float u = d - 0.5f * std::round(2.f * d);
-  const float delta = d - static_cast<float>(o.subpixel_quarter_correction) * u * (1.f - 16.f * u * u);
+  const float e = d - static_cast<float>(o.subpixel_quarter_correction) * u * (1.f - 16.f * u * u);
+  // The eighth-pixel correction on the offset from the nearest quarter pixel.
+  const float v = e - 0.25f * std::round(4.f * e);
+  const float delta = e - static_cast<float>(o.subpixel_eighth_correction) * v * (1.f - 64.f * v * v);
   const long s8 = static_cast<long>(std::floor(8.f * (static_cast<float>(o.min_shift_px + best_j) + delta) + 0.5f));
   const long raw = std::lround(engine.RawAtReference()) - s8;
   if (raw < 0 || raw >= kRawInvalid || raw >= o.chip.raw_offset) return kRawInvalid;

@@ -132,8 +132,12 @@ TEST(RigFileTest, BadFieldsAreNamed) {
   ExpectBadField("/depth_engine/window_px", 8, "depth_engine.window_px");
   ExpectBadField("/optics/speckle_contrast", 1.5, "optics.speckle_contrast");
   ExpectBadField("/depth_engine/subpixel_equiangular_weight", 1.2, "depth_engine.subpixel_equiangular_weight");
+  ExpectBadField("/depth_engine/subpixel_rounding_slope", -0.1, "depth_engine.subpixel_rounding_slope");
+  ExpectBadField("/depth_engine/subpixel_rounding_slope", "0.3", "depth_engine.subpixel_rounding_slope");  // optional, but a number when present
   ExpectBadField("/depth_engine/subpixel_quarter_correction", -0.6, "depth_engine.subpixel_quarter_correction");
   ExpectBadField("/depth_engine/subpixel_quarter_correction", "0.1", "depth_engine.subpixel_quarter_correction");  // optional, but a number when present
+  ExpectBadField("/depth_engine/subpixel_eighth_correction", 0.7, "depth_engine.subpixel_eighth_correction");
+  ExpectBadField("/depth_engine/subpixel_eighth_correction", "0.1", "depth_engine.subpixel_eighth_correction");  // optional, but a number when present
   ExpectBadField("/depth_engine/chip/pattern/width", 795, "depth_engine.chip.pattern.width");
   ExpectBadField("/H_P_rec", nlohmann::json::array({1, 0, 0, 0, 1, 0, 0, 0}), "H_P_rec");
   ExpectBadField("/T_C_P", nlohmann::json::array({1, 0, 0, 0.05, 0, 1, 0, 0, 0, 0, 1, -0.3, 0, 0, 0, 1}),

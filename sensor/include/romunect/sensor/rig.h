@@ -135,9 +135,16 @@ struct DepthEngineOptions {
   // this weight on the equiangular (V) fit, the rest on the parabola (a parabola on sums of
   // absolute differences pulls codes to whole pixels, a V to half pixels), then the offset u
   // from the nearest half pixel moved by -correction u (1 - 16 u^2), which spreads codes
-  // from the quarter pixels to the whole and half ones (monotone). JSON: optional (absent: 1, 0).
+  // from the quarter pixels to the whole and half ones, and the offset v from the nearest
+  // quarter pixel by -eighth_correction v (1 - 64 v^2), which moves codes from the odd
+  // eighths to the even ones (both monotone). The V's weight falls by subpixel_rounding_slope
+  // times c0 / a, clamped to [0, 1], for the best cost c0 and its rise a to the higher of its
+  // neighbours: camera defocus (near) and faint, noisy dots (far) lift and round the cost's
+  // minimum, and a rounded minimum is nearer a parabola. JSON: each optional (absent: 1, 0, 0, 0).
   double subpixel_equiangular_weight = 1.0;
+  double subpixel_rounding_slope = 0.0;
   double subpixel_quarter_correction = 0.0;
+  double subpixel_eighth_correction = 0.0;
   double min_texture = 6.0;  // mean |prefiltered| in the window below this: flat -> invalid
   double max_cost = 25.0;    // mean |difference| per pixel above this: weak -> invalid
   double uniqueness = 0.20;  // second best (>1 px away) within this fraction: ambiguous
