@@ -331,7 +331,6 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
   args.clean_begin = clean_begin_;
   args.clean_end = clean_end_;
   args.min_texture = static_cast<float>(options_.min_texture);
-  args.max_best_cost = static_cast<int>(ambiguous_below_.size()) - 1;
   args.max_best_cost_of_columns = max_best_cost_of_columns_.data();
   args.ambiguous_below = ambiguous_below_.data();
   args.raw_at_reference = raw_at_reference_rounded_;

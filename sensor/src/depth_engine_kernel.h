@@ -58,10 +58,10 @@ struct KernelArgs {
   const uint8_t* outside = nullptr;    // per p: 0xFF where the reference has no column x - s
   int clean_begin = 0, clean_end = 0;  // columns x whose shifts j < D all have a reference column
   float min_texture = 0.f;
-  int max_best_cost = 0;  // weak above this window cost
-  // The same for a window clipped to n of its columns at the image's sides (n <= 2 radius + 1).
+  // Per number n of the window's columns inside the image (n <= 2 radius + 1): weak above this
+  // window cost.
   const int* max_best_cost_of_columns = nullptr;
-  // Per best cost c0 <= max_best_cost: costs below this (beyond +-1 of the best) make the pixel
+  // Per best cost c0 that is not weak: costs below this (beyond +-1 of the best) make the pixel
   // ambiguous (the integer form of "float(cost) < c0 (1 + uniqueness)").
   const int16_t* ambiguous_below = nullptr;
   int raw_at_reference = 0, raw_limit = 0;  // raw valid in [0, raw_limit)
