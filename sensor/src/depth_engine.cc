@@ -1,6 +1,7 @@
 #include "romunect/sensor/depth_engine.h"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstdlib>
 #include <limits>
@@ -425,15 +426,17 @@ cv::Mat ApplyRows(const DepthCorrection& correction, const cv::Mat& raw, ChipDep
     const uint16_t* in = raw.ptr<uint16_t>(y);
     float* out = depth.ptr<float>(y);
     if (correction.model == DepthCorrectionModel::kInverseAffineInRaw) {
-      // ApplyDepthCorrectionPixel's exact model without a branch per pixel (the same double
-      // operations, so the same floats): the compiler turns the row into vector code.
+      // ApplyDepthCorrectionPixel's exact model (the same double operations, so the same
+      // floats) in a form GCC vectorizes: every value computed, the pixel kept by a bit mask
+      // (it if-converts no float select under -ftrapping-math). A non-finite a or b makes inv
+      // NaN or infinite, so "inv finite and > 0" is the per-pixel test of a, b and inv.
       const double* a = correction.a.ptr<double>(y);
       const double* b = correction.b.ptr<double>(y);
       for (int x = 0; x < depth.cols; ++x) {
         const double inv = a[x] * in[x] + b[x];
-        const bool ok = in[x] != kRawInvalid && std::isfinite(a[x]) && std::isfinite(b[x]) && inv > 0.0;
-        const double z = ok ? 1.0 / inv : 0.0;
-        out[x] = static_cast<float>(z > 0.0 ? z : 0.0);
+        const float z = static_cast<float>(1.0 / inv);
+        const bool ok = (in[x] != kRawInvalid) & (inv > 0.0) & (inv <= std::numeric_limits<double>::max());
+        out[x] = std::bit_cast<float>(std::bit_cast<uint32_t>(z) & (0u - static_cast<uint32_t>(ok)));
       }
       continue;
     }

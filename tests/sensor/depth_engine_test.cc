@@ -335,6 +335,10 @@ TEST(DepthCorrectionTest, WholeMapEqualsThePerPixelFunction) {
     }
     c.a.at<double>(1, 2) = std::numeric_limits<double>::quiet_NaN();
     c.b.at<double>(3, 4) = std::numeric_limits<double>::infinity();
+    c.a.at<double>(5, 6) = std::numeric_limits<double>::infinity();
+    c.b.at<double>(7, 8) = -std::numeric_limits<double>::infinity();
+    c.a.at<double>(9, 10) = std::numeric_limits<double>::max();  // a finite a whose 1/Z overflows
+    out.raw.at<uint16_t>(5, 6) = out.raw.at<uint16_t>(9, 10) = 1000;
     const cv::Mat depth = ApplyDepthCorrection(c, out);
     for (int y = 0; y < 37; ++y) {
       for (int x = 0; x < 53; ++x) {
