@@ -227,17 +227,16 @@ DepthEngine::DepthEngine(const DepthEngineOptions& options, const cv::Mat& refer
     }
   }
   // The decision rules on integer window costs, in the float arithmetic of depth_engine.h: a
-  // best cost c0 is weak when float(c0) > max_cost x area, ambiguous when another cost is below
-  // c0 (1 + uniqueness), i.e. below ceil of it (costs are integers; all are below kCostMax).
-  const float max_cost_sum = static_cast<float>(options_.max_cost * options_.window_px * options_.window_px);
-  const int max_best_cost = static_cast<int>(std::min(std::floor(max_cost_sum), float{internal::kCostMax}));
-  const float uniqueness = static_cast<float>(options_.uniqueness);
-  // A window clipped to n of its columns at the image's sides: max_cost x its area.
+  // best cost c0 is weak when float(c0) > max_cost x area (a window clipped to n of its columns
+  // at the image's sides: window x n), ambiguous when another cost is below c0 (1 + uniqueness),
+  // i.e. below ceil of it (costs are integers; all are below kCostMax).
   max_best_cost_of_columns_.resize(options_.window_px + 1);
   for (int n = 0; n <= options_.window_px; ++n) {
     max_best_cost_of_columns_[n] = static_cast<int>(std::min(
         std::floor(static_cast<float>(options_.max_cost * options_.window_px * n)), float{internal::kCostMax}));
   }
+  const int max_best_cost = max_best_cost_of_columns_.back();  // the whole window
+  const float uniqueness = static_cast<float>(options_.uniqueness);
   ambiguous_below_.resize(max_best_cost + 1);
   for (int c0 = 0; c0 <= max_best_cost; ++c0) {
     const float t = static_cast<float>(c0) * (1.f + uniqueness);
@@ -288,8 +287,7 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
                          std::to_string(cam.width) + " x " + std::to_string(cam.height));
   }
   const int W = ir.cols, H = ir.rows, r = options_.window_px / 2;
-  const int rows = H;
-  const int threads = std::clamp(options_.threads, 1, rows);
+  const int threads = std::clamp(options_.threads, 1, H);
   // Thread t of ParallelRows' split of n rows: the one whose block starts at `begin`.
   auto thread_of = [threads](int begin, int n) {
     int t = 0;
@@ -362,9 +360,9 @@ void DepthEngine::Compute(const cv::Mat& ir, DepthEngineOutput* out) {
   }
   const internal::MatchRowsFn match_rows = KernelFor(isa_)->match_rows;
   std::vector<internal::KernelStats> thread_stats(threads);
-  ParallelRows(threads, rows, [&](int row_begin, int row_end) {
+  ParallelRows(threads, H, [&](int row_begin, int row_end) {
     const double cpu_start = ThreadCpuSeconds();
-    const int t = thread_of(row_begin, rows);
+    const int t = thread_of(row_begin, H);
     std::vector<int16_t> scratch(internal::KernelScratchSize(W, args.blocks));
     internal::KernelArgs band = args;
     band.scratch = scratch.data();

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -62,6 +63,9 @@ TEST(DisparityDistortionTest, BoundsNameTheField) {
   rig = RigPreset("kinect-v1");
   rig.depth_engine.disparity_distortion.pattern_alpha1 = 0.5;
   EXPECT_NE(rig.Problem().find("disparity_distortion.pattern_alpha1"), std::string::npos) << rig.Problem();
+  rig = RigPreset("kinect-v1");
+  rig.depth_engine.disparity_distortion.pattern_alpha0 = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_NE(rig.Problem().find("disparity_distortion.pattern_alpha0"), std::string::npos) << rig.Problem();
   // Amplitudes that would move matches by more than 8 px at the near end of the search.
   rig = RigPreset("kinect-v1");
   rig.depth_engine.disparity_distortion.corner_codes = 60.0;
