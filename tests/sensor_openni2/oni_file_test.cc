@@ -4,13 +4,17 @@
 // one byte changed, found by mutating it at random.
 #include "romunect/sensor/openni2/oni_file.h"
 
+#include <atomic>
+#include <chrono>
 #include <cstring>
 #include <fstream>
+#include <thread>
 
 #include <gtest/gtest.h>
 #include <opencv2/core/persistence.hpp>
 
 #include "romunect/sensor/errors.h"
+#include "romunect/sensor/openni2/openni2_source.h"
 #include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/testing/test_support.h"
 
@@ -154,6 +158,55 @@ TEST(OniFile, RecordingsThatCrashedTheFileDriverAreRefusedByEveryCommand) {
   const auto fused = RunRomunect("fuse " + oni + " --poses " + (dir / "poses.csv").string() + " --calibration " +
                                  (dir / "calib.yml").string() + " --out " + (dir / "fused").string());
   EXPECT_EQ(fused.exit_code, 0) << fused.output;
+}
+
+// The trial read is a program of its own, never a fork: a fork of a process whose libOpenNI2
+// has threads inherits the locks they hold, and waited on them for ever. Another thread keeps
+// libOpenNI2 busy here while the same recording opens again and again.
+TEST(OniFile, RecordingsOpenWhileOtherThreadsUseOpenNI2) {
+  ScratchDir dir("oni");
+  const std::filesystem::path oni = MakeRecording(dir);
+  struct Busy {
+    std::atomic<bool> stop{false};
+    std::thread thread{[this] {
+      while (!stop) ListDevices();
+    }};
+    ~Busy() {
+      stop = true;
+      thread.join();
+    }
+  } busy;
+  OpenNI2SourceOptions options;
+  options.uri = oni.string();
+  const auto start = std::chrono::steady_clock::now();
+  for (int i = 0; i < 20; ++i) {
+    OpenNI2Source source(options);
+    Frame frame;
+    std::string error;
+    ASSERT_EQ(source.Next(&frame, &error), FrameStatus::kOk) << i << ": " << error;
+  }
+  // 20 opens take about 2 s; a trial read that hangs waits out its 60 s limit.
+  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 50.0);
+}
+
+// The program is found, and one that is not the one built with this library says so.
+TEST(OniFile, TheTrialReadProgramRefusesArgumentsItDoesNotKnow) {
+  ScratchDir dir("oni");
+  const std::filesystem::path oni = MakeRecording(dir);
+  EXPECT_EQ(OniTrialReadProgram().filename(), kOniTrialReadProgramName);
+  EXPECT_TRUE(std::filesystem::is_regular_file(OniTrialReadProgram()));
+  EXPECT_NO_THROW(TrialReadOni(oni, {"modes", oni.string()}, 60.0));
+  for (const std::vector<std::string>& wrong :
+       std::vector<std::vector<std::string>>{{}, {"read", oni.string()}, {"read", oni.string(), "2", "1", "1", "0", "0", "0", "auto", "0", "2"},
+                                             {"read", oni.string(), "0", "1", "1", "0", "0", "0", "10um", "0", "2"},
+                                             {"read", oni.string(), "0", "1", "1", "0", "0", "x", "auto", "0", "2"}}) {
+    try {
+      TrialReadOni(oni, wrong, 60.0);
+      ADD_FAILURE() << wrong.size();
+    } catch (const InputError& e) {
+      testing::ExpectContains(e.what(), {oni.string() + ": its trial read, the program", "refused its arguments"});
+    }
+  }
 }
 
 }  // namespace

@@ -1,15 +1,15 @@
 #include "romunect/sensor/openni2/oni_file.h"
 
 #include <fcntl.h>
+#include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <cerrno>
 #include <chrono>
 #include <csignal>
-#include <cstdio>
 #include <cstring>
-#include <iostream>
+#include <functional>
 #include <set>
 #include <sstream>
 #include <thread>
@@ -256,8 +256,6 @@ std::string WalkContainer(uint64_t size, const ReadAt& read) {
   }
 }
 
-bool g_in_check_child = false;
-
 }  // namespace
 
 std::string OniStructureProblem(const uint8_t* data, size_t size) {
@@ -293,31 +291,35 @@ void CheckOniStructure(const std::filesystem::path& path) {
   if (!problem.empty()) throw InputError(path.string(), "", "not a readable .oni recording: " + problem);
 }
 
-bool InOniCheckChild() { return g_in_check_child; }
+std::filesystem::path OniTrialReadProgram() {
+  std::error_code ec;
+  const std::filesystem::path self = std::filesystem::read_symlink("/proc/self/exe", ec);
+  const std::filesystem::path beside = ec ? std::filesystem::path() : self.parent_path() / kOniTrialReadProgramName;
+  if (!beside.empty() && std::filesystem::is_regular_file(beside, ec)) return beside;
+  const std::filesystem::path built = ROMUNECT_ONI_TRIAL_READ_PROGRAM;
+  if (std::filesystem::is_regular_file(built, ec)) return built;
+  return beside.empty() ? built : beside;
+}
 
-void ReadOniInChildProcess(const std::filesystem::path& path, const std::function<void()>& read, double limit_s) {
-  std::cout.flush();
-  std::cerr.flush();
-  std::fflush(nullptr);
-  const pid_t child = ::fork();
-  if (child < 0) throw InputError(path.string(), "", std::string("cannot start its trial read: ") + std::strerror(errno));
-  if (child == 0) {
-    g_in_check_child = true;
-    // The trial read is silent: what it would say, the caller's own read says.
-    const int null = ::open("/dev/null", O_WRONLY);
-    if (null >= 0) {
-      ::dup2(null, STDOUT_FILENO);
-      ::dup2(null, STDERR_FILENO);
-    }
-    int code = 0;
-    try {
-      read();
-    } catch (const InputError&) {
-      code = 3;
-    } catch (...) {
-      code = 4;
-    }
-    ::_exit(code);  // no atexit handlers or static destructors of the parent's state
+void TrialReadOni(const std::filesystem::path& path, const std::vector<std::string>& arguments, double limit_s) {
+  const std::filesystem::path program = OniTrialReadProgram();
+  std::vector<std::string> strings{program.string()};
+  strings.insert(strings.end(), arguments.begin(), arguments.end());
+  std::vector<char*> argv;
+  for (std::string& a : strings) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  // The trial read is silent: what it would say, the caller's own read says.
+  posix_spawn_file_actions_t actions;
+  posix_spawn_file_actions_init(&actions);
+  posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, "/dev/null", O_WRONLY, 0);
+  posix_spawn_file_actions_adddup2(&actions, STDOUT_FILENO, STDERR_FILENO);
+  pid_t child = -1;
+  const int spawned = ::posix_spawn(&child, argv[0], &actions, nullptr, argv.data(), environ);
+  posix_spawn_file_actions_destroy(&actions);
+  if (spawned != 0) {
+    throw InputError(path.string(), "",
+                     "cannot start its trial read, the program " + program.string() + " (built beside romunect): " +
+                         std::strerror(spawned));
   }
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(limit_s);
   int status = 0;
@@ -342,7 +344,10 @@ void ReadOniInChildProcess(const std::filesystem::path& path, const std::functio
                          strsignal(WTERMSIG(status)) + "); the file is damaged or not a recording it can play");
   }
   const int code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  if (code != 0 && code != 3 && code != 4) {
+  if (code == kOniTrialReadUsage) {
+    throw InputError(path.string(), "", "its trial read, the program " + program.string() + ", refused its arguments: it is not the one built with this romunect");
+  }
+  if (code != kOniTrialReadOk && code != kOniTrialReadInputError && code != kOniTrialReadOtherError) {
     throw InputError(path.string(), "",
                      "libOpenNI2 ended a trial read of this recording abnormally (exit status " + std::to_string(code) +
                          "); the file is damaged or not a recording it can play");

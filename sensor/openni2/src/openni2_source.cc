@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <array>
+#include <charconv>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
@@ -21,6 +22,7 @@
 #include "romunect/sensor/errors.h"
 #include "romunect/sensor/openni2/oni_file.h"
 #include "romunect/sensor/openni2/virtual_device.h"
+#include "oni_trial_read.h"
 #include "virtual_device_uri.h"
 
 namespace romunect::openni2 {
@@ -393,14 +395,47 @@ double TrialReadLimitS(const std::string& path) {
   return 60.0 + (ec ? 0.0 : static_cast<double>(bytes) / 5e6);
 }
 
-// Reads what the caller will read, to its end or max_frames (the read of oni_file.h's child).
-void TrialRead(OpenNI2SourceOptions options) {
-  options.record_oni.clear();
-  OpenNI2Source source(options);
-  Frame frame;
-  std::string error;
-  while (source.Next(&frame, &error) != FrameStatus::kEndOfStream) {
+// True in the trial-read program: the reads it runs are the trial, and skip their own.
+bool g_in_trial_read = false;
+
+// The trial read's arguments (oni_file.h): "read", then the options a read of a recording
+// depends on, in this order; or "modes" and the recording, for ListVideoModes.
+std::vector<std::string> TrialReadArguments(const OpenNI2SourceOptions& o) {
+  std::ostringstream timeout;
+  timeout.precision(17);
+  timeout << o.timeout_s;
+  const char* unit = !o.depth_unit ? "auto" : *o.depth_unit == DepthUnit::k100um ? "100um" : "1mm";
+  return {"read", o.uri, o.raw ? "1" : "0", o.depth ? "1" : "0", o.ir ? "1" : "0", std::to_string(o.width),
+          std::to_string(o.height), std::to_string(o.fps), unit, std::to_string(o.max_frames), timeout.str()};
+}
+
+std::optional<OpenNI2SourceOptions> ParseTrialReadArguments(const std::vector<std::string>& a) {
+  if (a.size() != 11 || a[0] != "read") return std::nullopt;
+  OpenNI2SourceOptions o;
+  o.uri = a[1];
+  auto flag = [](const std::string& v, bool* out) {
+    *out = v == "1";
+    return v == "0" || v == "1";
+  };
+  auto integer = [](const std::string& v, int* out) {
+    const auto [end, ec] = std::from_chars(v.data(), v.data() + v.size(), *out);
+    return ec == std::errc() && end == v.data() + v.size();
+  };
+  if (!flag(a[2], &o.raw) || !flag(a[3], &o.depth) || !flag(a[4], &o.ir) || !integer(a[5], &o.width) ||
+      !integer(a[6], &o.height) || !integer(a[7], &o.fps) || !integer(a[9], &o.max_frames)) {
+    return std::nullopt;
   }
+  if (a[8] == "100um") {
+    o.depth_unit = DepthUnit::k100um;
+  } else if (a[8] == "1mm") {
+    o.depth_unit = DepthUnit::k1mm;
+  } else if (a[8] != "auto") {
+    return std::nullopt;
+  }
+  char* end = nullptr;
+  o.timeout_s = std::strtod(a[10].c_str(), &end);
+  if (a[10].empty() || *end != '\0') return std::nullopt;
+  return o;
 }
 
 // What can be said about the options and the URI before OpenNI2 is asked: OpenNI2 itself only
@@ -411,9 +446,9 @@ void CheckBeforeOpening(const OpenNI2SourceOptions& options) {
   if (IsOniPath(options.uri)) {
     std::error_code ec;
     if (!std::filesystem::is_regular_file(options.uri, ec)) throw InputError(options.uri, "", "no such .oni file");
-    if (!InOniCheckChild()) {
+    if (!g_in_trial_read) {
       CheckOniStructure(options.uri);
-      ReadOniInChildProcess(options.uri, [&] { TrialRead(options); }, TrialReadLimitS(options.uri));
+      TrialReadOni(options.uri, TrialReadArguments(options), TrialReadLimitS(options.uri));
     }
   }
   if (IsVirtualDeviceUri(options.uri)) {
@@ -770,11 +805,11 @@ std::vector<DeviceListing> ListDevices() {
 }
 
 std::vector<std::string> ListVideoModes(const std::string& uri) {
-  if (IsOniPath(uri) && !InOniCheckChild()) {
+  if (IsOniPath(uri) && !g_in_trial_read) {
     std::error_code ec;
     if (!std::filesystem::is_regular_file(uri, ec)) throw InputError(uri, "", "no such .oni file");
     CheckOniStructure(uri);
-    ReadOniInChildProcess(uri, [&] { ListVideoModes(uri); }, TrialReadLimitS(uri));
+    TrialReadOni(uri, {"modes", uri}, TrialReadLimitS(uri));
   }
   EnsureOpenNI();
   openni::Device device;
@@ -799,6 +834,30 @@ std::filesystem::path DriverDirectory() {
   Dl_info info{};
   if (dladdr(reinterpret_cast<void*>(&oniInitialize), &info) == 0 || info.dli_fname == nullptr) return {};
   return std::filesystem::path(info.dli_fname).parent_path() / "OpenNI2" / "Drivers";
+}
+
+int OniTrialReadMain(int argc, char** argv) {
+  g_in_trial_read = true;
+  const std::vector<std::string> args(argv + std::min(argc, 1), argv + argc);
+  try {
+    if (args.size() == 2 && args[0] == "modes") {
+      ListVideoModes(args[1]);
+      return kOniTrialReadOk;
+    }
+    std::optional<OpenNI2SourceOptions> options = ParseTrialReadArguments(args);
+    if (!options) return kOniTrialReadUsage;
+    // Reads what the caller will read, to its end or max_frames.
+    OpenNI2Source source(*options);
+    Frame frame;
+    std::string error;
+    while (source.Next(&frame, &error) != FrameStatus::kEndOfStream) {
+    }
+  } catch (const InputError&) {
+    return kOniTrialReadInputError;
+  } catch (...) {
+    return kOniTrialReadOtherError;
+  }
+  return kOniTrialReadOk;
 }
 
 }  // namespace romunect::openni2
