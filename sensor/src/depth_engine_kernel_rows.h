@@ -262,16 +262,15 @@ void MatchRows(const KernelArgs& args, KernelStats* stats_out) {
       s[b] = column(0, b);
       for (int x = 1; x < first_columns; ++x) s[b] = V::Add(s[b], column(x, b));
     }
-    // First pass: the search. Flat windows skip it (invalid whatever their costs).
-    for (int x = 0; x < searched; ++x) {
+    // First pass: the search. Flat windows skip it (invalid whatever their costs). Then the
+    // window slides to x + 1: column x + r + 1 comes in and column x - r leaves, where they exist;
+    // the image's inner columns, where both always do, test neither.
+    auto search_and_slide = [&](int x, bool enters, bool leaves, int columns) __attribute__((always_inline)) {
       if (sigma_row[x] < a.min_texture) {
         search.code[x] = kFlat;
       } else {
-        const int columns = std::min(x + r, W - 1) - std::max(x - r, 0) + 1;
         SearchPixel<V, NB>(a, s, pad, a.max_best_cost_of_columns[columns], x, lanes, search);
       }
-      // Slide to x + 1: column x + r + 1 comes in, column x - r leaves (either may not exist).
-      const bool enters = x + r + 1 < W, leaves = x >= r;
       if (enters) UpdateColumn<V, NB>(a, window, x + r + 1, colsum);
       for (int b = 0; b < NB; ++b) {
         if (enters && leaves) {
@@ -282,7 +281,14 @@ void MatchRows(const KernelArgs& args, KernelStats* stats_out) {
           s[b] = V::Sub(s[b], column(x - r, b));
         }
       }
-    }
+    };
+    auto clipped = [&](int x) __attribute__((always_inline)) {
+      search_and_slide(x, x + r + 1 < W, x >= r, std::min(x + r, W - 1) - std::max(x - r, 0) + 1);
+    };
+    const int inner_begin = std::min(r, searched), inner_end = std::max(inner_begin, std::min(searched, W - r - 1));
+    for (int x = 0; x < inner_begin; ++x) clipped(x);
+    for (int x = inner_begin; x < inner_end; ++x) search_and_slide(x, true, true, 2 * r + 1);
+    for (int x = inner_end; x < searched; ++x) clipped(x);
     if (a.distortion_radial == nullptr) {
       RefineRow<false>(a, y, search.code, search.best_cost, search.best_j, search.cost_minus, search.cost_plus,
                        a.raw + y * a.raw_step, a.depth_m + y * a.float_step, a.shift_px + y * a.float_step, &stats);
