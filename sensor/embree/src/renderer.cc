@@ -3,7 +3,9 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
+#include <bit>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <sstream>
 #include <thread>
@@ -490,7 +492,11 @@ cv::Mat GroundTruthDepth(const GeometryBuffer& buffer) {
   for (int v = 0; v < p_C.rows; ++v) {
     const auto* in = p_C.ptr<cv::Vec3f>(v);
     auto* row = depth_m.ptr<float>(v);
-    for (int u = 0; u < p_C.cols; ++u) row[u] = std::isnan(in[u][2]) ? 0.0f : in[u][2];
+    // NaN (no surface) -> 0 as a bit mask, which vectorizes where a float select does not.
+    for (int u = 0; u < p_C.cols; ++u) {
+      const float z = in[u][2];
+      row[u] = std::bit_cast<float>(std::bit_cast<uint32_t>(z) & (0u - static_cast<uint32_t>(z == z)));
+    }
   }
   return depth_m;
 }
