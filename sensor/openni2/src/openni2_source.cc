@@ -826,6 +826,9 @@ std::vector<std::string> ListVideoModes(const std::string& uri) {
     const auto& modes = info->getSupportedVideoModes();
     for (int i = 0; i < modes.getSize(); ++i) out.push_back(ModeString(t, modes[i]));
   }
+  // A recording's player thread that has not started when its device closes holds the close for
+  // 3 s (OpenNI2Source::Impl::~Impl).
+  if (IsOniPath(uri)) std::this_thread::sleep_for(kPlayerSettlePause);
   device.close();
   return out;
 }
