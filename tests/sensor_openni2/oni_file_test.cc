@@ -196,10 +196,14 @@ TEST(OniFile, TheTrialReadProgramRefusesArgumentsItDoesNotKnow) {
   EXPECT_EQ(OniTrialReadProgram().filename(), kOniTrialReadProgramName);
   EXPECT_TRUE(std::filesystem::is_regular_file(OniTrialReadProgram()));
   EXPECT_NO_THROW(TrialReadOni(oni, {"modes", oni.string()}, 60.0));
-  for (const std::vector<std::string>& wrong :
-       std::vector<std::vector<std::string>>{{}, {"read", oni.string()}, {"read", oni.string(), "2", "1", "1", "0", "0", "0", "auto", "0", "2"},
-                                             {"read", oni.string(), "0", "1", "1", "0", "0", "0", "10um", "0", "2"},
-                                             {"read", oni.string(), "0", "1", "1", "0", "0", "x", "auto", "0", "2"}}) {
+  const std::string o = oni.string();
+  const std::vector<std::vector<std::string>> wrongs = {
+      {},
+      {"read", o},
+      {"read", o, "2", "1", "1", "0", "0", "0", "auto", "0", "2"},   // a flag of 2
+      {"read", o, "0", "1", "1", "0", "0", "0", "10um", "0", "2"},   // no such unit
+      {"read", o, "0", "1", "1", "0", "0", "x", "auto", "0", "2"}};  // a rate that is no number
+  for (const std::vector<std::string>& wrong : wrongs) {
     try {
       TrialReadOni(oni, wrong, 60.0);
       ADD_FAILURE() << wrong.size();

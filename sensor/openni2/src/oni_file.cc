@@ -345,7 +345,9 @@ void TrialReadOni(const std::filesystem::path& path, const std::vector<std::stri
   }
   const int code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   if (code == kOniTrialReadUsage) {
-    throw InputError(path.string(), "", "its trial read, the program " + program.string() + ", refused its arguments: it is not the one built with this romunect");
+    throw InputError(path.string(), "",
+                     "its trial read, the program " + program.string() +
+                         ", refused its arguments: it is not the one built with this romunect");
   }
   if (code != kOniTrialReadOk && code != kOniTrialReadInputError && code != kOniTrialReadOtherError) {
     throw InputError(path.string(), "",
