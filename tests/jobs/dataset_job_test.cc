@@ -5,9 +5,12 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cstdio>
+#include <cstdlib>
 #include <fstream>
 #include <map>
 
+#include <Eigen/Core>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -117,6 +120,55 @@ TEST_F(DatasetJob, PosesAreBopsMillimetresAndRowMajorRotations) {
   EXPECT_GT(z_mm, 150.0);
   EXPECT_LT(z_mm, 260.0);
   EXPECT_DOUBLE_EQ(cam["0"]["depth_scale"].get<double>(), 0.1);
+}
+
+// The stock Kinect's dataset: the approach and the random views keep the bin within its 0.5-4 m
+// range (a table-top scene seen from about 0.8 m), and its depth images measure what the ground
+// truth holds, within the Kinect's noise and quantization.
+TEST(DatasetStockKinect, ImagesSeeTheBinFromWithinItsRangeAndMeasureIt) {
+  ScratchDir dir("dataset_kinect");
+  DatasetOptions o = Tiny(dir / "ds");
+  o.rig = "kinect-v1";
+  o.scenes = 1;
+  o.views = "both";
+  const jobs::DatasetSummary summary = RunDataset(o);
+  ASSERT_GT(summary.images, 2);
+  const auto check = CheckDataset(o.out);
+  EXPECT_TRUE(check.problems.empty()) << check.Text();
+  const fs::path scene = dir / "ds/train/000000";
+  const auto cam = nlohmann::json::parse(ReadText(scene / "scene_camera.json"));
+  ASSERT_EQ(static_cast<int>(cam.size()), summary.images);
+  for (const auto& [key, view] : cam.items()) {
+    // Where the camera is: its centre's distance to the bin's floor (the world's origin height).
+    Eigen::Matrix3d R;
+    Eigen::Vector3d t;
+    for (int i = 0; i < 9; ++i) R(i / 3, i % 3) = view["cam_R_w2c"][i].get<double>();
+    for (int i = 0; i < 3; ++i) t(i) = view["cam_t_w2c"][i].get<double>();
+    const double height_mm = (-R.transpose() * t).z();
+    EXPECT_GT(height_mm, 500.0) << key;   // beyond the stock device's near limit (0.48 m)
+    EXPECT_LT(height_mm, 1500.0) << key;  // a table-top scene, not the far end of its range
+    char name[16];
+    std::snprintf(name, sizeof name, "%06d.png", std::stoi(key));
+    const cv::Mat depth = cv::imread((scene / "depth" / name).string(), cv::IMREAD_UNCHANGED);
+    const cv::Mat truth = cv::imread((scene / "depth_gt" / name).string(), cv::IMREAD_UNCHANGED);
+    ASSERT_EQ(depth.type(), CV_16U) << key;
+    int seen = 0, measured = 0, close = 0;
+    for (int v = 0; v < depth.rows; ++v) {
+      for (int u = 0; u < depth.cols; ++u) {
+        const int gt = truth.at<uint16_t>(v, u), d = depth.at<uint16_t>(v, u);
+        if (gt == 0) continue;
+        ++seen;
+        if (d == 0) continue;
+        ++measured;
+        close += std::abs(d - gt) <= 100;  // 10 mm at 0.1 mm per unit: a few of its codes at 1 m
+      }
+    }
+    ASSERT_GT(seen, 0) << key;
+    // The stock device measures nearly all it sees at this range (95-98 %): its projector's
+    // shadows beside the objects and their edges are the rest.
+    EXPECT_GT(measured, 0.9 * seen) << key;
+    EXPECT_GT(close, 0.97 * measured) << key;  // 99.8 %: the rest are edges between surfaces
+  }
 }
 
 TEST(DatasetViews, TheApproachIsTheArmsOwnTrajectoryEveryKthFrame) {
