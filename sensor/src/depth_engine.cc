@@ -1,7 +1,6 @@
 #include "romunect/sensor/depth_engine.h"
 
 #include <algorithm>
-#include <bit>
 #include <cmath>
 #include <cstdlib>
 #include <limits>
@@ -14,6 +13,7 @@
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/cpu_features.h"
 #include "romunect/sensor/errors.h"
+#include "romunect/sensor/keep_or_zero.h"
 #include "romunect/sensor/ir_synthesis.h"
 #include "romunect/sensor/parallel_rows.h"
 
@@ -425,16 +425,16 @@ cv::Mat ApplyRows(const DepthCorrection& correction, const cv::Mat& raw, ChipDep
     float* out = depth.ptr<float>(y);
     if (correction.model == DepthCorrectionModel::kInverseAffineInRaw) {
       // ApplyDepthCorrectionPixel's exact model (the same double operations, so the same
-      // floats) in a form GCC vectorizes: every value computed, the pixel kept by a bit mask
-      // (it if-converts no float select under -ftrapping-math). A non-finite a or b makes inv
-      // NaN or infinite, so "inv finite and > 0" is the per-pixel test of a, b and inv.
+      // floats) in a form GCC vectorizes: every value computed, the pixel kept by KeepOrZero. A
+      // non-finite a or b makes inv NaN or infinite, so "inv finite and > 0" is the per-pixel
+      // test of a, b and inv.
       const double* a = correction.a.ptr<double>(y);
       const double* b = correction.b.ptr<double>(y);
       for (int x = 0; x < depth.cols; ++x) {
         const double inv = a[x] * in[x] + b[x];
         const float z = static_cast<float>(1.0 / inv);
         const bool ok = (in[x] != kRawInvalid) & (inv > 0.0) & (inv <= std::numeric_limits<double>::max());
-        out[x] = std::bit_cast<float>(std::bit_cast<uint32_t>(z) & (0u - static_cast<uint32_t>(ok)));
+        out[x] = KeepOrZero(ok, z);
       }
       continue;
     }

@@ -1,10 +1,9 @@
 #include "romunect/sim/sensor_imager.h"
 
-#include <bit>
-#include <cstdint>
 #include <sstream>
 
 #include "romunect/sensor/errors.h"
+#include "romunect/sensor/keep_or_zero.h"
 
 namespace romunect::sim {
 
@@ -103,13 +102,11 @@ void SensorImager::ComputeDepth(const Rig& /*rig*/, Frame* frame) {
   frame->depth_m = ApplyDepthCorrection(correction_, output_);
   // Outside the matchable range a depth is a clamped match, not a measurement.
   const float near_m = static_cast<float>(keep_.near_m), far_m = static_cast<float>(keep_.far_m);
-  // As a bit mask on every pixel, which vectorizes (a conditional store does not); NaN stays.
   for (int v = 0; v < frame->depth_m.rows; ++v) {
     float* row = frame->depth_m.ptr<float>(v);
     for (int u = 0; u < frame->depth_m.cols; ++u) {
       const float d = row[u];
-      const uint32_t drop = static_cast<uint32_t>(d < near_m) | static_cast<uint32_t>(d > far_m);
-      row[u] = std::bit_cast<float>(std::bit_cast<uint32_t>(d) & (drop - 1u));
+      row[u] = KeepOrZero(!((d < near_m) | (d > far_m)), d);  // a NaN stays
     }
   }
 }

@@ -3,9 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
-#include <bit>
 #include <cmath>
-#include <cstdint>
 #include <limits>
 #include <sstream>
 #include <thread>
@@ -19,6 +17,7 @@
 #include "romunect/sensor/check.h"
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/cpu_features.h"
+#include "romunect/sensor/keep_or_zero.h"
 
 namespace romunect::embree {
 namespace {
@@ -492,11 +491,7 @@ cv::Mat GroundTruthDepth(const GeometryBuffer& buffer) {
   for (int v = 0; v < p_C.rows; ++v) {
     const auto* in = p_C.ptr<cv::Vec3f>(v);
     auto* row = depth_m.ptr<float>(v);
-    // NaN (no surface) -> 0 as a bit mask, which vectorizes where a float select does not.
-    for (int u = 0; u < p_C.cols; ++u) {
-      const float z = in[u][2];
-      row[u] = std::bit_cast<float>(std::bit_cast<uint32_t>(z) & (0u - static_cast<uint32_t>(z == z)));
-    }
+    for (int u = 0; u < p_C.cols; ++u) row[u] = KeepOrZero(in[u][2] == in[u][2], in[u][2]);  // NaN: no surface
   }
   return depth_m;
 }
