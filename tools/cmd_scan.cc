@@ -19,13 +19,17 @@ void AddScanCommand(CLI::App& app) {
                                 "Kinds the pile is drawn from, comma-separated: key, pillbox, puzzle, lego, gear "
                                 "(default: all five; one kind: the paper's table 1 row beside the report's)")
                     ->delimiter(',');
+  auto* one_layer = cmd->add_flag("--one-layer", o->one_layer,
+                                  "Lay the objects on the bin floor side by side, each on its broadest face, "
+                                  "as in the paper's bins (those that find no room land on the others; the "
+                                  "report says how many)");
   auto* saved =
       cmd->add_option("--saved-scene", o->saved_scene,
                       "A run folder's scene.json (its scene and settled pile): the same pile without settling");
   auto* meshes = cmd->add_option(
       "--mesh", o->meshes, "A user mesh (.stl, .obj) dropped into the pile besides the --objects; repeat for more");
   // A saved scene names its MJCF scene and objects itself.
-  saved->excludes(scene)->excludes(objects)->excludes(meshes)->excludes(kinds);
+  saved->excludes(scene)->excludes(objects)->excludes(meshes)->excludes(kinds)->excludes(one_layer);
   cmd->add_option("--mesh-unit", o->mesh_unit_m, "Metres per --mesh file unit (0.001: millimetres)")
       ->capture_default_str();
   cmd->add_option("--mesh-material", o->mesh_material, "IR material of the --mesh objects: bright, dark or shiny")

@@ -30,7 +30,7 @@ constexpr double kTopShare = 0.001;
 // A frame adds its points when at least this share of its sampled pixels measured a point over
 // the inner floor (a pill box's top is about 5 % of the footprint).
 constexpr double kMinFrameShare = 0.01;
-// The descent's run at the first level ends this far beyond the bin's inner end (over the wall).
+// The first pass's outer rows and row ends lie this far beyond the bin's inner walls.
 constexpr double kRunBeyondWallM = 0.006;
 
 // The camera's distance to the surfaces of a band of `span_m`: the middle of a narrow range, near
@@ -160,27 +160,27 @@ ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const Ap
   const double v = o.coverage_speed_m_s, a = o.coverage_acceleration_m_s2;
   // Frame 1 is the first frame with the pile in range: it holds the whole footprint when the
   // frame before it was still above the pile. The descent therefore comes down at full speed
-  // (a frame period apart: 30 mm at 0.9 m/s and 30 Hz) and turns at the first level into a
-  // run towards a corner of the bin, braking there: a frame falls on the turn (its band holds
-  // the table, the floor and a one-layer pile), and the frames after it add new area instead
-  // of braking on one spot. The start is raised so that a whole number of frame periods
-  // brings the camera to the turn: on the cruise, s(t) = v t - v^2 / (2 a).
+  // (a frame period apart: 30 mm at 0.9 m/s and 30 Hz) and turns at the first level into the
+  // lowest band's first pass without braking: a frame falls on the turn (its band holds the
+  // table, the floor and a one-layer pile), and the frames after it add new area instead of
+  // braking on one spot. The start is raised so that a whole number of frame periods brings
+  // the camera to the turn: on the cruise, s(t) = v t - v^2 / (2 a).
   const double T = o.frame_period_s;
   const double brake_m = 0.5 * v * v / a;
-  // the run ends at a corner of the lowest band's serpentine (over the bin's walls, Serpentine's
-  // min_end_m), where the coverage leg then starts its first row
+  // the first pass's outer rows and row ends lie over the bin's walls (Serpentine's min_end_m)
   const Eigen::Vector2d corner = 0.5 * world.bin_inner_size_m().head<2>() + Eigen::Vector2d::Constant(kRunBeyondWallM);
-  const double run_m = corner.norm();
   double start = std::max(o.start_distance_m, first.camera_height_m + kDescentRoomM);
-  const bool timed = T > 0 && start - first.camera_height_m > brake_m && run_m > brake_m;
+  const bool timed = T > 0 && start - first.camera_height_m > brake_m;
   if (timed) {
     const int periods = static_cast<int>(std::ceil((start - first.camera_height_m + brake_m) / (v * T) - 1e-9));
     start = first.camera_height_m + periods * v * T - brake_m;
   }
   std::vector<PathPoint> polyline = {PathPoint(0, 0, start, 0), PathPoint(0, 0, first.camera_height_m, 0)};
-  if (timed) polyline.emplace_back(-corner.x(), -corner.y(), first.camera_height_m, 0);
+  // the lowest band's first pass does not depend on the pile: the descent runs it
+  for (const Eigen::Vector2d& p : Serpentine(camera, o.region_size_m, first.camera_height_m - first.low_m, false, corner)) {
+    polyline.emplace_back(p.x(), p.y(), first.camera_height_m, 0);
+  }
   Execute(world, polyline, v, a, o.coverage_corner_smoothing_s, ScanPostureSeed(world), ik, &plan);
-  (void)camera;
   return plan;
 }
 
@@ -218,17 +218,22 @@ ApproachPlan PlanCoverageTurning(const World& world, const CameraModel& camera, 
                             kTurnRadiusM * (turn0_rad + a * (turn1_rad - turn0_rad)));
     }
   };
-  // Most surfaces lie in the lowest band: it first; then the bands above it and the rim's, the
-  // hand turning on the way; then the lowest band again, turned, so the baseline's shadows fall
-  // the other way; then the bands above it again, the hand turning back.
+  // The descent ran the lowest band's first pass. Then the bands above it and the rim's, the hand
+  // turning on the way; then the lowest band again, turned, so the baseline's shadows fall the
+  // other way; then the bands above it again, the hand turning back.
   const double turned = o.turned_passes ? turn_rad : 0.0;
-  sweep(0, 0.0, 0.0);
   const size_t upper = levels.size() - 1;
   for (size_t i = 1; i < levels.size(); ++i) sweep(i, turned * (i - 1) / upper, turned * i / upper);
   if (o.turned_passes) {
     sweep(0, turned, turned);
     // and back up through the bands above it, the hand turning back: their edges from both sides
     for (size_t i = 1; i < levels.size(); ++i) sweep(i, turned * (upper - i + 1) / upper, turned * (upper - i) / upper);
+  }
+  if (polyline.size() == 1) {  // nothing left to visit: the leg is the descent's last sample
+    plan.T_W_C = {descent.T_W_C.back()};
+    plan.q = {descent.q.back()};
+    plan.levels_m = descent.levels_m;
+    return plan;
   }
   plan.passes_x = plan.passes_y = 1;
   for (auto it = levels.rbegin(); it != levels.rend(); ++it) plan.levels_m.push_back(it->camera_height_m);

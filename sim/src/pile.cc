@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <optional>
 #include <random>
 
 #include <nlohmann/json.hpp>
@@ -44,6 +45,99 @@ void BoundingSphere(const World::Impl& w, int object, Eigen::Vector3d* centre_O,
   for (const Mesh& part : spec.parts_O) {
     for (const auto& v : part.vertices) *radius_m = std::max(*radius_m, (v - *centre_O).norm());
   }
+}
+
+// The object's bounding box in O: its parts' (a user mesh: the cube about its bounding sphere).
+Eigen::AlignedBox3d BoundingBox(const World::Impl& w, int object) {
+  const ObjectSpec& spec = w.options.objects[object];
+  if (spec.kind == ObjectKind::kUserMesh) {
+    Eigen::Vector3d centre_O;
+    double radius_m = 0.0;
+    BoundingSphere(w, object, &centre_O, &radius_m);
+    return Eigen::AlignedBox3d(centre_O.array() - radius_m, centre_O.array() + radius_m);
+  }
+  Eigen::AlignedBox3d box;
+  for (const Mesh& part : spec.parts_O) {
+    for (const auto& v : part.vertices) box.extend(v);
+  }
+  return box;
+}
+
+// An object's footprint on the bin floor: a rectangle (bin frame, metres).
+struct Footprint {
+  Eigen::Vector2d centre, half;
+  Eigen::Matrix2d axes;  // columns: the rectangle's own x and y
+};
+
+// Whether two rectangles come closer than `gap` (separating axes: the four edge normals).
+bool TooClose(const Footprint& a, const Footprint& b, double gap) {
+  const Eigen::Vector2d d = b.centre - a.centre;
+  for (const Footprint* f : {&a, &b}) {
+    for (int k = 0; k < 2; ++k) {
+      const Eigen::Vector2d n = f->axes.col(k);
+      const double ra = a.half.x() * std::abs(n.dot(a.axes.col(0))) + a.half.y() * std::abs(n.dot(a.axes.col(1)));
+      const double rb = b.half.x() * std::abs(n.dot(b.axes.col(0))) + b.half.y() * std::abs(n.dot(b.axes.col(1)));
+      if (std::abs(n.dot(d)) >= ra + rb + gap) return false;
+    }
+  }
+  return true;
+}
+
+// The lowest point of a one-layer drop lies this far above the floor: the object settles flat.
+constexpr double kOneLayerDropM = 0.002;
+// One-layer objects lie square to the walls within this (a narrow bin turns them so).
+constexpr double kOneLayerYawJitterRad = 3.0 * M_PI / 180.0;
+// Random spots tried per object before it is dropped onto the others.
+constexpr int kOneLayerTries = 2000;
+
+// A one-layer drop pose in the bin frame (PileOptions::one_layer), or nothing when none of the
+// spots tried is free. Of the free spots tried, the one nearest a wall (or the ends of its
+// room) is taken, as objects slide to the side of a bin: random spots in mid-floor would leave
+// gaps too narrow for the next ones. Appends the footprint to `placed`.
+std::optional<Pose> OneLayerDrop(const World::Impl& w, int object, const Eigen::Vector3d& inner, double gap_m,
+                                 std::mt19937& rng, std::vector<Footprint>* placed) {
+  const Eigen::AlignedBox3d box = BoundingBox(w, object);
+  int thin = 0;
+  box.sizes().minCoeff(&thin);
+  // the thinnest axis up: a quarter turn about y (x up) or x (y up)
+  const Eigen::Matrix3d lay = thin == 2   ? Eigen::Matrix3d::Identity()
+                              : thin == 0 ? Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitY()).toRotationMatrix()
+                                          : Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitX()).toRotationMatrix();
+  const Eigen::Vector3d half = (lay.cwiseAbs() * box.sizes()) / 2;
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::optional<Footprint> best;
+  double best_yaw = 0.0, best_score = 0.0;
+  bool best_flip = false;
+  for (int attempt = 0; attempt < kOneLayerTries; ++attempt) {
+    // about square to the walls (a narrow bin turns its objects so), a few degrees off
+    const double yaw = 0.5 * M_PI * std::floor(4 * u(rng)) + kOneLayerYawJitterRad * (2 * u(rng) - 1);
+    const bool flip = u(rng) < 0.5;
+    Footprint f;
+    f.axes = Eigen::Rotation2Dd(yaw).toRotationMatrix();
+    f.half = half.head<2>();
+    const Eigen::Vector2d room = inner.head<2>() / 2 - f.axes.cwiseAbs() * f.half - Eigen::Vector2d::Constant(gap_m);
+    const double x = 2 * u(rng) - 1, y = 2 * u(rng) - 1;
+    if (room.minCoeff() < 0) continue;  // this yaw does not fit between the walls
+    f.centre = Eigen::Vector2d(x * room.x(), y * room.y());
+    const double score = (room.x() - std::abs(f.centre.x())) + (room.y() - std::abs(f.centre.y()));
+    if (best && score >= best_score) continue;
+    bool free = true;
+    for (const Footprint& other : *placed) free = free && !TooClose(f, other, gap_m);
+    if (!free) continue;
+    best = f;
+    best_yaw = yaw;
+    best_flip = flip;
+    best_score = score;
+  }
+  if (!best) return std::nullopt;
+  placed->push_back(*best);
+  const Eigen::Matrix3d flip = best_flip ? Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix()
+                                         : Eigen::Matrix3d::Identity();
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(best_yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix() * flip * lay;
+  Pose T_Bin_O = Pose::Identity();
+  T_Bin_O.linear() = R;
+  T_Bin_O.translation() = Eigen::Vector3d(best->centre.x(), best->centre.y(), half.z() + kOneLayerDropM) - R * box.center();
+  return T_Bin_O;
 }
 
 void Park(World::Impl& w, int object) {
@@ -105,6 +199,8 @@ std::string PileOptions::Problem() const {
   if (!(drop_interval_s > 0)) return "drop_interval_s = " + num(drop_interval_s) + ": must be > 0";
   if (!(max_drop_speed_m_s > 0)) return "max_drop_speed_m_s = " + num(max_drop_speed_m_s) + ": must be > 0";
   if (!(drop_height_m >= 0)) return "drop_height_m = " + num(drop_height_m) + ": must be >= 0";
+  if (!(one_layer_gap_m >= 0 && one_layer_gap_m <= 0.05))
+    return "one_layer_gap_m = " + num(one_layer_gap_m) + ": must be in [0, 0.05]";
   if (!(kinetic_energy_threshold_j > 0))
     return "kinetic_energy_threshold_j = " + num(kinetic_energy_threshold_j) + ": must be > 0";
   if (!(quiet_time_s >= 0)) return "quiet_time_s = " + num(quiet_time_s) + ": must be >= 0";
@@ -138,6 +234,7 @@ std::string SettleSummary::BriefReport() const {
   std::snprintf(s, sizeof s,
                 "pile %s after %.2f s simulated (%.2f s wall), kinetic energy %.2g J, %d objects in the bin",
                 converged ? "settled" : "NOT settled", simulated_s, wall_s, kinetic_energy_j, objects_in_bin);
+  if (not_in_one_layer > 0) return s + (", " + std::to_string(not_in_one_layer) + " of them on others (no room on the floor)");
   return s;
 }
 
@@ -165,7 +262,16 @@ SettleSummary DropAndSettle(World* world, const PileOptions& options) {
   const Eigen::Vector3d inner = world->bin_inner_size_m();
   std::mt19937 rng(options.seed);
   std::vector<Pose> drops;
+  std::vector<Footprint> placed;
+  SettleSummary summary;
   for (int i = 0; i < n; ++i) {
+    if (options.one_layer) {
+      if (const std::optional<Pose> T_Bin_O = OneLayerDrop(w, i, inner, options.one_layer_gap_m, rng, &placed)) {
+        drops.push_back(T_W_Bin * *T_Bin_O);
+        continue;
+      }
+      ++summary.not_in_one_layer;
+    }
     // The object's bounding sphere starts wholly above the bin's inner floor (as far as the bin
     // is wide enough), its lowest point drop_height_m above the rim.
     Eigen::Vector3d centre_O;
@@ -189,7 +295,6 @@ SettleSummary DropAndSettle(World* world, const PileOptions& options) {
   const int steps_per_drop = std::max(1, static_cast<int>(std::lround(options.drop_interval_s / dt)));
   const int max_steps = steps_per_drop * n + static_cast<int>(std::lround(options.max_settle_time_s / dt));
   const int quiet_steps = static_cast<int>(std::lround(options.quiet_time_s / dt));
-  SettleSummary summary;
   int dropped = 0, quiet = 0, step = 0;
   for (; step < max_steps; ++step) {
     if (dropped < n && step == dropped * steps_per_drop) {

@@ -189,8 +189,9 @@ TEST(ScanJobIntegration, ATallPileClippedByTheBoxIsCountedAndWarned) {
   EXPECT_THAT(ScanSummaryText(kept), ::testing::Not(HasSubstr("warning: ")));
 }
 
-// A one-kind bin of each of the paper's kinds, small (2 objects) and with sensor depth: the
-// approach planned for coverage reaches most of the region within the paper's 50 frames.
+// A one-kind bin of each of the paper's kinds in one layer, small (2 objects) and with sensor
+// depth: frame 1 holds the footprint and the approach planned for coverage reaches most of the
+// region within the paper's 20 and 50 frames.
 class OneKindScanIntegration : public ::testing::TestWithParam<const char*> {};
 
 TEST_P(OneKindScanIntegration, ReachesMostOfTheRegionWithinFiftyFrames) {
@@ -198,15 +199,19 @@ TEST_P(OneKindScanIntegration, ReachesMostOfTheRegionWithinFiftyFrames) {
   ScanJobOptions o;
   o.kinds = {GetParam()};
   o.objects = 2;
+  o.one_layer = true;
   o.write_frames = false;
   o.out = (dir / "run").string();
   const ScanReport r = RunScan(o).report;
-  // Measured 78-90 % after 50 frames for one-layer bins of 6-10 objects; two objects leave more
-  // floor (easy) but the bound leaves room for seeds: 70 %.
-  const std::optional<double> after_50 = Table1Completeness(r, 50);
-  ASSERT_TRUE(after_50.has_value());
-  EXPECT_GT(*after_50, 0.70) << GetParam();
-  EXPECT_GT(r.fusion.metrics->within_1mm, 0.95) << GetParam();  // measured 98-99 %
+  // Measured 22.1-22.8 / 67.5-74.2 / 92.5-95.3 % after 1 / 20 / 50 frames; the bounds leave
+  // room for changes to the sensor model: frame 1 at least the paper's 15 %, 60 % and 88 %.
+  const std::optional<double> after_1 = Table1Completeness(r, 1), after_20 = Table1Completeness(r, 20),
+                              after_50 = Table1Completeness(r, 50);
+  ASSERT_TRUE(after_1 && after_20 && after_50);
+  EXPECT_GT(*after_1, 0.15) << GetParam();
+  EXPECT_GT(*after_20, 0.60) << GetParam();
+  EXPECT_GT(*after_50, 0.88) << GetParam();
+  EXPECT_GT(r.fusion.metrics->within_1mm, 0.99) << GetParam();  // measured 99.6-99.8 %
   EXPECT_FALSE(fs::exists(dir / "run" / "frames"));
 }
 

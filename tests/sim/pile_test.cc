@@ -1,5 +1,6 @@
 #include "romunect/sim/pile.h"
 
+#include <algorithm>
 #include <filesystem>
 
 #include <gtest/gtest.h>
@@ -160,6 +161,60 @@ TEST(PileTest, OptionsProblemNamesFieldValueAndRule) {
   EXPECT_NE(bad.Problem().find("timestep_s"), std::string::npos) << bad.Problem();
   EXPECT_EQ(ObjectKindFromString("gear", "test"), ObjectKind::kGear);
   EXPECT_THROW(ObjectKindFromString("spoon", "test"), InputError);
+}
+
+// A one-layer pile of each of the paper's kinds at the counts `romunect experiment table1`
+// drops: every object found room on the floor and lies there on its broadest face, its highest
+// point no higher than its thinnest size (5 % for the seeded size variation, 0.5 mm for MuJoCo's
+// soft contact), and the pile settles.
+TEST(PileTest, OneLayerPilesLieOnTheFloorSideBySide) {
+  const struct {
+    ObjectKind kind;
+    int count;
+    double thickness_m;  // objects.h: the kind's thinnest size
+  } bins[] = {{ObjectKind::kKey, 2, 0.003},
+              {ObjectKind::kPillBox, 4, 0.016},
+              {ObjectKind::kPuzzlePiece, 4, 0.004},
+              {ObjectKind::kLegoBrick, 8, 0.0114 + 0.0018}};  // the studs stand 1.8 mm proud
+  for (const auto& bin : bins) {
+    for (uint32_t seed : {1u, 2u}) {
+      PileOptions pile;
+      pile.num_objects = bin.count;
+      pile.kinds = {bin.kind};
+      pile.seed = seed;
+      pile.one_layer = true;
+      SettleSummary summary;
+      World world = SettledWorld(pile, &summary);
+      const std::string what = std::string(ToString(bin.kind)) + " seed " + std::to_string(seed);
+      EXPECT_TRUE(summary.converged) << what;
+      EXPECT_EQ(summary.not_in_one_layer, 0) << what;
+      EXPECT_EQ(summary.objects_in_bin, bin.count) << what;
+      const Pose T_Bin_W = world.T_W_Bin().inverse();
+      for (int i = 0; i < world.num_objects(); ++i) {
+        double top_m = -1.0;
+        for (const Mesh& part : world.options().objects[i].parts_O) {
+          for (const Eigen::Vector3d& v : part.vertices) top_m = std::max(top_m, (T_Bin_W * world.T_W_O(i) * v).z());
+        }
+        EXPECT_LE(top_m, 1.05 * bin.thickness_m + 0.0005) << what << ", object " << i;
+      }
+    }
+  }
+}
+
+// More objects than one layer holds: the ones without room land on the others, and the
+// summary says how many.
+TEST(PileTest, AOneLayerPileWithoutRoomSaysHowManyLieOnOthers) {
+  PileOptions pile;
+  pile.num_objects = 6;
+  pile.kinds = {ObjectKind::kKey};
+  pile.one_layer = true;
+  SettleSummary summary;
+  World world = SettledWorld(pile, &summary);
+  EXPECT_GE(summary.not_in_one_layer, 3);  // 60 x 22 mm keys: at most 2 side by side in 120 x 55 mm
+  EXPECT_NE(summary.BriefReport().find("on others (no room on the floor)"), std::string::npos) << summary.BriefReport();
+  PileOptions bad;
+  bad.one_layer_gap_m = -0.001;
+  EXPECT_NE(bad.Problem().find("one_layer_gap_m"), std::string::npos);
 }
 
 }  // namespace

@@ -81,6 +81,7 @@ sim::ScanOptions SimulatorOptions(const ScanJobOptions& o, std::optional<calib::
   options.pile.num_objects = o.objects;
   for (const std::string& kind : o.kinds) options.pile.kinds.push_back(sim::GeneratedKindFromName(kind, "--kinds"));
   options.pile.seed = o.seed;
+  options.pile.one_layer = o.one_layer;
   options.seed = o.seed;
   options.threads = o.threads;
   options.samples_per_pixel = o.samples;

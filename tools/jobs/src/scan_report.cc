@@ -203,6 +203,7 @@ std::string ScanOptionsJson(const ScanJobOptions& a) {
                   {"seed", a.seed},
                   {"objects", a.objects},
                   {"kinds", a.kinds},
+                  {"one_layer", a.one_layer},
                   {"meshes", a.meshes},
                   {"mesh_unit_m", a.mesh_unit_m},
                   {"mesh_material", a.mesh_material},

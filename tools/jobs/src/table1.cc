@@ -64,6 +64,7 @@ Table1Run RunOne(const Table1Options& o, const std::string& kind, unsigned seed,
   ScanJobOptions scan;
   scan.kinds = {kind};
   scan.objects = ObjectsFor(o, kind);
+  scan.one_layer = true;
   scan.seed = seed;
   scan.threads = o.threads;
   scan.rig = o.rig;

@@ -4,15 +4,17 @@
 // in range tell how high the pile stands), never from the simulator's ground truth.
 //
 // The approach has two legs. The descent (PlanDescent) comes straight down over the bin's
-// centre to the lowest stand-off level, the one whose measurable band holds the table and the
-// bin floor, and runs on at it towards a corner of the bin. On the way, a PileHeightMeter collects the heights of the measured points over the
+// centre to the lowest stand-off level, the one whose measurable band holds the table, the bin
+// floor and a one-layer pile, and runs on at it through that band's first pass: a serpentine
+// over the whole region, its outer rows and row ends over the walls (none of this depends on
+// the pile). On the way, a PileHeightMeter collects the heights of the measured points over the
 // bin's inner floor. The coverage leg (PlanCoverage) then starts where the descent stopped:
 // measurable bands stacked from the table up to the measured top, one more for the bin's rim
 // when it lies above them, a serpentine per band whose rows tile the band's area with the
-// footprint at the band's far end (every frame adds new area): the lowest band (table, floor, a
-// one-layer pile) over the whole region; the bands above it over the bin's inside and the rim's
-// over its outline, the hand turning 170 deg on the way; the lowest band again, turned, so the
-// strips the projector's baseline shadows on one side of every edge are seen from the other. Frames: W world, C camera,
+// footprint at the band's far end (every frame adds new area): the bands above the lowest over
+// the bin's inside, the rim's over its outline, the hand turning 170 deg on the way; the
+// lowest band again, turned, over the whole region, so the strips the projector's
+// baseline shadows on one side of every edge are seen from the other. Frames: W world, C camera,
 // Bin (the bin's inner floor centre, z up); SI units; heights are above the bin floor.
 #pragma once
 
@@ -66,10 +68,10 @@ class PileHeightMeter {
 };
 
 // The descent: from options.start_distance_m (raised to the first level plus 5 cm when lower)
-// straight down over the bin's centre to the lowest coverage level at coverage_speed_m_s. With
-// options.frame_period_s it turns there without braking into a run towards a corner of the bin
-// and stops at its end; the start is raised so that a frame falls on the turn (the frame before
-// it a full period's travel higher, above a one-layer pile). Without, it stops at the level.
+// straight down over the bin's centre to the lowest coverage level at coverage_speed_m_s, then
+// the lowest band's first pass at that level, stopping at its end. With options.frame_period_s
+// the start is raised so that a frame falls on the turn into the pass (the frame before it a
+// full period's travel higher, above a one-layer pile).
 ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const ApproachOptions& options,
                          const IkOptions& ik = {});
 

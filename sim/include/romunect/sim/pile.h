@@ -19,6 +19,12 @@ struct PileOptions {
   uint32_t seed = 1;
   double drop_interval_s = 0.12;  // one object after the other, so none lands inside another
   double drop_height_m = 0.02;    // above the bin's rim
+  // One layer (the paper's bins): every object lies on its broadest face (its bounding box's
+  // thinnest axis up), seeded yaw and side, dropped drop_height_m above the bin floor where its
+  // footprint (bounding box) keeps one_layer_gap_m from the walls and from the objects placed
+  // before it. An object that finds no such spot is dropped onto the others, and counted.
+  bool one_layer = false;
+  double one_layer_gap_m = 0.001;
   // Physics time step while settling (the scene's own is restored afterwards): millimetre
   // parts falling at 1 m/s need sub-millimetre steps not to sink into each other.
   double timestep_s = 0.001;
@@ -41,6 +47,7 @@ struct SettleSummary {
   double simulated_s = 0.0;  // physics time from the first drop to settled (or giving up)
   double kinetic_energy_j = 0.0;
   int objects_in_bin = 0;   // objects whose centre lies inside the bin's inner box
+  int not_in_one_layer = 0;  // PileOptions::one_layer: objects that found no free spot on the floor
   double wall_s = 0.0;      // wall-clock time spent
   std::string loaded_from;  // a SaveSettledScene() file the pile came from: nothing settled
 

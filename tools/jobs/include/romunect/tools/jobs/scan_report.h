@@ -30,6 +30,7 @@ struct ScanJobOptions {
   uint32_t seed = 1;
   int objects = 12;                // 0 only with meshes
   std::vector<std::string> kinds;  // the pile's kinds (GeneratedKindFromName); empty: all five
+  bool one_layer = false;          // the pile in one layer (sim::PileOptions::one_layer)
   int threads = 2;
   int samples = 1;
   double voxel_m = 0.25e-3;

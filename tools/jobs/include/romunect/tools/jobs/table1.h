@@ -33,7 +33,7 @@ struct Table1Options {
   // Objects per bin, by kind, chosen so each bin holds about one layer (the paper's bins): their
   // footprints cover about 60 % of the bin's 120 x 55 mm inner floor (more pile up: six pill
   // boxes stand up to 59 mm high).
-  int keys = 5, pillbox = 4, puzzle = 7, lego = 8;
+  int keys = 2, pillbox = 4, puzzle = 4, lego = 8;
 };
 
 struct Table1Run {
