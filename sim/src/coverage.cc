@@ -169,13 +169,17 @@ ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const Ap
   const double brake_m = 0.5 * v * v / a;
   // the first pass's outer rows and row ends lie over the bin's walls (Serpentine's min_end_m)
   const Eigen::Vector2d corner = 0.5 * world.bin_inner_size_m().head<2>() + Eigen::Vector2d::Constant(kRunBeyondWallM);
-  double start = std::max(o.start_distance_m, first.camera_height_m + kDescentRoomM);
-  const bool timed = T > 0 && start - first.camera_height_m > brake_m;
+  // The turn's band starts at the bin floor (frame 1 over the bin's middle sees no table): a
+  // one-layer pile as high as the band is wide is in range there. The corner filter lifts the
+  // frame on the turn by an eighth of a period's travel (the mean over the filter's window).
+  const double turn_m = first.camera_height_m - std::min(first.low_m, 0.0) - (T > 0 ? v * T / 8 : 0.0);
+  double start = std::max(o.start_distance_m, turn_m + kDescentRoomM);
+  const bool timed = T > 0 && start - turn_m > brake_m;
   if (timed) {
-    const int periods = static_cast<int>(std::ceil((start - first.camera_height_m + brake_m) / (v * T) - 1e-9));
-    start = first.camera_height_m + periods * v * T - brake_m;
+    const int periods = static_cast<int>(std::ceil((start - turn_m + brake_m) / (v * T) - 1e-9));
+    start = turn_m + periods * v * T - brake_m;
   }
-  std::vector<PathPoint> polyline = {PathPoint(0, 0, start, 0), PathPoint(0, 0, first.camera_height_m, 0)};
+  std::vector<PathPoint> polyline = {PathPoint(0, 0, start, 0), PathPoint(0, 0, turn_m, 0)};
   // the lowest band's first pass does not depend on the pile: the descent runs it
   for (const Eigen::Vector2d& p : Serpentine(camera, o.region_size_m, first.camera_height_m - first.low_m, false, corner)) {
     polyline.emplace_back(p.x(), p.y(), first.camera_height_m, 0);

@@ -70,8 +70,8 @@ class PileHeightMeter {
 // The descent: from options.start_distance_m (raised to the first level plus 5 cm when lower)
 // straight down over the bin's centre to the lowest coverage level at coverage_speed_m_s, then
 // the lowest band's first pass at that level, stopping at its end. With options.frame_period_s
-// the start is raised so that a frame falls on the turn into the pass (the frame before it a
-// full period's travel higher, above a one-layer pile).
+// the start is raised so that a frame falls on the turn into the pass, where its band starts at
+// the bin floor (the frame before it a full period's travel higher, above a one-layer pile).
 ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const ApproachOptions& options,
                          const IkOptions& ik = {});
 
