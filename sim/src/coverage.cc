@@ -162,8 +162,8 @@ ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const Ap
   // frame before it was still above the pile. The descent therefore comes down at full speed
   // (a frame period apart: 30 mm at 0.9 m/s and 30 Hz) and turns at the first level into the
   // lowest band's first pass without braking: a frame falls on the turn (its band holds the
-  // table, the floor and a one-layer pile), and the frames after it add new area instead of
-  // braking on one spot. The start is raised so that a whole number of frame periods brings
+  // floor and a one-layer pile), and the frames after it add new area instead of braking on
+  // one spot. The start is raised so that a whole number of frame periods brings
   // the camera to the turn: on the cruise, s(t) = v t - v^2 / (2 a).
   const double T = o.frame_period_s;
   const double brake_m = 0.5 * v * v / a;
@@ -181,7 +181,8 @@ ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const Ap
   }
   std::vector<PathPoint> polyline = {PathPoint(0, 0, start, 0), PathPoint(0, 0, turn_m, 0)};
   // the lowest band's first pass does not depend on the pile: the descent runs it
-  for (const Eigen::Vector2d& p : Serpentine(camera, o.region_size_m, first.camera_height_m - first.low_m, false, corner)) {
+  const double first_far_m = first.camera_height_m - first.low_m;
+  for (const Eigen::Vector2d& p : Serpentine(camera, o.region_size_m, first_far_m, false, corner)) {
     polyline.emplace_back(p.x(), p.y(), first.camera_height_m, 0);
   }
   Execute(world, polyline, v, a, o.coverage_corner_smoothing_s, ScanPostureSeed(world), ik, &plan);

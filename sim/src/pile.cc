@@ -136,7 +136,8 @@ std::optional<Pose> OneLayerDrop(const World::Impl& w, int object, const Eigen::
   const Eigen::Matrix3d R = Eigen::AngleAxisd(best_yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix() * flip * lay;
   Pose T_Bin_O = Pose::Identity();
   T_Bin_O.linear() = R;
-  T_Bin_O.translation() = Eigen::Vector3d(best->centre.x(), best->centre.y(), half.z() + kOneLayerDropM) - R * box.center();
+  const Eigen::Vector3d centre_Bin(best->centre.x(), best->centre.y(), half.z() + kOneLayerDropM);
+  T_Bin_O.translation() = centre_Bin - R * box.center();
   return T_Bin_O;
 }
 
@@ -234,8 +235,8 @@ std::string SettleSummary::BriefReport() const {
   std::snprintf(s, sizeof s,
                 "pile %s after %.2f s simulated (%.2f s wall), kinetic energy %.2g J, %d objects in the bin",
                 converged ? "settled" : "NOT settled", simulated_s, wall_s, kinetic_energy_j, objects_in_bin);
-  if (not_in_one_layer > 0) return s + (", " + std::to_string(not_in_one_layer) + " of them on others (no room on the floor)");
-  return s;
+  if (not_in_one_layer == 0) return s;
+  return s + (", " + std::to_string(not_in_one_layer) + " of them on others (no room on the floor)");
 }
 
 bool ObjectInBin(const World& world, int object) {

@@ -20,9 +20,10 @@ struct PileOptions {
   double drop_interval_s = 0.12;  // one object after the other, so none lands inside another
   double drop_height_m = 0.02;    // above the bin's rim
   // One layer (the paper's bins): every object lies on its broadest face (its bounding box's
-  // thinnest axis up), seeded yaw and side, dropped drop_height_m above the bin floor where its
-  // footprint (bounding box) keeps one_layer_gap_m from the walls and from the objects placed
-  // before it. An object that finds no such spot is dropped onto the others, and counted.
+  // thinnest axis up), about square to the walls (seeded: within 3 deg, either side up), dropped
+  // from 2 mm above the bin floor at the free spot nearest the walls, its footprint (bounding
+  // box) one_layer_gap_m from the walls and from the objects placed before it. An object that
+  // finds no free spot is dropped onto the others as without one_layer, and counted.
   bool one_layer = false;
   double one_layer_gap_m = 0.001;
   // Physics time step while settling (the scene's own is restored afterwards): millimetre

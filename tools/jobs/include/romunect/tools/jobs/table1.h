@@ -30,9 +30,8 @@ struct Table1Options {
   std::string out;  // "": runs/table1-<date>-<time>
   int threads = 2;  // per scan
   std::string rig = "romunect";
-  // Objects per bin, by kind, chosen so each bin holds about one layer (the paper's bins): their
-  // footprints cover about 60 % of the bin's 120 x 55 mm inner floor (more pile up: six pill
-  // boxes stand up to 59 mm high).
+  // Objects per bin, by kind, in one layer (the paper's bins, sim::PileOptions::one_layer): as
+  // many as the default bin's 120 x 55 mm inner floor holds side by side by their bounding boxes.
   int keys = 2, pillbox = 4, puzzle = 4, lego = 8;
 };
 
