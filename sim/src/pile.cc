@@ -25,6 +25,16 @@ constexpr const char* kInScenes = "romunect scenes";
 // Objects waiting for their drop are held far from everything, out of every collision.
 constexpr double kParkX = 5.0, kParkY = 5.0, kParkZ = 1.0;
 
+// The bounding box of a generated object's parts, in O.
+Eigen::AlignedBox3d PartsBox(const ObjectSpec& spec) {
+  Eigen::AlignedBox3d box;
+  for (const Mesh& part : spec.parts_O) {
+    for (const auto& v : part.vertices) box.extend(v);
+  }
+  ROMUNECT_CHECK(!box.isEmpty());
+  return box;
+}
+
 // A sphere about the centre of the object's bounding box that holds all its parts, in O. A user
 // mesh has its part in its file: a sphere about its compiled geom's origin.
 void BoundingSphere(const World::Impl& w, int object, Eigen::Vector3d* centre_O, double* radius_m) {
@@ -35,12 +45,7 @@ void BoundingSphere(const World::Impl& w, int object, Eigen::Vector3d* centre_O,
     *radius_m = MeshGeomRadius(w.model.get(), g);
     return;
   }
-  Eigen::AlignedBox3d box;
-  for (const Mesh& part : spec.parts_O) {
-    for (const auto& v : part.vertices) box.extend(v);
-  }
-  ROMUNECT_CHECK(!box.isEmpty());
-  *centre_O = box.center();
+  *centre_O = PartsBox(spec).center();
   *radius_m = 0.0;
   for (const Mesh& part : spec.parts_O) {
     for (const auto& v : part.vertices) *radius_m = std::max(*radius_m, (v - *centre_O).norm());
@@ -56,11 +61,7 @@ Eigen::AlignedBox3d BoundingBox(const World::Impl& w, int object) {
     BoundingSphere(w, object, &centre_O, &radius_m);
     return Eigen::AlignedBox3d(centre_O.array() - radius_m, centre_O.array() + radius_m);
   }
-  Eigen::AlignedBox3d box;
-  for (const Mesh& part : spec.parts_O) {
-    for (const auto& v : part.vertices) box.extend(v);
-  }
-  return box;
+  return PartsBox(spec);
 }
 
 // An object's footprint on the bin floor: a rectangle (bin frame, metres).
@@ -106,7 +107,7 @@ std::optional<Pose> OneLayerDrop(const World::Impl& w, int object, const Eigen::
   const Eigen::Vector3d half = (lay.cwiseAbs() * box.sizes()) / 2;
   std::uniform_real_distribution<double> u(0.0, 1.0);
   std::optional<Footprint> best;
-  double best_yaw = 0.0, best_score = 0.0;
+  double best_score = 0.0;
   bool best_flip = false;
   for (int attempt = 0; attempt < kOneLayerTries; ++attempt) {
     // about square to the walls (a narrow bin turns its objects so), a few degrees off
@@ -125,7 +126,6 @@ std::optional<Pose> OneLayerDrop(const World::Impl& w, int object, const Eigen::
     for (const Footprint& other : *placed) free = free && !TooClose(f, other, gap_m);
     if (!free) continue;
     best = f;
-    best_yaw = yaw;
     best_flip = flip;
     best_score = score;
   }
@@ -133,7 +133,9 @@ std::optional<Pose> OneLayerDrop(const World::Impl& w, int object, const Eigen::
   placed->push_back(*best);
   const Eigen::Matrix3d flip = best_flip ? Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix()
                                          : Eigen::Matrix3d::Identity();
-  const Eigen::Matrix3d R = Eigen::AngleAxisd(best_yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix() * flip * lay;
+  Eigen::Matrix3d yaw = Eigen::Matrix3d::Identity();
+  yaw.topLeftCorner<2, 2>() = best->axes;
+  const Eigen::Matrix3d R = yaw * flip * lay;
   Pose T_Bin_O = Pose::Identity();
   T_Bin_O.linear() = R;
   const Eigen::Vector3d centre_Bin(best->centre.x(), best->centre.y(), half.z() + kOneLayerDropM);

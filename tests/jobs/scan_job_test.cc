@@ -203,8 +203,8 @@ TEST_P(OneKindScanIntegration, ReachesMostOfTheRegionWithinFiftyFrames) {
   o.write_frames = false;
   o.out = (dir / "run").string();
   const ScanReport r = RunScan(o).report;
-  // Measured 22.1-22.8 / 67.5-74.2 / 92.5-95.3 % after 1 / 20 / 50 frames; the bounds leave
-  // room for changes to the sensor model: frame 1 at least the paper's 15 %, 60 % and 88 %.
+  // Measured 22.1-22.8 / 67.5-74.2 / 92.5-95.3 % after 1 / 20 / 50 frames. Bounds: frame 1 at
+  // least the paper's 15 %; 60 % and 88 % leave room for changes to the sensor model.
   const std::optional<double> after_1 = Table1Completeness(r, 1), after_20 = Table1Completeness(r, 20),
                               after_50 = Table1Completeness(r, 50);
   ASSERT_TRUE(after_1 && after_20 && after_50);

@@ -122,8 +122,8 @@ TEST(CoverageTest, PileHeightMeterMeasuresThePlanesHeight) {
   EXPECT_NEAR(*meter.TopM(), tall_m, 1e-5);
 }
 
-// With the sensor's frame period known, a frame of the descent falls on its turn at the first
-// level, whose band holds the table and the floor, and the frame before it is a full frame
+// With the sensor's frame period known, a frame of the descent falls on its turn just above the
+// first level, where its band holds the bin floor and a one-layer pile, and the frame before it is a full frame
 // period's travel higher: the first frame with a one-layer pile in range sees the whole
 // footprint. The frames after it run on at that level through the lowest band's first pass,
 // whose rows reach over the walls on every side, then the descent stops.
@@ -146,7 +146,7 @@ TEST(CoverageTest, DescentPutsAFrameOnItsTurnAtTheFirstLevel) {
   }
   ASSERT_GT(turn, 0);
   // The turn's frame: the band from the bin floor to one range width above it in range (the
-  // turn is planned where the corner filter's lift puts it there: 0.5 mm for the servos).
+  // turn is planned where the corner filter's lift puts it: 0.5 mm for that lift's estimate).
   const Eigen::Vector3d p = at(turn);
   EXPECT_NEAR(p.z(), o.focused_far_m, 0.0005);
   EXPECT_LT(p.head<2>().norm(), 0.01);  // over the bin's middle
