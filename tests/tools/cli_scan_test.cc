@@ -50,6 +50,7 @@ TEST(CliScan, RejectsBadArgumentsBeforeAnyWork) {
   ExpectFailsWith("--rig nosuchpreset" + out, "unknown preset; expected romunect or kinect-v1");
   // A saved scene brings its own scene file and objects.
   ExpectFailsWith("--saved-scene " + (dir / "scene.json").string() + " --objects 5" + out, "excludes");
+  ExpectFailsWith("--saved-scene " + (dir / "scene.json").string() + " --one-layer" + out, "excludes");
   ExpectFailsWith("--mesh " + (dir / "missing.stl").string() + out, "missing.stl: mesh file not found");
   ExpectFailsWith("--mesh " + (dir / "part.ply").string() + out, "expected a .stl or .obj mesh");
   WriteCubeObj(dir / "cube.obj", 9.0);
