@@ -413,7 +413,7 @@ World LoadSettledScene(const std::filesystem::path& path) {
   } catch (const nlohmann::json::exception& e) {
     throw InputError(source, "", std::string("not valid JSON: ") + e.what());
   }
-  if (!j.is_object() || j.value("format", "") != kSceneFormat)
+  if (!j.is_object() || !j.contains("format") || j["format"] != kSceneFormat)
     throw InputError(source, "format", std::string("expected '") + kSceneFormat + "'");
   const int version = j.contains("version") && j["version"].is_number_integer() ? j["version"].get<int>() : 0;
   if (version != 1 && version != kSceneVersion) throw InputError(source, "version", "expected 1 or 2");

@@ -281,6 +281,11 @@ TEST(DatasetOptions, BadInputIsRefusedNamingTheOptionBeforeAnyFile) {
   EXPECT_NE(InputErrorOf([&] { RunDataset(Tiny(out)); }).find("holds notes.txt but no dataset.json"),
             std::string::npos);
   EXPECT_EQ(Tree(out).size(), 1u);
+  // a dataset.json that is JSON of the wrong shape is refused, not a type_error
+  for (const char* wrong : {"[1, 2]", R"({"format": 2, "settings": {}})", R"({"format": "x"})"}) {
+    WriteText(out / "dataset.json", wrong);
+    EXPECT_NE(InputErrorOf([&] { RunDataset(Tiny(out)); }).find("format"), std::string::npos) << wrong;
+  }
 }
 
 TEST_F(DatasetJob, FuseReadsASceneFolderAsAFrameSource) {
@@ -305,6 +310,21 @@ std::string Problems(const fs::path& ds) {
   std::string text;
   for (const auto& p : CheckDataset(ds.string()).problems) text += p + "\n";
   return text;
+}
+
+TEST_F(DatasetJob, FuseRefusesACameraOfNoWholeSize) {
+  ScratchDir dir("dataset_fuse_camera");
+  const fs::path ds = Copy(dir);
+  jobs::FuseOptions o;
+  o.source = (ds / "train/000000").string();
+  o.out = (dir / "fused").string();
+  for (const nlohmann::json& width : {nlohmann::json(1e20), nlohmann::json(640.5), nlohmann::json(-640)}) {
+    auto camera = ReadJson(ds / "camera.json");
+    camera["width"] = width;  // 1e20 as an int was undefined behaviour
+    WriteJson(ds / "camera.json", camera);
+    EXPECT_NE(InputErrorOf([&] { jobs::RunFuse(o); }).find("width"), std::string::npos) << width;
+  }
+  EXPECT_FALSE(fs::exists(dir / "fused"));
 }
 
 TEST_F(DatasetJob, CheckFindsAMissingKeyAndAWrongType) {

@@ -113,6 +113,10 @@ TEST(PileTest, SavedSceneNamesUserFilesAbsolutelyAndRefusesMissingOnes) {
   nlohmann::json other_root = saved;
   other_root["scene_file_relative_to"] = "somewhere";
   expect_refused(other_root, "scene_file_relative_to");
+  nlohmann::json numbered = saved;
+  numbered["format"] = 2;  // a fuzzer's find: a format of the wrong type was an uncaught type_error
+  expect_refused(numbered, "format");
+  expect_refused(nlohmann::json::array({saved}), "format");
   std::filesystem::remove(dir / "cube.obj");
   expect_refused(saved, "objects[0].file");
 }

@@ -28,6 +28,12 @@ double Number(const json& j, const std::string& key, const fs::path& file, const
   return j[key].get<double>();
 }
 
+int Integer(const json& j, const std::string& key, const fs::path& file) {
+  if (!j.contains(key) || !j[key].is_number_integer() || j[key].get<int64_t>() < 1 || j[key].get<int64_t>() > 1 << 16)
+    throw InputError(file.string(), key, "expected a whole number of pixels in [1, 65536]");
+  return j[key].get<int>();
+}
+
 std::vector<double> Numbers(const json& j, const std::string& key, size_t n, const fs::path& file,
                             const std::string& where) {
   if (!j.contains(key) || !j[key].is_array() || j[key].size() != n) {
@@ -52,8 +58,8 @@ class BopSceneSource : public FrameSource {
   explicit BopSceneSource(const fs::path& dir) : dir_(dir) {
     const fs::path camera_file = dir / ".." / ".." / "camera.json";
     const json cam = ReadJsonFile(camera_file);
-    camera_.width = static_cast<int>(Number(cam, "width", camera_file, ""));
-    camera_.height = static_cast<int>(Number(cam, "height", camera_file, ""));
+    camera_.width = Integer(cam, "width", camera_file);
+    camera_.height = Integer(cam, "height", camera_file);
     camera_.fx = Number(cam, "fx", camera_file, "");
     camera_.fy = Number(cam, "fy", camera_file, "");
     camera_.cx = Number(cam, "cx", camera_file, "");

@@ -138,7 +138,12 @@ fs::path ScanToUse(const SensitivityOptions& o, const fs::path& work, double* vo
     if (!fs::exists(scan / need)) throw InputError(scan.string(), need, "missing: give a scan run folder");
   }
   std::ifstream in(scan / "report.json");
-  *voxel_m = nlohmann::json::parse(in).at("options").at("voxel_m").get<double>();
+  const nlohmann::json report = nlohmann::json::parse(in, nullptr, false);
+  const nlohmann::json::json_pointer voxel("/options/voxel_m");
+  if (!report.is_object() || !report.contains(voxel) || !report[voxel].is_number() || !(report[voxel] > 0.0)) {
+    throw InputError((scan / "report.json").string(), "options.voxel_m", "expected a positive number");
+  }
+  *voxel_m = report[voxel].get<double>();
   return scan;
 }
 

@@ -68,7 +68,8 @@ void CheckExistingFolder(const fs::path& dir, const nlohmann::json& settings) {
   }
   std::ifstream in(file);
   const nlohmann::json doc = nlohmann::json::parse(in, nullptr, false);
-  if (doc.is_discarded() || doc.value("format", "") != kFormat || !doc.contains("settings")) {
+  if (!doc.is_object() || !doc.contains("format") || doc["format"] != kFormat ||
+      !doc.contains("settings") || !doc["settings"].is_object()) {
     throw InputError(file.string(), "format", "expected a " + std::string(kFormat) + " file");
   }
   for (const auto& [key, value] : settings.items()) {
