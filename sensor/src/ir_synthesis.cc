@@ -120,7 +120,7 @@ void IrSynthesizer::set_isa(Isa isa) {
   isa_ = kernel->isa;
 }
 
-void IrSynthesizer::PreparePattern(const Rig& rig) {
+void IrSynthesizer::Prepare(const Rig& rig) {
   if (!pattern_stack_.empty() && cached_pattern_ == rig.pattern && cached_H_ == rig.H_P_rec &&
       cached_projector_ == rig.projector) {
     return;
@@ -343,7 +343,7 @@ void IrSynthesizer::Synthesize(const Rig& rig, const GeometryBuffer& geometry, u
     ROMUNECT_CHECK(layer.material.size() == size && layer.material.type() == CV_32S);
     ROMUNECT_CHECK(layer.lit.size() == size && layer.lit.type() == CV_8U);
   }
-  PreparePattern(rig);
+  Prepare(rig);
   const bool lens_sampled = ShadeLayers(rig, geometry);
   // Camera blur: the focused lens' PSF everywhere, plus the defocus disk (sigma coc / 4) unless
   // the layers already sampled the aperture. Only the levels some pixel blends are blurred.

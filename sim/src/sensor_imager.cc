@@ -32,6 +32,27 @@ DepthEngineOptions EngineOptions(const Rig& rig, int threads) {
   return options;
 }
 
+// The sweep of GroundTruthDepthCorrection through a given synthesizer (its noise off for the
+// sweep) and engine: the imager lends its own, whose pattern levels and reference image it
+// needs anyway, and neither keeps state from frame to frame.
+DepthCorrection FitOnPlanes(const Rig& rig, const SensorImagerOptions& options, IrSynthesizer* synthesizer,
+                            DepthEngine* engine) {
+  const bool noise = synthesizer->noise();
+  synthesizer->set_noise(false);
+  std::vector<DepthEngineOutput> outputs(options.sweep_planes);
+  std::vector<cv::Mat> truth;
+  cv::Mat ir;
+  const DepthRange sweep = SweepRange(rig, options);
+  for (int i = 0; i < options.sweep_planes; ++i) {
+    const double z_m = sweep.near_m + (sweep.far_m - sweep.near_m) * i / (options.sweep_planes - 1);
+    synthesizer->Synthesize(rig, FrontoParallelPlane(rig.camera, z_m, IrMaterial{}), 0, &ir, nullptr);
+    engine->Compute(ir, &outputs[i]);
+    truth.emplace_back(rig.camera.height, rig.camera.width, CV_32F, cv::Scalar(static_cast<float>(z_m)));
+  }
+  synthesizer->set_noise(noise);
+  return FitDepthCorrection(DepthCorrectionModel::kInverseAffineInRaw, outputs, truth);
+}
+
 }  // namespace
 
 DepthRange SweepRange(const Rig& rig, const SensorImagerOptions& options) {
@@ -41,21 +62,10 @@ DepthRange SweepRange(const Rig& rig, const SensorImagerOptions& options) {
 
 DepthCorrection GroundTruthDepthCorrection(const Rig& rig, const SensorImagerOptions& options) {
   IrSynthesisOptions synthesis;
-  synthesis.noise = false;
   synthesis.threads = options.threads;
   IrSynthesizer synthesizer(synthesis);
   DepthEngine engine(EngineOptions(rig, options.threads));
-  std::vector<DepthEngineOutput> outputs(options.sweep_planes);
-  std::vector<cv::Mat> truth;
-  cv::Mat ir;
-  const DepthRange sweep = SweepRange(rig, options);
-  for (int i = 0; i < options.sweep_planes; ++i) {
-    const double z_m = sweep.near_m + (sweep.far_m - sweep.near_m) * i / (options.sweep_planes - 1);
-    synthesizer.Synthesize(rig, FrontoParallelPlane(rig.camera, z_m, IrMaterial{}), 0, &ir, nullptr);
-    engine.Compute(ir, &outputs[i]);
-    truth.emplace_back(rig.camera.height, rig.camera.width, CV_32F, cv::Scalar(static_cast<float>(z_m)));
-  }
-  return FitDepthCorrection(DepthCorrectionModel::kInverseAffineInRaw, outputs, truth);
+  return FitOnPlanes(rig, options, &synthesizer, &engine);
 }
 
 SensorImager::SensorImager(const Rig& rig, const SensorImagerOptions& options)
@@ -70,6 +80,7 @@ SensorImager::SensorImager(const Rig& rig, const SensorImagerOptions& options)
   if (const std::string problem = options.Problem(); !problem.empty()) {
     throw InputError("sensor imager", "options", problem);
   }
+  synthesizer_.Prepare(rig);
   if (options.correction) {
     const DepthCorrection& c = *options.correction;
     if (c.a.rows != rig.camera.height || c.a.cols != rig.camera.width || c.b.size() != c.a.size()) {
@@ -82,7 +93,7 @@ SensorImager::SensorImager(const Rig& rig, const SensorImagerOptions& options)
     correction_ = c;
     correction_source_ = options.correction_source;
   } else {
-    correction_ = GroundTruthDepthCorrection(rig, options);
+    correction_ = FitOnPlanes(rig, options, &synthesizer_, &engine_);
     std::ostringstream s;
     const DepthRange sweep = SweepRange(rig, options);
     s << "ground truth of the rig (" << DepthCorrectionModelName(correction_.model) << ", fitted on "

@@ -171,6 +171,27 @@ TEST(IrSynthesisTest, ThreadsGiveTheSameBytes) {
   EXPECT_TRUE(testing::ImagesBitEqual(ir_a, ir_b));
 }
 
+// Prepare() and switching the noise off and on (what SensorImager's ground-truth sweep does
+// with the synthesizer it keeps) give the bytes of synthesizers made with each setting.
+TEST(IrSynthesisTest, PreparedPatternAndSwitchedNoiseGiveTheSameBytes) {
+  const Rig rig = RigPreset("kinect-v1");
+  const GeometryBuffer g =
+      testing::RenderAnalytic(testing::AnalyticScene::TiltedPlane(1.2, 0.3), rig.camera, rig.T_C_P.translation());
+  IrSynthesizer noisy, quiet(NoNoise()), switched;
+  cv::Mat ir_noisy, ir_quiet, ir;
+  noisy.Synthesize(rig, g, 9, &ir_noisy, nullptr);
+  quiet.Synthesize(rig, g, 9, &ir_quiet, nullptr);
+  ASSERT_FALSE(testing::ImagesBitEqual(ir_noisy, ir_quiet));  // else the test shows nothing
+  switched.Prepare(rig);
+  switched.set_noise(false);
+  EXPECT_FALSE(switched.noise());
+  switched.Synthesize(rig, g, 9, &ir, nullptr);
+  EXPECT_TRUE(testing::ImagesBitEqual(ir, ir_quiet));
+  switched.set_noise(true);
+  switched.Synthesize(rig, g, 9, &ir, nullptr);
+  EXPECT_TRUE(testing::ImagesBitEqual(ir, ir_noisy));
+}
+
 // Every kernel (scalar, AVX2, AVX-512, those this CPU has) gives the scalar kernel's bytes: IR
 // and expected electrons, on full frames of both rigs with shiny and dull materials, shadows,
 // the pattern's edge, camera defocus, noise, and lens-like layers that partly repeat layer 0;

@@ -42,6 +42,10 @@ TEST(SensorImagerTest, ScanFramesCarryIrRawAndMetricDepthCloseToGroundTruth) {
   imager_options.threads = 2;
   auto imager = std::make_unique<SensorImager>(options.rig, imager_options);
   EXPECT_NE(imager->correction_source().find("ground truth"), std::string::npos);
+  // The imager fits it with its own synthesizer and engine: the same maps as on fresh ones.
+  const DepthCorrection fresh = GroundTruthDepthCorrection(options.rig, imager_options);
+  EXPECT_TRUE(testing::ImagesBitEqual(imager->correction().a, fresh.a));
+  EXPECT_TRUE(testing::ImagesBitEqual(imager->correction().b, fresh.b));
   scanner.SetImager(std::move(imager));
   Frame frame;
   std::string error;
