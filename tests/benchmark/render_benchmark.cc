@@ -187,7 +187,7 @@ void BM_IrSynthesis(benchmark::State& state) {
   IrSynthesizer synthesizer(options);
   cv::Mat ir;
   uint64_t seed = 0;
-  synthesizer.Synthesize(f.rig, buffer, seed, &ir, nullptr);  // the pattern's blur levels, once
+  synthesizer.Prepare(f.rig);  // the pattern's blur levels, once (BM_PatternLevels)
   for (auto _ : state) {
     synthesizer.Synthesize(f.rig, buffer, ++seed, &ir, nullptr);
     benchmark::DoNotOptimize(ir.data);
@@ -202,6 +202,16 @@ BENCHMARK(BM_IrSynthesis)
     ->UseRealTime()
     ->MeasureProcessCPUTime()
     ->Unit(benchmark::kMillisecond);
+
+// The rig's pattern blur levels (IrSynthesizer::Prepare): once per rig, before the first frame.
+void BM_PatternLevels(benchmark::State& state) {
+  const Fixture& f = GetFixture();
+  for (auto _ : state) {
+    IrSynthesizer synthesizer;
+    synthesizer.Prepare(f.rig);
+  }
+}
+BENCHMARK(BM_PatternLevels)->UseRealTime()->MeasureProcessCPUTime()->Unit(benchmark::kMillisecond);
 
 // Render, IR synthesis and depth engine of one frame, all with `threads` threads.
 void BM_FullFrame(benchmark::State& state) {
