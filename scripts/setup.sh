@@ -14,6 +14,8 @@ packages=(
   # Packaging traps: MuJoCo's CMake target needs qhull and GL; OpenEXR's Imath config
   # needs python3-imath.
   libqhull-dev libgl-dev python3-imath
+  # The docs' Python recipe for frame directories (tests/jobs runs it): OpenCV's and NumPy's bindings.
+  python3-opencv python3-numpy
 )
 # --bench-peers: the fusion benchmark's peers (cmake -DROMUNECT_BENCH_PEERS=ON), not needed otherwise.
 if [[ " $* " == *" --bench-peers "* ]]; then packages+=(libopen3d-dev liboctomap-dev); fi

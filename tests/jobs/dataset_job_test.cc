@@ -9,6 +9,8 @@
 #include <cstdlib>
 #include <fstream>
 #include <map>
+#include <tuple>
+#include <utility>
 
 #include <Eigen/Core>
 #include <gtest/gtest.h>
@@ -298,6 +300,32 @@ TEST_F(DatasetJob, FuseReadsASceneFolderAsAFrameSource) {
   EXPECT_EQ(fused.box_from, "scene_info.json's region_W");
   EXPECT_GT(fused.report.completeness, 0.0);
   EXPECT_TRUE(fs::exists(dir / "fused/report.json"));
+}
+
+// docs/datasets.md's Python recipe, as written there but for the dataset's folder and image, reads
+// an image of a scene: a line per object in it (Debian 12's python3-opencv and python3-numpy).
+TEST_F(DatasetJob, TheDocsPythonRecipeReadsAnImage) {
+  const std::string doc = ReadText(fs::path(ROMUNECT_SOURCE_DIR) / "docs" / "datasets.md");
+  const size_t begin = doc.find("```python\n", doc.find("## Reading an image in Python"));
+  ASSERT_NE(begin, std::string::npos);
+  const size_t code = begin + 10, end = doc.find("```", code);
+  std::string recipe = doc.substr(code, end - code);
+  // the scene's image with the most objects in view
+  const auto gt = nlohmann::json::parse(ReadText(Dataset() / "train/000000/scene_gt.json"));
+  std::string im;
+  size_t objects = 0;
+  for (const auto& [id, in_view] : gt.items()) {
+    if (in_view.size() > objects) std::tie(im, objects) = std::make_pair(id, in_view.size());
+  }
+  ASSERT_GT(objects, 0u);
+  const std::string where = R"(root, scene, im = "data/bins", "train/000000", 5)";
+  ASSERT_NE(recipe.find(where), std::string::npos) << recipe;
+  recipe.replace(recipe.find(where), where.size(), "root, scene, im = '" + Dataset().string() + "', 'train/000000', " + im);
+  ScratchDir dir("dataset_python_recipe");
+  WriteText(dir / "recipe.py", recipe);
+  const testing::CommandResult run = testing::RunShell("/usr/bin/python3 '" + (dir / "recipe.py").string() + "'");
+  ASSERT_EQ(run.exit_code, 0) << run.output << "\n(needs python3-opencv and python3-numpy: run scripts/setup.sh)";
+  EXPECT_EQ(static_cast<size_t>(std::count(run.output.begin(), run.output.end(), '\n')), objects) << run.output;
 }
 
 // --- each rule of the check, broken on a copy ---

@@ -69,11 +69,10 @@ TEST(InfoJob, ReportsRawValidityAndRefusesRawThatIsNotElevenBits) {
 }
 
 // docs/frame-directory.md's Python recipe, as written there, makes a directory info accepts (with
-// Debian 12's python3-opencv and python3-numpy; skipped where they are not installed).
+// Debian 12's python3-opencv and python3-numpy, which scripts/setup.sh installs).
 TEST(InfoJob, TheDocsPythonRecipeWritesADirectoryInfoAccepts) {
-  if (std::system("/usr/bin/python3 -c 'import cv2, numpy' >/dev/null 2>&1") != 0) {
-    GTEST_SKIP() << "python3-opencv / python3-numpy not installed";
-  }
+  ASSERT_EQ(std::system("/usr/bin/python3 -c 'import cv2, numpy' >/dev/null 2>&1"), 0)
+      << "needs python3-opencv and python3-numpy: run scripts/setup.sh";
   const std::string doc = testing::ReadText(std::filesystem::path(ROMUNECT_SOURCE_DIR) / "docs" / "frame-directory.md");
   const size_t begin = doc.find("```python\n", doc.find("## Writing one from another tool (Python)"));
   ASSERT_NE(begin, std::string::npos);
