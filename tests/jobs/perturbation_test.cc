@@ -143,6 +143,13 @@ TEST(CalibrationSensitivity, ReFusesAGivenScanPerInjectedError) {
                 RunCalibrationSensitivity(o);
               }),
               HasSubstr("unknown"));
+  // a scan folder whose report.json does not say its voxel is refused by file and field
+  o.sweeps = {"depth_offset_mm=2"};
+  for (const char* report : {"not json", R"({"options": 5})", R"({"options": {"voxel_m": "1 mm"}})"}) {
+    WriteTextAtomically(scan / "report.json", report);
+    o.out = (dir / "out3").string();
+    EXPECT_THAT(InputErrorOf([&] { RunCalibrationSensitivity(o); }), HasSubstr("options.voxel_m")) << report;
+  }
 }
 
 // The tolerance: where the MAE's excess over the unperturbed map crosses 0.1 mm / 1 mm.

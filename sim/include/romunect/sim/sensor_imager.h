@@ -38,8 +38,8 @@ struct SensorImagerOptions {
 class SensorImager : public FrameImager {
  public:
   // Builds the depth engine (the chip's reference image), the synthesizer's pattern levels and,
-  // without a given correction, the ground-truth correction: the first frame waits for none. Throws InputError("sensor imager", field, ...) on bad options or
-  // a correction of the wrong size.
+  // without a given correction, the ground-truth correction: the first frame waits for none.
+  // Throws InputError("sensor imager", field, ...) on bad options or a correction of the wrong size.
   SensorImager(const Rig& rig, const SensorImagerOptions& options);
 
   void SynthesizeIr(const Rig& rig, const GeometryBuffer& geometry, uint64_t seed, Frame* frame) override;
