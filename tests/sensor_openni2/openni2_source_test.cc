@@ -6,9 +6,13 @@
 #include <chrono>
 #include <cmath>
 #include <fstream>
+#include <string>
 #include <thread>
+#include <utility>
+#include <vector>
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/errors.h"
@@ -452,6 +456,37 @@ TEST(OpenNI2SourceErrors, AFrameDirectoryWithoutFramesIsRefusedAsSuch) {
   options.uri = VirtualDeviceUri(dir.path(), Step());
   const std::string m = OpenError(options);
   EXPECT_NE(m.find("frames.json: frames: is empty: a virtual device needs at least one frame"), std::string::npos) << m;
+}
+
+// frames.json's "ps1080" block is what the device reports to every client, which divides by its
+// factors and sizes shift tables by max_shift: a value no PS1080 reports is refused by key (1e30
+// as a whole number was undefined behaviour, -1 became 2^64 - 1); sound values are reported.
+TEST(OpenNI2SourceErrors, AChipBlockNoPs1080ReportsIsRefusedByKey) {
+  ScratchDir dir("chip_block");
+  testing::WriteSampleFrameDirectory(dir.path(), testing::SmallCamera(), 2, 16);
+  const std::filesystem::path manifest_file = dir.path() / "frames.json";
+  const nlohmann::json manifest = nlohmann::json::parse(testing::ReadText(manifest_file));
+  OpenNI2SourceOptions options;
+  options.uri = VirtualDeviceUri(dir.path(), Step());
+  const std::vector<std::pair<nlohmann::json, std::string>> refused = {
+      {{{"max_shift", 1e30}}, "ps1080.max_shift: expected a whole number in [1, 65535], found 1e+30"},
+      {{{"max_shift", -1}}, "ps1080.max_shift: expected a whole number in [1, 65535], found -1"},
+      {{{"param_coeff", 0}}, "ps1080.param_coeff: expected a whole number in [1, 65535], found 0"},
+      {{{"zero_plane_pixel_size_mm", "0.1"}}, "ps1080.zero_plane_pixel_size_mm: expected a number in (0.0, 10.0]"},
+      {nlohmann::json(5), "ps1080: expected an object"}};
+  for (const auto& [block, message] : refused) {
+    nlohmann::json bad = manifest;
+    bad["ps1080"] = block;
+    testing::WriteText(manifest_file, bad.dump());
+    const std::string m = OpenError(options);
+    EXPECT_NE(m.find("frames.json: " + message), std::string::npos) << m;
+  }
+  nlohmann::json sound = manifest;
+  sound["ps1080"] = {{"const_shift", 201}, {"max_shift", 2047}};
+  testing::WriteText(manifest_file, sound.dump());
+  OpenNI2Source source(options);
+  ASSERT_TRUE(source.chip().const_shift.has_value());
+  EXPECT_EQ(*source.chip().const_shift, 201);
 }
 
 TEST(OpenNI2SourceErrors, UnsupportedModeListsTheOfferedModes) {

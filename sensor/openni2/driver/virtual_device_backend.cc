@@ -41,6 +41,7 @@
 #include "romunect/sensor/clock.h"
 #include "romunect/sensor/color_camera.h"
 #include "romunect/sensor/depth_engine.h"
+#include "romunect/sensor/errors.h"
 #include "romunect/sensor/openni2/depth_units.h"
 #include "romunect/sensor/openni2/virtual_device.h"
 #include "romunect/sensor/rig.h"
@@ -73,23 +74,42 @@ ChipParameters StockChipParameters() {
   return p;
 }
 
-ChipParameters ReadChipParameters(const std::string& extra_json) {
+// The chip's "ps1080" block of frames.json (`source`), each key optional (the stock chip's value
+// otherwise) and refused, naming it, when it is not what a PS1080 reports: clients divide by the
+// factors and size shift tables by max_shift.
+ChipParameters ReadChipParameters(const std::string& extra_json, const std::string& source) {
   ChipParameters p = StockChipParameters();
   const nlohmann::json extra = nlohmann::json::parse(extra_json, nullptr, false);
-  if (!extra.is_object() || !extra.contains("ps1080") || !extra["ps1080"].is_object()) return p;
+  if (!extra.is_object() || !extra.contains("ps1080")) return p;
+  if (!extra["ps1080"].is_object()) throw InputError(source, "ps1080", "expected an object");
   const nlohmann::json& j = extra["ps1080"];
-  auto get = [&j](const char* key, auto* value) {
-    if (j.contains(key) && j[key].is_number()) *value = j[key].get<std::remove_pointer_t<decltype(value)>>();
+  auto whole = [&](const char* key, uint64_t lo, uint64_t hi, uint64_t* value) {
+    if (!j.contains(key)) return;
+    if (!j[key].is_number_unsigned() || j[key].get<uint64_t>() < lo || j[key].get<uint64_t>() > hi) {
+      throw InputError(source, std::string("ps1080.") + key,
+                       "expected a whole number in [" + std::to_string(lo) + ", " + std::to_string(hi) + "], found " +
+                           j[key].dump());
+    }
+    *value = j[key].get<uint64_t>();
   };
-  get("zero_plane_distance_mm", &p.zero_plane_distance_mm);
-  get("zero_plane_pixel_size_mm", &p.zero_plane_pixel_size_mm);
-  get("emitter_dcmos_distance_cm", &p.emitter_dcmos_distance_cm);
-  get("dcmos_rcmos_distance_cm", &p.dcmos_rcmos_distance_cm);
-  get("const_shift", &p.const_shift);
-  get("param_coeff", &p.param_coeff);
-  get("shift_scale", &p.shift_scale);
-  get("max_shift", &p.max_shift);
-  get("pixel_size_factor", &p.pixel_size_factor);
+  auto length = [&](const char* key, double lo, double hi, double* value) {
+    if (!j.contains(key)) return;
+    if (!j[key].is_number() || !(j[key].get<double>() > lo && j[key].get<double>() <= hi)) {
+      throw InputError(source, std::string("ps1080.") + key,
+                       "expected a number in (" + nlohmann::json(lo).dump() + ", " + nlohmann::json(hi).dump() +
+                           "], found " + j[key].dump());
+    }
+    *value = j[key].get<double>();
+  };
+  whole("zero_plane_distance_mm", 1, 10000, &p.zero_plane_distance_mm);
+  length("zero_plane_pixel_size_mm", 0.0, 10.0, &p.zero_plane_pixel_size_mm);
+  length("emitter_dcmos_distance_cm", 0.0, 100.0, &p.emitter_dcmos_distance_cm);
+  length("dcmos_rcmos_distance_cm", -100.0, 100.0, &p.dcmos_rcmos_distance_cm);
+  whole("const_shift", 0, 65535, &p.const_shift);
+  whole("param_coeff", 1, 65535, &p.param_coeff);
+  whole("shift_scale", 1, 65535, &p.shift_scale);
+  whole("max_shift", 1, 65535, &p.max_shift);
+  whole("pixel_size_factor", 1, 64, &p.pixel_size_factor);
   return p;
 }
 
@@ -194,7 +214,7 @@ class VirtualDevice : public oni::driver::DeviceBase {
         services_(services),
         lock_(parsed.feed ? UniqueFd() : LockDirectory(parsed.dir)),  // throws
         content_(OpenDeviceContent(parsed)) {                         // throws
-    chip_ = ReadChipParameters(content_.extra_json);
+    chip_ = ReadChipParameters(content_.extra_json, parsed.feed ? uri : (parsed.dir / "frames.json").string());
     has_ir_ = content_.has_ir;
     fps_ = static_cast<int>(std::lround(options_.fps > 0.0 ? options_.fps : content_.fps));
     if (fps_ <= 0) fps_ = 30;
