@@ -355,6 +355,19 @@ TEST_F(DatasetJob, FuseRefusesACameraOfNoWholeSize) {
   EXPECT_FALSE(fs::exists(dir / "fused"));
 }
 
+TEST_F(DatasetJob, CheckFindsACameraOfNoWholeSize) {
+  ScratchDir dir("dataset_check_camera");
+  const fs::path ds = Copy(dir);
+  auto camera = ReadJson(ds / "camera.json");
+  camera["width"] = 1e30;  // read as an int, undefined behaviour
+  camera["height"] = 0;
+  WriteJson(ds / "camera.json", camera);
+  const std::string problems = Problems(ds);
+  EXPECT_NE(problems.find("camera.json: width missing or not a whole number of pixels"), std::string::npos) << problems;
+  EXPECT_NE(problems.find("camera.json: height missing or not a whole number of pixels"), std::string::npos)
+      << problems;
+}
+
 TEST_F(DatasetJob, CheckFindsAMissingKeyAndAWrongType) {
   ScratchDir dir("dataset_check_keys");
   const fs::path ds = Copy(dir);

@@ -364,8 +364,14 @@ DatasetCheckSummary CheckDataset(const std::string& dir_name, int threads) {
   const auto camera = ReadJson(dir / "camera.json", &problems);
   const auto models_info = ReadJson(dir / "models" / "models_info.json", &problems);
   if (!camera || !models_info) return summary;
-  for (const char* key : {"cx", "cy", "depth_scale", "fx", "fy", "height", "width"}) {
+  for (const char* key : {"cx", "cy", "depth_scale", "fx", "fy"}) {
     if (!(*camera)[key].is_number()) problems.Add(dir / "camera.json", std::string(key) + " missing or not a number");
+  }
+  for (const char* key : {"height", "width"}) {  // read as int: a float such as 1e30 would not fit
+    const json& n = (*camera)[key];
+    if (!n.is_number_integer() || n.get<int64_t>() < 1 || n.get<int64_t>() > 1 << 16) {
+      problems.Add(dir / "camera.json", std::string(key) + " missing or not a whole number of pixels in [1, 65536]");
+    }
   }
   if (problems.count() > 0) return summary;
   c.camera.width = (*camera)["width"].get<int>();
