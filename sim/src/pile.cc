@@ -4,8 +4,11 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <limits>
 #include <optional>
 #include <random>
+#include <string>
+#include <type_traits>
 
 #include <nlohmann/json.hpp>
 
@@ -183,8 +186,26 @@ Pose PoseFromJson(const nlohmann::json& j, const std::string& source, const std:
 template <typename T>
 T Get(const nlohmann::json& j, const char* key, const std::string& source, const std::string& where) {
   if (!j.contains(key)) throw InputError(source, where + "." + key, "missing");
+  const nlohmann::json& v = j.at(key);
+  // A number that T cannot hold (1e30 as a seed, 1e300 as a float) converts with undefined behaviour.
+  if constexpr (std::is_integral_v<T>) {
+    const bool fits = v.is_number_unsigned() ? v.get<uint64_t>() <= uint64_t{std::numeric_limits<T>::max()}
+                      : v.is_number_integer()
+                          ? v.get<int64_t>() >= int64_t{std::numeric_limits<T>::min()} &&
+                                (std::is_unsigned_v<T> || v.get<int64_t>() <= int64_t{std::numeric_limits<T>::max()})
+                          : false;
+    if (!fits) {
+      throw InputError(source, where + "." + key,
+                       "expected a whole number in [" + std::to_string(std::numeric_limits<T>::min()) + ", " +
+                           std::to_string(std::numeric_limits<T>::max()) + "], found " + v.dump());
+    }
+  } else if constexpr (std::is_floating_point_v<T>) {
+    if (!v.is_number() || !(std::abs(v.get<double>()) <= std::numeric_limits<T>::max())) {
+      throw InputError(source, where + "." + key, "expected a finite number, found " + v.dump());
+    }
+  }
   try {
-    return j.at(key).get<T>();
+    return v.get<T>();
   } catch (const nlohmann::json::exception&) {
     throw InputError(source, where + "." + key, "has the wrong type");
   }

@@ -117,6 +117,16 @@ TEST(PileTest, SavedSceneNamesUserFilesAbsolutelyAndRefusesMissingOnes) {
   numbered["format"] = 2;  // a fuzzer's find: a format of the wrong type was an uncaught type_error
   expect_refused(numbered, "format");
   expect_refused(nlohmann::json::array({saved}), "format");
+  // numbers their fields cannot hold (converting them was undefined behaviour)
+  nlohmann::json bright = saved;
+  bright["objects"][0]["material"]["albedo"] = 1e300;
+  expect_refused(bright, "objects[0].material.albedo");
+  for (const nlohmann::json& seed : {nlohmann::json(1e30), nlohmann::json(-1), nlohmann::json(4294967296LL)}) {
+    nlohmann::json gear = saved;
+    gear["objects"][0]["kind"] = "gear";
+    gear["objects"][0]["seed"] = seed;
+    expect_refused(gear, "objects[0].seed");
+  }
   std::filesystem::remove(dir / "cube.obj");
   expect_refused(saved, "objects[0].file");
 }
