@@ -183,6 +183,9 @@ Pose PoseFromJson(const nlohmann::json& j, const std::string& source, const std:
   return PoseFromRowMajor(rows);
 }
 
+// A value as an error message shows it: a number in full, anything else by its type (a string may be long).
+std::string Found(const nlohmann::json& v) { return v.is_number() ? v.dump() : std::string("a ") + v.type_name(); }
+
 template <typename T>
 T Get(const nlohmann::json& j, const char* key, const std::string& source, const std::string& where) {
   if (!j.contains(key)) throw InputError(source, where + "." + key, "missing");
@@ -197,11 +200,11 @@ T Get(const nlohmann::json& j, const char* key, const std::string& source, const
     if (!fits) {
       throw InputError(source, where + "." + key,
                        "expected a whole number in [" + std::to_string(std::numeric_limits<T>::min()) + ", " +
-                           std::to_string(std::numeric_limits<T>::max()) + "], found " + v.dump());
+                           std::to_string(std::numeric_limits<T>::max()) + "], found " + Found(v));
     }
   } else if constexpr (std::is_floating_point_v<T>) {
     if (!v.is_number() || !(std::abs(v.get<double>()) <= std::numeric_limits<T>::max())) {
-      throw InputError(source, where + "." + key, "expected a finite number, found " + v.dump());
+      throw InputError(source, where + "." + key, "expected a finite number, found " + Found(v));
     }
   }
   try {

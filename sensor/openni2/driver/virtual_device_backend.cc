@@ -83,12 +83,16 @@ ChipParameters ReadChipParameters(const std::string& extra_json, const std::stri
   if (!extra.is_object() || !extra.contains("ps1080")) return p;
   if (!extra["ps1080"].is_object()) throw InputError(source, "ps1080", "expected an object");
   const nlohmann::json& j = extra["ps1080"];
+  // the value as found: a number in full, anything else by its type (a string may be long)
+  auto found = [&j](const char* key) {
+    return j[key].is_number() ? j[key].dump() : std::string("a ") + j[key].type_name();
+  };
   auto whole = [&](const char* key, uint64_t lo, uint64_t hi, uint64_t* value) {
     if (!j.contains(key)) return;
     if (!j[key].is_number_unsigned() || j[key].get<uint64_t>() < lo || j[key].get<uint64_t>() > hi) {
       throw InputError(source, std::string("ps1080.") + key,
                        "expected a whole number in [" + std::to_string(lo) + ", " + std::to_string(hi) + "], found " +
-                           j[key].dump());
+                           found(key));
     }
     *value = j[key].get<uint64_t>();
   };
@@ -97,7 +101,7 @@ ChipParameters ReadChipParameters(const std::string& extra_json, const std::stri
     if (!j[key].is_number() || !(j[key].get<double>() > lo && j[key].get<double>() <= hi)) {
       throw InputError(source, std::string("ps1080.") + key,
                        "expected a number in (" + nlohmann::json(lo).dump() + ", " + nlohmann::json(hi).dump() +
-                           "], found " + j[key].dump());
+                           "], found " + found(key));
     }
     *value = j[key].get<double>();
   };
