@@ -28,9 +28,10 @@ double Number(const json& j, const std::string& key, const fs::path& file, const
   return j[key].get<double>();
 }
 
-int Integer(const json& j, const std::string& key, const fs::path& file) {
-  if (!j.contains(key) || !j[key].is_number_integer() || j[key].get<int64_t>() < 1 || j[key].get<int64_t>() > 1 << 16)
+int ImageSide(const json& j, const std::string& key, const fs::path& file) {
+  if (!j.contains(key) || !IsImageSide(j[key])) {
     throw InputError(file.string(), key, "expected a whole number of pixels in [1, 65536]");
+  }
   return j[key].get<int>();
 }
 
@@ -58,8 +59,8 @@ class BopSceneSource : public FrameSource {
   explicit BopSceneSource(const fs::path& dir) : dir_(dir) {
     const fs::path camera_file = dir / ".." / ".." / "camera.json";
     const json cam = ReadJsonFile(camera_file);
-    camera_.width = Integer(cam, "width", camera_file);
-    camera_.height = Integer(cam, "height", camera_file);
+    camera_.width = ImageSide(cam, "width", camera_file);
+    camera_.height = ImageSide(cam, "height", camera_file);
     camera_.fx = Number(cam, "fx", camera_file, "");
     camera_.fy = Number(cam, "fy", camera_file, "");
     camera_.cx = Number(cam, "cx", camera_file, "");
@@ -125,6 +126,10 @@ class BopSceneSource : public FrameSource {
 };
 
 }  // namespace
+
+bool IsImageSide(const json& value) {
+  return value.is_number_integer() && value.get<int64_t>() >= 1 && value.get<int64_t>() <= 1 << 16;
+}
 
 bool IsBopScene(const fs::path& dir) {
   return fs::is_regular_file(dir / "scene_camera.json") && fs::is_directory(dir / "depth");

@@ -9,10 +9,16 @@
 #include <optional>
 #include <string>
 
+#include <nlohmann/json.hpp>
+
 #include "romunect/sensor/frame_source.h"
 #include "romunect/sensor/world_box.h"
 
 namespace romunect::jobs {
+
+// Whether camera.json's width or height is a whole number of pixels in [1, 65536]: read as an
+// int, a float such as 1e30 would not fit. (`fuse` refuses others, `dataset check` reports them.)
+bool IsImageSide(const nlohmann::json& value);
 
 // Whether `dir` looks like a BOP scene folder (scene_camera.json and depth/).
 bool IsBopScene(const std::filesystem::path& dir);

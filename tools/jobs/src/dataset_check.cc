@@ -10,6 +10,7 @@
 
 #include <opencv2/imgcodecs.hpp>
 
+#include "bop_scene_source.h"
 #include "dataset_scene.h"
 #include "romunect/sensor/embree/ray_scene.h"
 #include "romunect/sensor/embree/renderer.h"
@@ -367,9 +368,8 @@ DatasetCheckSummary CheckDataset(const std::string& dir_name, int threads) {
   for (const char* key : {"cx", "cy", "depth_scale", "fx", "fy"}) {
     if (!(*camera)[key].is_number()) problems.Add(dir / "camera.json", std::string(key) + " missing or not a number");
   }
-  for (const char* key : {"height", "width"}) {  // read as int: a float such as 1e30 would not fit
-    const json& n = (*camera)[key];
-    if (!n.is_number_integer() || n.get<int64_t>() < 1 || n.get<int64_t>() > 1 << 16) {
+  for (const char* key : {"height", "width"}) {
+    if (!IsImageSide((*camera)[key])) {
       problems.Add(dir / "camera.json", std::string(key) + " missing or not a whole number of pixels in [1, 65536]");
     }
   }
