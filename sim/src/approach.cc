@@ -199,7 +199,12 @@ void ApproachExecutor::AdvanceTo(double t_s) {
   while (step_ < target) {
     const int k = step_ + 1;
     const World::ArmVector qdot = (plan_.q[std::min(k + 1, last)] - plan_.q[k - 1]) / (2 * dt);
-    world_->SetArmTarget(plan_.q[k], k == last ? World::ArmVector::Zero() : qdot);
+    const World::ArmVector qddot = (plan_.q[std::min(k + 1, last)] - 2 * plan_.q[k] + plan_.q[k - 1]) / (dt * dt);
+    if (k == last) {
+      world_->SetArmTarget(plan_.q[k], World::ArmVector::Zero());
+    } else {
+      world_->SetArmTarget(plan_.q[k], qdot, qddot);
+    }
     world_->Step();
     step_ = k;
     const PoseError e = ComparePoses(world_->T_W_C(), plan_.T_W_C[k]);

@@ -529,10 +529,11 @@ World::Jacobian World::SiteJacobian(const ArmVector& q, ArmSite site) const {
   return J;
 }
 
-void World::SetArmTarget(const ArmVector& q_des, const ArmVector& qdot_des) {
+void World::SetArmTarget(const ArmVector& q_des, const ArmVector& qdot_des, const ArmVector& qddot_des) {
   Impl& w = *impl_;
   for (int j = 0; j < kArmDof; ++j) w.data->ctrl[w.arm_actuator[j]] = q_des[j];
   w.qdot_des = qdot_des;
+  w.qddot_des = qddot_des;
   w.target_set = true;
 }
 
@@ -543,10 +544,15 @@ void World::Step(int n) {
   for (int i = 0; i < n; ++i) {
     mj_step1(m, d);
     if (w.target_set) {
-      // Gravity (and Coriolis) compensation, plus the damping the motion itself will meet.
+      // Gravity (and Coriolis) compensation, plus the damping the motion itself will meet and
+      // the force its acceleration takes (M qddot; mj_step1 has computed the inertia M).
+      w.accel_nv.assign(m->nv, 0.0);
+      w.force_nv.resize(m->nv);
+      for (int j = 0; j < kArmDof; ++j) w.accel_nv[w.arm_dof_adr[j]] = w.qddot_des[j];
+      mj_mulM(m, d, w.force_nv.data(), w.accel_nv.data());
       for (int j = 0; j < kArmDof; ++j) {
         const int dof = w.arm_dof_adr[j];
-        d->qfrc_applied[dof] = d->qfrc_bias[dof] + m->dof_damping[dof] * w.qdot_des[j];
+        d->qfrc_applied[dof] = d->qfrc_bias[dof] + m->dof_damping[dof] * w.qdot_des[j] + w.force_nv[dof];
       }
     }
     mj_step2(m, d);

@@ -64,6 +64,8 @@ struct World::Impl {
   std::vector<ObjectIds> objects;
 
   ArmVector qdot_des = ArmVector::Zero();
+  ArmVector qddot_des = ArmVector::Zero();
+  std::vector<mjtNum> accel_nv, force_nv;  // M * qddot_des over all dofs (the arm's only non-zero)
   bool target_set = false;
   bool frozen = false;
   std::vector<double> frozen_qpos;

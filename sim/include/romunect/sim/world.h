@@ -102,9 +102,11 @@ class World {
   Jacobian SiteJacobian(const ArmVector& q, ArmSite site) const;
 
   // --- Control and physics ---
-  // Position targets for the arm's actuators, with gravity compensation and a feed-forward
-  // of the joint damping at qdot_des (so tracking at speed does not lag).
-  void SetArmTarget(const ArmVector& q_des, const ArmVector& qdot_des);
+  // Position targets for the arm's actuators, with gravity compensation and a feed-forward of
+  // the joint damping at qdot_des and of the arm's inertia at qddot_des (so tracking at speed
+  // and through a path's corners does not lag), as a robot's own trajectory controller adds.
+  void SetArmTarget(const ArmVector& q_des, const ArmVector& qdot_des,
+                    const ArmVector& qddot_des = ArmVector::Zero());
   // Advances the physics by n time steps; poses are up to date afterwards.
   void Step(int n = 1);
   // While frozen the pile does not move and no contacts are computed (kinematic scanning);
