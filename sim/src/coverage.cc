@@ -30,8 +30,10 @@ constexpr double kTopShare = 0.001;
 // A frame adds its points when at least this share of its sampled pixels measured a point over
 // the inner floor (a pill box's top is about 5 % of the footprint).
 constexpr double kMinFrameShare = 0.01;
-// The first pass's outer rows and row ends lie this far beyond the bin's inner walls.
+// The lowest band's outer rows lie this far beyond the bin's inner side walls.
 constexpr double kRunBeyondWallM = 0.006;
+// The bin's walls are no wider than this (the default bin's are 5 mm): the rim's passes cover them.
+constexpr double kWallM = 0.006;
 
 // The camera's distance to the surfaces of a band of `span_m`: the middle of a narrow range, near
 // the near end of a wide one, clamped so the whole band stays in [near, far].
@@ -49,12 +51,15 @@ CoverageLevel LevelFor(const ApproachOptions& o, double low_m, double high_m) {
   return level;
 }
 
-// Serpentine rows over a region (bin frame, centred) at one level: the footprint at the band's
-// far end tiles it, row centres evenly from edge to edge. `reverse` runs it backwards.
-// The outer rows and row ends lie at least over the walls (`min_end_m`, x and y): from further
-// in, a wall hides the table beside it.
-std::vector<Eigen::Vector2d> Serpentine(const CameraModel& camera, const Eigen::Vector2d& region_m, double distance_m,
-                                        bool reverse, const Eigen::Vector2d& min_end_m = Eigen::Vector2d::Zero()) {
+// The row centres of a pass over a region (bin frame, centred) at one level: the footprint at the
+// band's far end tiles it, centres evenly from edge to edge, symmetric about the region's centre
+// (xs along a row, ys across the rows). The outer rows and row ends lie at least over the walls
+// (`min_end_m`, x and y): from further in, a wall hides the table beside it.
+struct Rows {
+  std::vector<double> xs, ys;
+};
+Rows PassRows(const CameraModel& camera, const Eigen::Vector2d& region_m, double distance_m,
+              const Eigen::Vector2d& min_end_m = Eigen::Vector2d::Zero()) {
   const Eigen::Vector2d foot(distance_m * camera.width / camera.fx, distance_m * camera.height / camera.fy);
   auto centres = [](double region, double foot_m, double end_m) {
     std::vector<double> c;
@@ -65,17 +70,38 @@ std::vector<Eigen::Vector2d> Serpentine(const CameraModel& camera, const Eigen::
     for (int i = 0; i < n; ++i) c.push_back(-0.5 * travel + travel * i / (n - 1));
     return c;
   };
-  const std::vector<double> xs = centres(region_m.x(), foot.x(), min_end_m.x()),
-                            ys = centres(region_m.y(), foot.y(), min_end_m.y());
+  return {centres(region_m.x(), foot.x(), min_end_m.x()), centres(region_m.y(), foot.y(), min_end_m.y())};
+}
+
+// A serpentine over the rows, a row sweeping from one x end to the other (its end centres are
+// enough), starting at the corner nearest to `at`.
+std::vector<Eigen::Vector2d> Serpentine(const Rows& rows, const Eigen::Vector2d& at) {
+  const double sx = at.x() > 0 ? -1.0 : 1.0, sy = at.y() > 0 ? -1.0 : 1.0;  // mirrored towards `at`
   std::vector<Eigen::Vector2d> points;
-  for (size_t j = 0; j < ys.size(); ++j) {
-    // a row sweeps from one x end to the other: the first and last centre are enough
+  for (size_t j = 0; j < rows.ys.size(); ++j) {
     const bool forward = j % 2 == 0;
-    points.emplace_back(forward ? xs.front() : xs.back(), ys[j]);
-    if (xs.size() > 1) points.emplace_back(forward ? xs.back() : xs.front(), ys[j]);
+    points.emplace_back(sx * (forward ? rows.xs.front() : rows.xs.back()), sy * rows.ys[j]);
+    if (rows.xs.size() > 1) points.emplace_back(sx * (forward ? rows.xs.back() : rows.xs.front()), sy * rows.ys[j]);
   }
-  if (reverse) std::reverse(points.begin(), points.end());
   return points;
+}
+
+// The descent's first pass, its first point where the descent turns into it. With three rows:
+// out along the middle row to one end, then round the outer rows; the middle row's other half is
+// seen by the frame on the turn and from the far end on the way between the outer rows, a row's
+// length shorter than the serpentine (which would first have to reach a corner). The turn is off
+// the middle by what lets the frame there (`drift_m` on into the pass) and the far end's frames
+// meet with `foot_m` (the footprint along x at the band's near end); otherwise the serpentine,
+// from the middle.
+std::vector<Eigen::Vector2d> FirstPass(const Rows& rows, double foot_m, double drift_m) {
+  if (rows.ys.size() != 3 || rows.xs.size() < 2) {
+    std::vector<Eigen::Vector2d> points = Serpentine(rows, Eigen::Vector2d::Zero());
+    points.insert(points.begin(), Eigen::Vector2d::Zero());
+    return points;
+  }
+  const double x = rows.xs.back(), y = rows.ys.back();
+  const double turn_x = std::clamp(x - foot_m + drift_m, 0.0, x);
+  return {{turn_x, 0.0}, {-x, 0.0}, {-x, -y}, {x, -y}, {x, y}, {-x, y}};
 }
 
 // Times a path of corners, rounds them and solves it for the arm's joints into `plan`.
@@ -107,9 +133,38 @@ std::vector<CoverageLevel> CoverageLevels(const ApproachOptions& o, double top_m
     levels.push_back(LevelFor(o, band_low, band_low + width));
   }
   // the rim, when the bands stop below it: a band of its own centred on it
-  if (rim_m > top) levels.push_back(LevelFor(o, rim_m - 0.25 * width, rim_m + 0.25 * width));
+  if (rim_m > top) {
+    levels.push_back(LevelFor(o, rim_m - 0.25 * width, rim_m + 0.25 * width));
+    levels.back().rim_only = true;
+  }
   return levels;
 }
+
+namespace {
+
+// The levels the descent visits, before the pile is measured: the lowest band, from the table up
+// by one range width (a one-layer pile lies in it), and the rim's own band when the rim is above it.
+std::vector<CoverageLevel> DescentLevels(const ApproachOptions& o, double rim_m) {
+  const double one_layer_m = o.surface_low_m + (o.focused_far_m - o.focused_near_m);
+  return CoverageLevels(o, std::min(one_layer_m, rim_m), rim_m);
+}
+
+// How far out the lowest band's passes reach (bin frame, both signs). The outer rows lie over the
+// side walls: from further in, a wall hides the table beside it. The row ends reach the end
+// walls' inner faces: the footprint, longer along x, then reaches past the wall (which hides about
+// a millimetre of the table beyond it), and a frame further out would see mostly what lies
+// beyond the region.
+Eigen::Vector2d LowestPassEnds(const World& world) {
+  const Eigen::Vector2d inner = world.bin_inner_size_m().head<2>();
+  return {0.5 * inner.x(), 0.5 * inner.y() + kRunBeyondWallM};
+}
+
+// The bin's outline seen from above: its inner size and a wall's width on every side.
+Eigen::Vector2d Outline(const World& world) {
+  return world.bin_inner_size_m().head<2>() + Eigen::Vector2d::Constant(2 * kWallM);
+}
+
+}  // namespace
 
 PileHeightMeter::PileHeightMeter(const Pose& T_W_Bin, const Eigen::Vector3d& bin_inner_size_m, int stride_px)
     : T_Bin_W_(T_W_Bin.inverse()),
@@ -152,10 +207,8 @@ ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const Ap
   ApproachPlan plan;
   plan.timestep_s = world.timestep_s();
   // the lowest level does not depend on the pile: its band starts at the table
-  const double rim = world.bin_inner_size_m().z();
-  // a band as wide as the range from the table up: a one-layer pile lies in it
-  const double one_layer_m = o.surface_low_m + (o.focused_far_m - o.focused_near_m);
-  const CoverageLevel first = CoverageLevels(o, std::min(one_layer_m, rim), rim).front();
+  const std::vector<CoverageLevel> levels = DescentLevels(o, world.bin_inner_size_m().z());
+  const CoverageLevel& first = levels.front();
   plan.levels_m = {first.camera_height_m};
   const double v = o.coverage_speed_m_s, a = o.coverage_acceleration_m_s2;
   // Frame 1 is the first frame with the pile in range: it holds the whole footprint when the
@@ -167,8 +220,7 @@ ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const Ap
   // the camera to the turn: on the cruise, s(t) = v t - v^2 / (2 a).
   const double T = o.frame_period_s;
   const double brake_m = 0.5 * v * v / a;
-  // the first pass's outer rows and row ends lie over the bin's walls (Serpentine's min_end_m)
-  const Eigen::Vector2d corner = 0.5 * world.bin_inner_size_m().head<2>() + Eigen::Vector2d::Constant(kRunBeyondWallM);
+  const Eigen::Vector2d corner = LowestPassEnds(world);
   // The turn's band starts at the bin floor (frame 1 over the bin's middle sees no table): a
   // one-layer pile as high as the band is wide is in range there. The corner filter lifts the
   // frame on the turn by an eighth of a period's travel (the mean over the filter's window).
@@ -179,11 +231,27 @@ ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const Ap
     const int periods = static_cast<int>(std::ceil((start - turn_m + brake_m) / (v * T) - 1e-9));
     start = turn_m + periods * v * T - brake_m;
   }
-  std::vector<PathPoint> polyline = {PathPoint(0, 0, start, 0), PathPoint(0, 0, turn_m, 0)};
   // the lowest band's first pass does not depend on the pile: the descent runs it
   const double first_far_m = first.camera_height_m - first.low_m;
-  for (const Eigen::Vector2d& p : Serpentine(camera, o.region_size_m, first_far_m, false, corner)) {
-    polyline.emplace_back(p.x(), p.y(), first.camera_height_m, 0);
+  const double foot_near_m = (first.camera_height_m - first.high_m) * camera.width / camera.fx;
+  const std::vector<Eigen::Vector2d> pass =
+      FirstPass(PassRows(camera, o.region_size_m, first_far_m, corner), foot_near_m, T > 0 ? v * T / 8 : 0.0);
+  std::vector<PathPoint> polyline = {PathPoint(pass[0].x(), pass[0].y(), start, 0)};
+  polyline.emplace_back(pass[0].x(), pass[0].y(), turn_m, 0);
+  for (size_t i = 1; i < pass.size(); ++i) polyline.emplace_back(pass[i].x(), pass[i].y(), first.camera_height_m, 0);
+  // The rim above the lowest band: its pass follows at once (the wall tops are a sixth of the
+  // default region, and the rim's height is the bin's), from the corner nearer to the camera. Its
+  // footprint is the one at the rim, and its rows run half a frame's travel past the outline's
+  // ends, so that a frame falls over each end wherever the frames fall along a row.
+  if (levels.back().rim_only) {
+    const CoverageLevel& rim = levels.back();
+    const double rim_m = world.bin_inner_size_m().z();
+    const Eigen::Vector2d past_ends(T > 0 ? v * T : 0.0, 0.0);
+    const Rows rows = PassRows(camera, Outline(world) + past_ends, rim.camera_height_m - rim_m);
+    for (const Eigen::Vector2d& p : Serpentine(rows, polyline.back().head<2>())) {
+      polyline.emplace_back(p.x(), p.y(), rim.camera_height_m, 0);
+    }
+    plan.levels_m.insert(plan.levels_m.begin(), rim.camera_height_m);
   }
   Execute(world, polyline, v, a, o.coverage_corner_smoothing_s, ScanPostureSeed(world), ik, &plan);
   return plan;
@@ -203,32 +271,33 @@ ApproachPlan PlanCoverageTurning(const World& world, const CameraModel& camera, 
   // The lowest band (table, floor, a one-layer pile) covers the whole region, the bands above it
   // the bin's inside, the rim's the bin's outline.
   const Eigen::Vector2d inside = world.bin_inner_size_m().head<2>();
-  const Eigen::Vector2d outline = inside + Eigen::Vector2d::Constant(0.012);
+  const Eigen::Vector2d outline = Outline(world);
+  // the rim's own band, when the descent swept it, is passed on the way up (the hand turns on the
+  // way instead) and swept again only on the way back
+  const bool rim_swept = DescentLevels(o, rim).back().rim_only;
   // a serpentine at level i with the hand's turn going from turn0 to turn1 along it
   auto sweep = [&](size_t i, double turn0_rad, double turn1_rad) {
     const CoverageLevel& level = levels[i];
     const bool rim_band = level.low_m <= rim && rim <= level.high_m;  // the band holding the rim
     const Eigen::Vector2d region = i == 0 ? o.region_size_m : rim_band ? outline : inside;
     const double distance = level.camera_height_m - level.low_m;  // the footprint at the band's far end
-    // run it from the end nearer to where the camera is
-    const Eigen::Vector2d at = polyline.back().head<2>();
-    const Eigen::Vector2d ends = i == 0 ? Eigen::Vector2d(0.5 * outline) : Eigen::Vector2d::Zero();
-    std::vector<Eigen::Vector2d> points = Serpentine(camera, region, distance, false, ends);
-    if ((points.back() - at).norm() < (points.front() - at).norm()) {
-      points = Serpentine(camera, region, distance, true, ends);
-    }
+    const Eigen::Vector2d ends = i == 0 ? LowestPassEnds(world) : Eigen::Vector2d::Zero();
+    const std::vector<Eigen::Vector2d> points =
+        Serpentine(PassRows(camera, region, distance, ends), polyline.back().head<2>());
     for (size_t k = 0; k < points.size(); ++k) {
       const double a = points.size() > 1 ? static_cast<double>(k) / (points.size() - 1) : 1.0;
       polyline.emplace_back(points[k].x(), points[k].y(), level.camera_height_m,
                             kTurnRadiusM * (turn0_rad + a * (turn1_rad - turn0_rad)));
     }
   };
-  // The descent ran the lowest band's first pass. Then the bands above it and the rim's, the hand
-  // turning on the way; then the lowest band again, turned, so the baseline's shadows fall the
-  // other way; then the bands above it again, the hand turning back.
+  // The descent ran the lowest band's first pass (and the rim's, when it has a band of its own).
+  // Then the bands above it, the hand turning on the way; then the lowest band again, turned, so
+  // the baseline's shadows fall the other way; then the bands above it again, the hand turning back.
   const double turned = o.turned_passes ? turn_rad : 0.0;
   const size_t upper = levels.size() - 1;
-  for (size_t i = 1; i < levels.size(); ++i) sweep(i, turned * (i - 1) / upper, turned * i / upper);
+  for (size_t i = 1; i < levels.size(); ++i) {
+    if (!(levels[i].rim_only && rim_swept)) sweep(i, turned * (i - 1) / upper, turned * i / upper);
+  }
   if (o.turned_passes) {
     sweep(0, turned, turned);
     // and back up through the bands above it, the hand turning back: their edges from both sides
