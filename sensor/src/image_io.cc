@@ -112,7 +112,7 @@ void PutExrAttribute(std::string* out, const char* name, const char* type, const
   out->append(value);
 }
 
-// A single-part scanline OpenEXR with one float32 channel "Z" and no compression (one scanline
+// A single-part scanline OpenEXR with one float32 channel "Y" and no compression (one scanline
 // per block): the header's required attributes, the block offsets, the blocks.
 // The buffer is the caller's to reuse, as EncodePng16Stored's.
 void EncodeExrUncompressed(const cv::Mat& depth, std::string* out) {
@@ -121,7 +121,7 @@ void EncodeExrUncompressed(const cv::Mat& depth, std::string* out) {
   exr.clear();
   PutLe32(&exr, 20000630);  // magic
   PutLe32(&exr, 2);         // version 2, single-part scanline
-  std::string channels = "Z";
+  std::string channels = "Y";
   channels.push_back('\0');
   PutLe32(&channels, 2);     // FLOAT
   channels.append(4, '\0');  // pLinear, reserved
@@ -429,8 +429,8 @@ cv::Mat DecodeDepthExr(std::string_view bytes, const std::string& source, const 
     const int width = window.max.x - window.min.x + 1;
     const int height = window.max.y - window.min.y + 1;
     CheckHeaderSize({width, height}, expected, source);  // OpenEXR's own reading of the header agrees
-    // Depth is the channel "Z"; a file whose one channel is "Y" (what OpenCV writes for a
-    // single-channel float image) is read the same.
+    // Depth is the channel "Z", or the one channel "Y" (what romunect and OpenCV write for a
+    // single-channel float image).
     std::string name = "Z";
     const Imf::ChannelList& channels = file.header().channels();
     const Imf::Channel* channel = channels.findChannel("Z");
@@ -493,10 +493,10 @@ void WriteCompactExr(const fs::path& path, const cv::Mat& depth, const HeightMap
       // per cent more bytes; writing frames is a stage of the scan loop.
       header.compression() = Imf::ZIP_COMPRESSION;
       header.zipCompressionLevel() = 1;
-      header.channels().insert("Z", Imf::Channel(Imf::FLOAT));
+      header.channels().insert("Y", Imf::Channel(Imf::FLOAT));
       Imf::OutputFile file(tmp.c_str(), header);
       Imf::FrameBuffer buffer;
-      buffer.insert("Z", Imf::Slice(Imf::FLOAT, const_cast<char*>(continuous.ptr<char>()), sizeof(float),
+      buffer.insert("Y", Imf::Slice(Imf::FLOAT, const_cast<char*>(continuous.ptr<char>()), sizeof(float),
                                     sizeof(float) * continuous.cols));
       file.setFrameBuffer(buffer);
       file.writePixels(continuous.rows);

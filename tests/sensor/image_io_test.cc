@@ -1,6 +1,7 @@
 #include "romunect/sensor/image_io.h"
 
 #include <cmath>
+#include <cstdlib>
 #include <fstream>
 #include <iterator>
 #include <limits>
@@ -88,6 +89,25 @@ TEST(ImageIoTest, FastExrReadsBackBitForBit) {
     EXPECT_TRUE(ImagesBitEqual(ReadDepthExr(dir / "fast.exr"), depth));
     EXPECT_TRUE(ImagesBitEqual(ReadDepthExr(dir / "compact.exr"), depth));
     EXPECT_GE(std::filesystem::file_size(dir / "fast.exr"), 4u * size.area());
+  }
+}
+
+// OpenCV reads the depth files as romunect writes them, fast or compressed, to the same floats:
+// its EXR decoder takes the channels R, G, B, A and Y, and reads a file with a channel "Z" alone
+// as zeros, without an error.
+TEST(ImageIoTest, OpenCvReadsTheDepthFiles) {
+  setenv("OPENCV_IO_ENABLE_OPENEXR", "1", 1);  // OpenCV reads the switch at its first EXR file
+  ScratchDir dir("image_io_exr_opencv");
+  cv::Mat depth(48, 64, CV_32F);
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> metres(0.15f, 0.45f);
+  for (auto it = depth.begin<float>(); it != depth.end<float>(); ++it) *it = metres(rng);
+  depth.at<float>(0, 0) = 0.0f;  // no measurement
+  for (const ImageCompression compression : {ImageCompression::kFast, ImageCompression::kCompact}) {
+    WriteDepthExr(dir / "depth.exr", depth, compression);
+    const cv::Mat read = cv::imread((dir / "depth.exr").string(), cv::IMREAD_UNCHANGED);
+    ASSERT_EQ(read.type(), CV_32FC1);
+    EXPECT_TRUE(ImagesBitEqual(read, depth));
   }
 }
 

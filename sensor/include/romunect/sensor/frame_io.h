@@ -9,7 +9,7 @@
 //                              optional "ir", "raw", "gt_depth", "color", "T_B_H"}],
 //                  optional "region_W": [xmin, ymin, zmin, xmax, ymax, zmax],
 //                  optional "color_camera": {the camera's keys, "T_C_RGB": [16 numbers]}}
-//   depth/*.exr   metric depth, float32 EXR channel "Z", metres along the optical axis, 0 = none
+//   depth/*.exr   metric depth, float32 EXR channel "Y", metres along the optical axis, 0 = none
 //   ir/*.png      IR image, 16-bit PNG          raw/*.png  device raw depth, 16-bit PNG
 //   gt_depth/*.exr ground-truth depth, like depth/
 //   color/*.png   colour image, 8-bit RGB PNG of the color_camera's size (needs "color_camera")

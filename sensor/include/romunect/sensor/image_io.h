@@ -1,5 +1,5 @@
-// Image files of romunect: metric depth as single-channel float32 OpenEXR (channel "Z",
-// metres), IR and device raw depth as 16-bit PNG. Every writer writes a temporary file in the
+// Image files of romunect: metric depth as single-channel float32 OpenEXR (channel "Y", the
+// name OpenCV gives a single-channel image, so cv2.imread reads it; metres), IR and device raw depth as 16-bit PNG. Every writer writes a temporary file in the
 // same folder and renames it, so no half-written file is ever left under the final name.
 // Readers throw InputError naming the file and what was expected.
 //
@@ -29,12 +29,12 @@ enum class ImageCompression { kCompact, kFast };
 // given, not that size ("image size": "expected W x H, found w x h"). The Decode* forms read
 // bytes in memory; `source` names them in errors.
 
-// Reads a float EXR's channel "Z" into a CV_32F Mat; a file with the one channel "Y" (what
-// OpenCV's imwrite gives a single-channel float image) is read the same.
+// Reads a float EXR's depth into a CV_32F Mat: the channel "Z" (depth renderers' name for it), or
+// the one channel "Y" (what romunect and OpenCV's imwrite write for a single-channel float image).
 cv::Mat ReadDepthExr(const std::filesystem::path& path, const std::optional<cv::Size>& expected = std::nullopt);
 cv::Mat DecodeDepthExr(std::string_view bytes, const std::string& source,
                        const std::optional<cv::Size>& expected = std::nullopt);
-// Writes a CV_32F Mat as a float32 EXR with one channel "Z" (NaN and 0 are written as is).
+// Writes a CV_32F Mat as a float32 EXR with one channel "Y" (NaN and 0 are written as is).
 void WriteDepthExr(const std::filesystem::path& path, const cv::Mat& depth,
                    ImageCompression compression = ImageCompression::kCompact);
 
