@@ -10,8 +10,10 @@ build_dir=build
 cmake_args=(-DCMAKE_BUILD_TYPE=Release)
 if [ "${1:-}" = "--sanitize" ]; then
   build_dir=build-asan
-  # RelWithDebInfo keeps the sanitized suite fast enough while reports stay readable.
-  cmake_args=(-DCMAKE_BUILD_TYPE=RelWithDebInfo -DROMUNECT_SANITIZE=ON -DROMUNECT_BUILD_BENCHMARKS=OFF)
+  # -O1 with line tables: half the compile time of -O2 -g, a suite as fast (the sanitizers'
+  # checks dominate), and reports that still name file and line.
+  cmake_args=(-DCMAKE_BUILD_TYPE=RelWithDebInfo "-DCMAKE_CXX_FLAGS_RELWITHDEBINFO=-O1 -g1 -DNDEBUG"
+              "-DCMAKE_C_FLAGS_RELWITHDEBINFO=-O1 -g1 -DNDEBUG" -DROMUNECT_SANITIZE=ON -DROMUNECT_BUILD_BENCHMARKS=OFF)
   export ASAN_OPTIONS=detect_leaks=1:abort_on_error=1:strict_string_checks=1
   export UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1
 fi
