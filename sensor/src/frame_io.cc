@@ -132,7 +132,7 @@ void CheckDepthValues(cv::Mat* depth, const fs::path& path, InvalidDepthPolicy p
         std::ostringstream s;
         s << "pixel (u=" << u << ", v=" << v << ") is " << d
           << "; expected a finite depth >= 0 in metres (0 = no measurement)";
-        throw InputError(path.string(), "channel Z", s.str());
+        throw InputError(path.string(), "depth", s.str());
       }
       row[u] = 0.0f;
       if (skipped != nullptr) ++*skipped;

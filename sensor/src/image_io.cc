@@ -445,8 +445,8 @@ cv::Mat DecodeDepthExr(std::string_view bytes, const std::string& source, const 
       for (auto it = channels.begin(); it != channels.end(); ++it) {
         names += std::string(names.empty() ? "" : ", ") + it.name();
       }
-      throw InputError(source, "channel Z",
-                       "missing (expected one float32 channel named Z, or a single channel Y as OpenCV writes; "
+      throw InputError(source, "channel Y",
+                       "missing (expected a single float32 channel Y, as romunect and OpenCV write, or a channel Z; "
                        "found: " + names + ")");
     }
     if (channel->type != Imf::FLOAT) {

@@ -198,11 +198,11 @@ void ApproachExecutor::AdvanceTo(double t_s) {
   const double dt = plan_.timestep_s;
   while (step_ < target) {
     const int k = step_ + 1;
-    const World::ArmVector qdot = (plan_.q[std::min(k + 1, last)] - plan_.q[k - 1]) / (2 * dt);
-    const World::ArmVector qddot = (plan_.q[std::min(k + 1, last)] - 2 * plan_.q[k] + plan_.q[k - 1]) / (dt * dt);
     if (k == last) {
-      world_->SetArmTarget(plan_.q[k], World::ArmVector::Zero());
+      world_->SetArmTarget(plan_.q[k], World::ArmVector::Zero());  // hold
     } else {
+      const World::ArmVector qdot = (plan_.q[k + 1] - plan_.q[k - 1]) / (2 * dt);
+      const World::ArmVector qddot = (plan_.q[k + 1] - 2 * plan_.q[k] + plan_.q[k - 1]) / (dt * dt);
       world_->SetArmTarget(plan_.q[k], qdot, qddot);
     }
     world_->Step();

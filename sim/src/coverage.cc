@@ -54,18 +54,19 @@ CoverageLevel LevelFor(const ApproachOptions& o, double low_m, double high_m) {
 // The row centres of a pass over a region (bin frame, centred) at one level: the footprint at the
 // band's far end tiles it, centres evenly from edge to edge, symmetric about the region's centre
 // (xs along a row, ys across the rows). The outer rows and row ends lie at least over the walls
-// (`min_end_m`, x and y): from further in, a wall hides the table beside it.
+// (`min_end_m`, x and y): from further in, a wall hides the table beside it. A pass over an
+// area leaves an edge strip narrower than a sixth of the footprint to the walls' shadow; a pass
+// over an outline (`outline`) leaves nothing, the edges being what it is for.
 struct Rows {
   std::vector<double> xs, ys;
 };
 Rows PassRows(const CameraModel& camera, const Eigen::Vector2d& region_m, double distance_m,
-              const Eigen::Vector2d& min_end_m = Eigen::Vector2d::Zero()) {
+              const Eigen::Vector2d& min_end_m = Eigen::Vector2d::Zero(), bool outline = false) {
   const Eigen::Vector2d foot(distance_m * camera.width / camera.fx, distance_m * camera.height / camera.fy);
-  auto centres = [](double region, double foot_m, double end_m) {
+  auto centres = [outline](double region, double foot_m, double end_m) {
     std::vector<double> c;
     const double travel = std::max(region - foot_m, 2 * end_m);
-    // a strip narrower than a third of the footprint is left to the walls' shadow
-    if (travel <= foot_m / 3) return std::vector<double>{0.0};
+    if (travel <= (outline ? 0.0 : foot_m / 3)) return std::vector<double>{0.0};
     const int n = static_cast<int>(std::ceil(travel / foot_m - 1e-9)) + 1;
     for (int i = 0; i < n; ++i) c.push_back(-0.5 * travel + travel * i / (n - 1));
     return c;
@@ -223,8 +224,9 @@ ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const Ap
   const Eigen::Vector2d corner = LowestPassEnds(world);
   // The turn's band starts at the bin floor (frame 1 over the bin's middle sees no table): a
   // one-layer pile as high as the band is wide is in range there. The corner filter lifts the
-  // frame on the turn by an eighth of a period's travel (the mean over the filter's window).
-  const double turn_m = first.camera_height_m - std::min(first.low_m, 0.0) - (T > 0 ? v * T / 8 : 0.0);
+  // frame on the turn by an eighth of its window's travel (the mean over the window).
+  const double lift_m = v * o.coverage_corner_smoothing_s / 8;
+  const double turn_m = first.camera_height_m - std::min(first.low_m, 0.0) - lift_m;
   double start = std::max(o.start_distance_m, turn_m + kDescentRoomM);
   const bool timed = T > 0 && start - turn_m > brake_m;
   if (timed) {
@@ -235,7 +237,7 @@ ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const Ap
   const double first_far_m = first.camera_height_m - first.low_m;
   const double foot_near_m = (first.camera_height_m - first.high_m) * camera.width / camera.fx;
   const std::vector<Eigen::Vector2d> pass =
-      FirstPass(PassRows(camera, o.region_size_m, first_far_m, corner), foot_near_m, T > 0 ? v * T / 8 : 0.0);
+      FirstPass(PassRows(camera, o.region_size_m, first_far_m, corner), foot_near_m, lift_m);
   std::vector<PathPoint> polyline = {PathPoint(pass[0].x(), pass[0].y(), start, 0)};
   polyline.emplace_back(pass[0].x(), pass[0].y(), turn_m, 0);
   for (size_t i = 1; i < pass.size(); ++i) polyline.emplace_back(pass[i].x(), pass[i].y(), first.camera_height_m, 0);
@@ -247,7 +249,7 @@ ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const Ap
     const CoverageLevel& rim = levels.back();
     const double rim_m = world.bin_inner_size_m().z();
     const Eigen::Vector2d past_ends(T > 0 ? v * T : 0.0, 0.0);
-    const Rows rows = PassRows(camera, Outline(world) + past_ends, rim.camera_height_m - rim_m);
+    const Rows rows = PassRows(camera, Outline(world) + past_ends, rim.camera_height_m - rim_m, {0, 0}, true);
     for (const Eigen::Vector2d& p : Serpentine(rows, polyline.back().head<2>())) {
       polyline.emplace_back(p.x(), p.y(), rim.camera_height_m, 0);
     }
@@ -272,9 +274,9 @@ ApproachPlan PlanCoverageTurning(const World& world, const CameraModel& camera, 
   // the bin's inside, the rim's the bin's outline.
   const Eigen::Vector2d inside = world.bin_inner_size_m().head<2>();
   const Eigen::Vector2d outline = Outline(world);
-  // the rim's own band, when the descent swept it, is passed on the way up (the hand turns on the
-  // way instead) and swept again only on the way back
-  const bool rim_swept = DescentLevels(o, rim).back().rim_only;
+  // the rim's own band, when the descent swept it (it then visited two levels), is passed on the
+  // way up (the hand turns on the way instead) and swept again on the way back, with the turned passes
+  const bool rim_swept = descent.levels_m.size() > 1;
   // a serpentine at level i with the hand's turn going from turn0 to turn1 along it
   auto sweep = [&](size_t i, double turn0_rad, double turn1_rad) {
     const CoverageLevel& level = levels[i];
@@ -283,7 +285,7 @@ ApproachPlan PlanCoverageTurning(const World& world, const CameraModel& camera, 
     const double distance = level.camera_height_m - level.low_m;  // the footprint at the band's far end
     const Eigen::Vector2d ends = i == 0 ? LowestPassEnds(world) : Eigen::Vector2d::Zero();
     const std::vector<Eigen::Vector2d> points =
-        Serpentine(PassRows(camera, region, distance, ends), polyline.back().head<2>());
+        Serpentine(PassRows(camera, region, distance, ends, rim_band), polyline.back().head<2>());
     for (size_t k = 0; k < points.size(); ++k) {
       const double a = points.size() > 1 ? static_cast<double>(k) / (points.size() - 1) : 1.0;
       polyline.emplace_back(points[k].x(), points[k].y(), level.camera_height_m,

@@ -356,7 +356,7 @@ TEST_F(BadFrameDirectory, EachNonFiniteOrNegativeDepth) {
     cv::Mat depth(60, 80, CV_32F, cv::Scalar(0.2));
     depth.at<float>(7, 5) = bad;
     WriteDepthExr(dir_ / "depth/000000.exr", depth);
-    ExpectFrameError(0, {"depth/000000.exr", "channel Z", "u=5, v=7"});
+    ExpectFrameError(0, {"depth/000000.exr", "depth", "u=5, v=7"});
     // The skipping policy turns the pixel into "no measurement" and counts it.
     const FrameDirectoryManifest manifest = ReadFrameDirectoryManifest(dir_.path());
     size_t skipped = 0;
@@ -384,10 +384,10 @@ TEST(ImageIo, ExrFromOpenCvWithItsOneYChannelIsReadAndOthersWithoutZAreRejected)
   m.at<float>(3, 4) = 0.5f;
   ASSERT_TRUE(cv::imwrite((dir / "y.exr").string(), m));  // OpenCV names its channel Y
   EXPECT_TRUE(testing::ImagesBitEqual(ReadDepthExr(dir / "y.exr", cv::Size(5, 4)), m));
-  // Several channels and none of them Z: which one is depth is unknown.
+  // Several channels and none of them Y or Z: which one is depth is unknown.
   cv::Mat colour(4, 4, CV_32FC3, cv::Scalar(1.0, 2.0, 3.0));
   ASSERT_TRUE(cv::imwrite((dir / "bgr.exr").string(), colour));
-  ExpectInputError([&] { ReadDepthExr(dir / "bgr.exr"); }, {"bgr.exr", "channel Z", "missing", "single channel Y"});
+  ExpectInputError([&] { ReadDepthExr(dir / "bgr.exr"); }, {"bgr.exr", "channel Y", "missing", "channel Z"});
   // Half floats lose depth resolution (11 bits of mantissa): refused, naming the channel.
   ASSERT_TRUE(cv::imwrite((dir / "half.exr").string(), m, {cv::IMWRITE_EXR_TYPE, cv::IMWRITE_EXR_TYPE_HALF}));
   ExpectInputError([&] { ReadDepthExr(dir / "half.exr"); }, {"half.exr", "channel Y", "float32"});

@@ -217,7 +217,7 @@ TEST(CoverageTest, DescentSeesTheWholeRim) {
   EXPECT_GT(seen, 0.97 * points) << seen << " of " << points;
 }
 
-// The coverage path runs at 0.9 m/s with corners a frame period wide; the arm's controller feeds
+// The descent runs at 0.9 m/s with corners a frame period wide; the arm's controller feeds
 // forward the inertia its accelerations need, so the executed camera stays within 2.5 mm of the
 // plan (position servos with gravity and damping feed-forward alone lag by about 10 mm there).
 TEST(CoverageTest, DescentIsTrackedThroughItsCorners) {
@@ -231,6 +231,53 @@ TEST(CoverageTest, DescentIsTrackedThroughItsCorners) {
   executor.AdvanceTo(descent.duration_s());
   EXPECT_LT(executor.tracking().max_position_error_m, 0.0025);
   EXPECT_LT(executor.tracking().rms_position_error_m, 0.0015);
+}
+
+// The rim is swept where a pass of its own is needed, and once: the stock Kinect's wide range
+// holds the table and the rim from one level, so its descent has no rim pass; the focused rig's
+// descent has one, so a one-layer pile's coverage leg only passes the rim's band on the way up,
+// and without turned passes nothing is left to visit.
+TEST(CoverageTest, TheRimIsSweptOnceForAOneLayerPile) {
+  World world(WorldOptions{});
+  EXPECT_EQ(PlanDescent(world, RigPreset("kinect-v1").camera, RangeOptions("kinect-v1")).levels_m.size(), 1u);
+  const Rig rig = RigPreset("romunect");
+  ApproachOptions o = RangeOptions("romunect");
+  o.turned_passes = false;
+  const ApproachPlan descent = PlanDescent(world, rig.camera, o);
+  ASSERT_EQ(descent.levels_m.size(), 2u);
+  const ApproachPlan leg = PlanCoverage(world, rig.camera, o, 0.012, descent);
+  ASSERT_EQ(leg.T_W_C.size(), 1u);  // the descent's last sample
+  EXPECT_LT(ComparePoses(leg.T_W_C.front(), descent.T_W_C.back()).translation_m, kPlanToleranceM);
+}
+
+// A pile above the rim: one of its bands holds the rim, and the coverage leg sweeps that band
+// over the bin's outline, out to the walls on both sides, although the descent saw the rim.
+TEST(CoverageTest, ATallPilesBandHoldingTheRimSweepsTheOutline) {
+  World world(WorldOptions{});
+  const Rig rig = RigPreset("romunect");
+  const ApproachOptions o = RangeOptions("romunect");
+  const double top_m = 0.06, rim_m = world.bin_inner_size_m().z();
+  const std::vector<CoverageLevel> levels = CoverageLevels(o, top_m, rim_m);
+  const CoverageLevel* rim_band = nullptr;
+  for (const CoverageLevel& l : levels) {
+    EXPECT_FALSE(l.rim_only);
+    if (l.low_m <= rim_m && rim_m <= l.high_m) rim_band = &l;
+  }
+  ASSERT_NE(rim_band, nullptr);
+  const ApproachPlan leg = PlanCoverage(world, rig.camera, o, top_m, PlanDescent(world, rig.camera, o));
+  const Pose T_Bin_W = world.T_W_Bin().inverse();
+  double y_low = 0.0, y_high = 0.0;
+  for (const Pose& T_W_C : leg.T_W_C) {
+    const Eigen::Vector3d p = (T_Bin_W * T_W_C).translation();
+    if (std::abs(p.z() - rim_band->camera_height_m) > kLevelToleranceM) continue;
+    y_low = std::min(y_low, p.y());
+    y_high = std::max(y_high, p.y());
+  }
+  // the footprint (about 45 mm across) reaches the side walls' outer faces from its rows
+  const double half_foot_m = 0.5 * (rim_band->camera_height_m - rim_m) * rig.camera.height / rig.camera.fy;
+  const double walls_m = 0.5 * world.bin_inner_size_m().y() + 0.005;
+  EXPECT_GE(y_high + half_foot_m, walls_m - 0.002) << y_high;  // the corner filter pulls rows in a little
+  EXPECT_LE(y_low - half_foot_m, -walls_m + 0.002) << y_low;
 }
 
 }  // namespace

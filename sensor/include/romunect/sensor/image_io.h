@@ -1,6 +1,7 @@
 // Image files of romunect: metric depth as single-channel float32 OpenEXR (channel "Y", the
-// name OpenCV gives a single-channel image, so cv2.imread reads it; metres), IR and device raw depth as 16-bit PNG. Every writer writes a temporary file in the
-// same folder and renames it, so no half-written file is ever left under the final name.
+// name OpenCV gives a single-channel image, so cv2.imread reads it; metres), IR and device raw
+// depth as 16-bit PNG. Every writer writes a temporary file in the same folder and renames it,
+// so no half-written file is ever left under the final name.
 // Readers throw InputError naming the file and what was expected.
 //
 // Writers compress (kCompact: PNG through OpenCV at zlib level 1, EXR ZIP at level 1) or not

@@ -4,19 +4,20 @@
 // in range tell how high the pile stands), never from the simulator's ground truth.
 //
 // The approach has two legs. The descent (PlanDescent) comes straight down over the bin's
-// centre to the lowest stand-off level, the one whose measurable band holds the table, the bin
-// floor and a one-layer pile, and runs on at it through that band's first pass: a serpentine
-// over the whole region, its outer rows and row ends over the walls; then, when the rim lies
-// above that band, a pass over the bin's outline at the rim's level (none of this depends on
-// the pile). On the way, a PileHeightMeter collects the heights of the measured points over the
-// bin's inner floor. The coverage leg (PlanCoverage) then starts where the descent stopped:
+// middle to the lowest stand-off level, the one whose measurable band holds the table, the bin
+// floor and a one-layer pile, and runs on at it through that band's first pass over the whole
+// region, its outer rows over the side walls and its row ends at the end walls; then, when the
+// rim lies above that band, a pass over the bin's outline at the rim's level (none of this
+// depends on the pile). On the way, a PileHeightMeter collects the heights of the measured
+// points over the bin's inner floor. The coverage leg (PlanCoverage) then starts where the descent stopped:
 // measurable bands stacked from the table up to the measured top, one more for the bin's rim
 // when it lies above them (the descent has seen it), a serpentine per band whose rows tile the
 // band's area with the footprint at the band's far end (every frame adds new area): the bands
 // above the lowest over the bin's inside, the rim's over its outline, the hand turning 170 deg
 // on the way; the lowest band again, turned, over the whole region, so the strips the
-// projector's baseline shadows on one side of every edge are seen from the other. Frames: W world, C camera,
-// Bin (the bin's inner floor centre, z up); SI units; heights are above the bin floor.
+// projector's baseline shadows on one side of every edge are seen from the other. Frames: W
+// world, C camera, Bin (the bin's inner floor centre, z up); SI units; heights are above the bin
+// floor.
 #pragma once
 
 #include <optional>
@@ -70,8 +71,8 @@ class PileHeightMeter {
 };
 
 // The descent: from options.start_distance_m (raised to the first level plus 5 cm when lower)
-// straight down over the bin's centre to the lowest coverage level at coverage_speed_m_s, then
-// the lowest band's first pass at that level, then, when the rim lies above that band, up to the
+// straight down, just off the bin's middle, to the lowest coverage level at coverage_speed_m_s,
+// then the lowest band's first pass at that level, then, when the rim lies above that band, up to the
 // rim's band and a pass over the bin's outline (the rim's height is the bin's: no pile needed),
 // stopping at its end. With options.frame_period_s
 // the start is raised so that a frame falls on the turn into the pass, where its band starts at
