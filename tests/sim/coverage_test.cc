@@ -1,6 +1,7 @@
 #include "romunect/sim/coverage.h"
 
 #include <cmath>
+#include <vector>
 
 #include <gtest/gtest.h>
 #include <Eigen/Geometry>
@@ -22,6 +23,24 @@ ApproachOptions RangeOptions(const std::string& rig_name) {
   options.focused_near_m = range.near_m;
   options.focused_far_m = range.far_m;
   return options;
+}
+
+// The romunect rig's options with its frame period, on which the descent is timed.
+ApproachOptions TimedOptions() {
+  ApproachOptions options = RangeOptions("romunect");
+  options.frame_period_s = 1.0 / RigPreset("romunect").frame_rate_hz;
+  return options;
+}
+
+// The camera's position in the bin frame at each frame of a plan (frame k at k frame periods).
+std::vector<Eigen::Vector3d> FramePositions(const World& world, const ApproachPlan& plan, double period_s) {
+  const Pose T_Bin_W = world.T_W_Bin().inverse();
+  std::vector<Eigen::Vector3d> positions;
+  for (int k = 0; k <= static_cast<int>(plan.duration_s() / period_s); ++k) {
+    const size_t i = static_cast<size_t>(std::lround(k * period_s / plan.timestep_s));
+    positions.push_back((T_Bin_W * plan.T_W_C[std::min(i, plan.T_W_C.size() - 1)]).translation());
+  }
+  return positions;
 }
 
 // Every band is measurable from its level, the bands stack without gaps (the last may overlap)
@@ -131,16 +150,11 @@ TEST(CoverageTest, PileHeightMeterMeasuresThePlanesHeight) {
 // the descent stops.
 TEST(CoverageTest, DescentPutsAFrameOnItsTurnAtTheFirstLevel) {
   World world(WorldOptions{});
-  const Rig rig = RigPreset("romunect");
-  ApproachOptions o = RangeOptions("romunect");
-  o.frame_period_s = 1.0 / rig.frame_rate_hz;
-  const ApproachPlan descent = PlanDescent(world, rig.camera, o);
-  const Pose T_Bin_W = world.T_W_Bin().inverse();
-  auto at = [&](int frame) -> Eigen::Vector3d {
-    const size_t i = static_cast<size_t>(std::lround(frame * o.frame_period_s / descent.timestep_s));
-    return (T_Bin_W * descent.T_W_C.at(std::min(i, descent.T_W_C.size() - 1))).translation();
-  };
-  const int frames = static_cast<int>(descent.duration_s() / o.frame_period_s);
+  const ApproachOptions o = TimedOptions();
+  const ApproachPlan descent = PlanDescent(world, RigPreset("romunect").camera, o);
+  const std::vector<Eigen::Vector3d> frame = FramePositions(world, descent, o.frame_period_s);
+  auto at = [&](int k) { return frame.at(k); };
+  const int frames = static_cast<int>(frame.size()) - 1;
   ASSERT_EQ(descent.levels_m.size(), 2u);  // the rim (35 mm) lies above the lowest band (19 mm wide)
   const double level_m = descent.levels_m.back(), rim_level_m = descent.levels_m.front();
   int turn = -1;
@@ -185,15 +199,11 @@ TEST(CoverageTest, DescentPutsAFrameOnItsTurnAtTheFirstLevel) {
 TEST(CoverageTest, DescentSeesTheWholeRim) {
   World world(WorldOptions{});
   const Rig rig = RigPreset("romunect");
-  ApproachOptions o = RangeOptions("romunect");
-  o.frame_period_s = 1.0 / rig.frame_rate_hz;
+  const ApproachOptions o = TimedOptions();
   const ApproachPlan descent = PlanDescent(world, rig.camera, o);
-  const Pose T_Bin_W = world.T_W_Bin().inverse();
   const double rim_m = world.bin_inner_size_m().z();
   std::vector<Eigen::Vector3d> in_range;  // the frames' camera positions with the rim in range
-  for (double t = 0; t <= descent.duration_s(); t += o.frame_period_s) {
-    const size_t i = std::min(static_cast<size_t>(std::lround(t / descent.timestep_s)), descent.T_W_C.size() - 1);
-    const Eigen::Vector3d p = (T_Bin_W * descent.T_W_C[i]).translation();
+  for (const Eigen::Vector3d& p : FramePositions(world, descent, o.frame_period_s)) {
     if (p.z() - rim_m >= o.focused_near_m && p.z() - rim_m <= o.focused_far_m) in_range.push_back(p);
   }
   const Eigen::Vector2d inner = 0.5 * world.bin_inner_size_m().head<2>();
@@ -222,10 +232,8 @@ TEST(CoverageTest, DescentSeesTheWholeRim) {
 // plan (position servos with gravity and damping feed-forward alone lag by about 10 mm there).
 TEST(CoverageTest, DescentIsTrackedThroughItsCorners) {
   World world(WorldOptions{});
-  const Rig rig = RigPreset("romunect");
-  ApproachOptions o = RangeOptions("romunect");
-  o.frame_period_s = 1.0 / rig.frame_rate_hz;
-  const ApproachPlan descent = PlanDescent(world, rig.camera, o);
+  const ApproachOptions o = TimedOptions();
+  const ApproachPlan descent = PlanDescent(world, RigPreset("romunect").camera, o);
   ApproachExecutor executor(&world, descent, o);
   executor.MoveToStart();
   executor.AdvanceTo(descent.duration_s());
