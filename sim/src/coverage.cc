@@ -208,7 +208,8 @@ ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const Ap
   ApproachPlan plan;
   plan.timestep_s = world.timestep_s();
   // the lowest level does not depend on the pile: its band starts at the table
-  const std::vector<CoverageLevel> levels = DescentLevels(o, world.bin_inner_size_m().z());
+  const double rim_m = world.bin_inner_size_m().z();
+  const std::vector<CoverageLevel> levels = DescentLevels(o, rim_m);
   const CoverageLevel& first = levels.front();
   plan.levels_m = {first.camera_height_m};
   const double v = o.coverage_speed_m_s, a = o.coverage_acceleration_m_s2;
@@ -247,7 +248,6 @@ ApproachPlan PlanDescent(const World& world, const CameraModel& camera, const Ap
   // ends, so that a frame falls over each end wherever the frames fall along a row.
   if (levels.back().rim_only) {
     const CoverageLevel& rim = levels.back();
-    const double rim_m = world.bin_inner_size_m().z();
     const Eigen::Vector2d past_ends(T > 0 ? v * T : 0.0, 0.0);
     const Rows rows = PassRows(camera, Outline(world) + past_ends, rim.camera_height_m - rim_m, {0, 0}, true);
     for (const Eigen::Vector2d& p : Serpentine(rows, polyline.back().head<2>())) {
